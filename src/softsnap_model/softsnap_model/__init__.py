@@ -1,0 +1,1 @@
+"""softsnap_model."""
