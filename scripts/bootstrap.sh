@@ -19,6 +19,11 @@ python="${PYTHON:-python3}"
 stamp_dir="$venv/.softsnap"
 log() { printf '[bootstrap] %s\n' "$*" >&2; }
 
+# One bootstrap at a time per checkout (parallel `make test` runs would race colcon).
+mkdir -p "$root/build"
+exec 9>"$root/build/.bootstrap.lock"
+flock 9
+
 case "$distro" in
   jazzy|kilted) ;;
   *) log "SOFTSNAP_ROS_DISTRO must be jazzy or kilted, got '$distro'"; exit 2 ;;
