@@ -45,7 +45,9 @@ mkdir -p "$stamp_dir"
 req_hash="$(sha256sum "$lock" | cut -d' ' -f1)"
 if [ "$(cat "$stamp_dir/requirements" 2>/dev/null)" != "$req_hash" ]; then
   log "installing ROS 2 $distro wheels and Python packages from $lock"
-  "$venv/bin/python" -m pip install --quiet --disable-pip-version-check -r "$lock"
+  # (this machine's pip configuration names local mirrors that may be absent: drop that noise)
+  "$venv/bin/python" -m pip install --quiet --disable-pip-version-check -r "$lock" \
+    2> >(grep -v 'is ignored: it is neither a file nor a directory' >&2)
   echo "$distro" > "$stamp_dir/distro"
   echo "$req_hash" > "$stamp_dir/requirements"
   rm -f "$stamp_dir/workspace"
