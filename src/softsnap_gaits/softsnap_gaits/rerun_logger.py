@@ -1,0 +1,251 @@
+"""ROS node recording a SoftSnap robot to rerun: commanded and predicted shapes over time.
+
+Subscribes (relative names, so they live in the robot's namespace, e.g. /brittle_star):
+  model/shape/commanded, model/shape/predicted   softsnap_interfaces/RobotShape
+  <module>/cable_length/command                  softsnap_interfaces/CableLength
+  <module>/cable_length/measured                 softsnap_interfaces/CableLength
+  <module>/state                                 softsnap_interfaces/ModuleState
+
+and writes a .rrd file and/or streams to a viewer. Everything about rerun (entity paths,
+colours, blueprint, units) lives in softsnap_model.recording; this node only adapts
+messages and parameters. See docs/rerun.md.
+
+Parameters (read-only except ``rate``):
+  output      .rrd path; '' = runs/<robot>-<UTC time>.rrd under the current directory;
+              'none' = no file (stream only)
+  viewer_url  rerun gRPC url of a running viewer to stream to, '' = none
+  rate        largest logging rate per module and data source, Hz (0 = everything)
+  scene       scene name or YAML path: restricts logging to its modules and gives the
+              threadings for drawing the cable; '' = log every module RobotShape names
+  modules     module names to log when no scene is given ([] = all seen)
+  robot       robot name for the default file name ('' = the node's namespace)
+  rib_spacing spine arc length between ribs, m, used when a shape has no rib centres
+"""
+from __future__ import annotations
+
+import datetime as dt
+from pathlib import Path
+
+import rclpy
+from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParametersResult
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+from softsnap_interfaces.msg import CableLength, ModuleState, RobotShape
+from softsnap_model import recording
+
+# Best effort matches both reliable and best-effort publishers; the depth absorbs bursts
+# (one RobotShape per model tick, one state per driver poll).
+SUBSCRIPTION_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=50,
+                              reliability=ReliabilityPolicy.BEST_EFFORT)
+MAX_RATE_HZ = 1000.0
+
+
+def stamp_ns(stamp) -> int:
+    """Nanoseconds since the epoch of a builtin_interfaces/Time."""
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def default_output(robot: str, now: dt.datetime | None = None) -> Path:
+    """runs/<robot>-<UTC timestamp>.rrd relative to the current directory."""
+    now = now or dt.datetime.now(dt.timezone.utc)
+    return Path('runs') / f'{robot}-{now.strftime("%Y%m%dT%H%M%SZ")}.rrd'
+
+
+class RerunLoggerNode(Node):
+    """Adapts shape, cable length and state messages to a recording.RobotRecorder."""
+
+    def __init__(self):
+        super().__init__('rerun_logger')
+        self.declare_parameter('output', '', ParameterDescriptor(
+            description="Path of the .rrd recording; '' = runs/<robot>-<UTC time>.rrd, "
+                        "'none' = write no file", read_only=True))
+        self.declare_parameter('viewer_url', '', ParameterDescriptor(
+            description='rerun gRPC url of a viewer to stream to, e.g. '
+                        "rerun+http://127.0.0.1:9876/proxy; '' = none", read_only=True))
+        self.declare_parameter('rate', 30.0, ParameterDescriptor(
+            description='Largest logging rate per module and data source, in Hz '
+                        '(0 = log every message)',
+            floating_point_range=[FloatingPointRange(from_value=0.0, to_value=MAX_RATE_HZ)]))
+        self.declare_parameter('scene', '', ParameterDescriptor(
+            description="Scene name or YAML path; only its modules are logged and their "
+                        "threadings draw the cable; '' = every module seen", read_only=True))
+        self.declare_parameter('modules', Parameter.Type.STRING_ARRAY, ParameterDescriptor(
+            description='Module names to log when no scene is given (empty = all seen)',
+            read_only=True))
+        self.declare_parameter('robot', '', ParameterDescriptor(
+            description="Robot name for the default file name; '' = the node namespace",
+            read_only=True))
+        self.declare_parameter('rib_spacing', recording.RIB_SPACING_MM * recording.MM,
+                               ParameterDescriptor(
+            description='Spine arc length between adjacent ribs, in metres (m), for shapes '
+                        'that carry no rib centres',
+            floating_point_range=[FloatingPointRange(from_value=0.001, to_value=0.1)],
+            read_only=True))
+        self.add_on_set_parameters_callback(self.parameters_callback)
+
+        scene = self._load_scene(self.get_parameter('scene').value)
+        modules = self._module_names(scene)
+        robot = (self.get_parameter('robot').value or getattr(scene, 'name', '')
+                 or self.get_namespace().strip('/').replace('/', '_') or 'robot')
+        output = self.get_parameter('output').value
+        self.output = None if output.lower() == 'none' else Path(output or default_output(robot))
+        viewer_url = self.get_parameter('viewer_url').value or None
+        if self.output is None and viewer_url is None:
+            raise ValueError("output is 'none' and viewer_url is empty: nothing to record to")
+
+        self.rec = recording.open_recording(self.output, viewer_url,
+                                            blueprint=recording.build_blueprint(),
+                                            application_id=f'softsnap_{robot}')
+        self.recorder = recording.RobotRecorder(
+            self.rec, modules=modules,
+            threadings_mm={m.name: m.threading_mm for m in getattr(scene, 'modules', [])},
+            rate_hz=self.get_parameter('rate').value,
+            spacing_mm=self.get_parameter('rib_spacing').value / recording.MM)
+        if scene is not None:
+            self.recorder.base_poses({m.name: (m.base_position_m, m.base_orientation_xyzw)
+                                      for m in scene.modules})
+        self._closed = False
+
+        self.create_subscription(RobotShape, 'model/shape/commanded',
+                                 self.commanded_shape_callback, SUBSCRIPTION_QOS)
+        self.create_subscription(RobotShape, 'model/shape/predicted',
+                                 self.predicted_shape_callback, SUBSCRIPTION_QOS)
+        self._module_subscriptions: dict[str, list] = {}
+        for module in sorted(modules or ()):
+            self._subscribe_module(module)
+        rate = self.get_parameter('rate').value
+        self.get_logger().info(
+            f'recording {robot} to {self.output or "(no file)"}'
+            + (f' and {viewer_url}' if viewer_url else '')
+            + (f', at most {rate:g} Hz per stream' if rate else ', every message')
+            + '; modules: ' + (', '.join(sorted(modules)) if modules else 'all seen'))
+
+    # --- parameters ---------------------------------------------------------------------
+
+    def parameters_callback(self, params: list[Parameter]) -> SetParametersResult:
+        """Accept a new ``rate`` in [0, MAX_RATE_HZ]; everything else is read-only."""
+        for param in params:
+            if param.name == 'rate':
+                value = param.value
+                if not isinstance(value, (int, float)) or not 0.0 <= value <= MAX_RATE_HZ:
+                    return SetParametersResult(
+                        successful=False,
+                        reason=f'rate must be between 0 and {MAX_RATE_HZ} Hz, got {value!r}')
+        for param in params:
+            if param.name == 'rate' and hasattr(self, 'recorder'):
+                self.recorder.limiter = recording.RateLimiter(float(param.value))
+        return SetParametersResult(successful=True)
+
+    def _load_scene(self, name: str):
+        if not name:
+            return None
+        from softsnap_model.scene import load_scene  # optional: only with a scene
+        return load_scene(name)
+
+    def _module_names(self, scene) -> frozenset[str] | None:
+        if scene is not None:
+            return frozenset(m.name for m in scene.modules)
+        names = [n for n in (self.get_parameter('modules').value or []) if n]
+        return frozenset(names) or None
+
+    def _subscribe_module(self, module: str) -> None:
+        if module in self._module_subscriptions:
+            return
+        self._module_subscriptions[module] = [
+            self.create_subscription(
+                CableLength, f'{module}/cable_length/command',
+                lambda msg, m=module: self.cable_length_callback(msg, m, 'commanded'),
+                SUBSCRIPTION_QOS),
+            self.create_subscription(
+                CableLength, f'{module}/cable_length/measured',
+                lambda msg, m=module: self.cable_length_callback(msg, m, 'measured'),
+                SUBSCRIPTION_QOS),
+            self.create_subscription(
+                ModuleState, f'{module}/state', lambda msg, m=module: self.state_callback(msg, m),
+                SUBSCRIPTION_QOS),
+        ]
+
+    # --- callbacks ----------------------------------------------------------------------
+
+    def _stamp(self, header) -> int:
+        """Message stamp in ns, or now if the publisher left it zero."""
+        ns = stamp_ns(header.stamp)
+        return ns if ns else self.get_clock().now().nanoseconds
+
+    def commanded_shape_callback(self, msg: RobotShape) -> None:
+        self._robot_shape(msg, 'commanded')
+
+    def predicted_shape_callback(self, msg: RobotShape) -> None:
+        self._robot_shape(msg, 'predicted')
+
+    def _robot_shape(self, msg: RobotShape, source: str) -> None:
+        if self._closed:
+            return
+        stamp = self._stamp(msg.header)
+        if len(msg.base_poses) == len(msg.modules):
+            self.recorder.base_poses({
+                shape.module: ((p.position.x, p.position.y, p.position.z),
+                               (p.orientation.x, p.orientation.y, p.orientation.z,
+                                p.orientation.w))
+                for shape, p in zip(msg.modules, msg.base_poses)})
+        for shape in msg.modules:
+            if not self.recorder.wants(shape.module):
+                continue
+            self._subscribe_module(shape.module)
+            centres = [(p.x, p.y, p.z) for p in shape.rib_centers] or None
+            shape_stamp = stamp_ns(shape.header.stamp) or stamp
+            try:
+                self.recorder.shape(shape_stamp, shape.module,
+                                    shape.source if shape.source in recording.SOURCES else source,
+                                    shape.angles, centres, shape.solve_time)
+            except ValueError as exc:
+                self.get_logger().warning(f'{shape.module} {source} shape not logged: {exc}',
+                                          throttle_duration_sec=5.0)
+
+    def cable_length_callback(self, msg: CableLength, module: str, kind: str) -> None:
+        if not self._closed:
+            self.recorder.cable_length(self._stamp(msg.header), module, kind, msg.cable_length)
+
+    def state_callback(self, msg: ModuleState, module: str) -> None:
+        if not self._closed:
+            self.recorder.module_state(self._stamp(msg.header), msg.module or module,
+                                       msg.battery_voltage)
+
+    # --- shutdown -----------------------------------------------------------------------
+
+    def close(self) -> None:
+        """Flush and close the recording so the file is complete (idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
+        recording.close_recording(self.rec)
+        size = self.output.stat().st_size if self.output and self.output.exists() else 0
+        self.get_logger().info(
+            f'recording closed: {self.output or "(no file)"} ({size} bytes), '
+            f'{self.recorder.logged} messages logged, {self.recorder.dropped} dropped by rate')
+
+
+def main(args=None):
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = RerunLoggerNode()
+        # One thread: rerun's current time is per thread and the recorder keeps per-module
+        # state, so callbacks must not run concurrently.
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.close()
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == '__main__':
+    main()

@@ -1,0 +1,585 @@
+"""Rerun recordings of SoftSnap shapes: entity paths, blueprint, logging functions, writers.
+
+This module has no ROS dependency. The ROS node ``softsnap_gaits.rerun_logger`` adapts
+messages to :class:`RobotRecorder` calls; the command line (``python -m
+softsnap_model.recording``) writes recordings of one module's workspace sweep or of a
+comparison of threadings without ROS.
+
+Frames and units (REP 103)
+--------------------------
+* The 3D scene is in metres. ``robot`` is the robot (connector) frame, x forward, y left,
+  z up. ``robot/<module>`` carries the module base pose (a static ``Transform3D`` from
+  ``RobotShape.base_poses``); below it everything is in the module base frame: rib 0 at
+  the origin, spine along +x, bending in the x-y plane (positive angles counter-clockwise
+  about +z).
+* Plots carry their unit in the entity name (``tip_error_mm``, ``solve_time_ms``, ...).
+* One timeline, ``ros_time``, a timestamp taken from the message header stamps. The
+  no-ROS writers use a sequence timeline ``step`` instead.
+
+Entity tree (``<source>`` is ``commanded`` or ``predicted``)::
+
+    robot                                   view coordinates (static)
+    robot/connector                         module base positions, labelled (static)
+    robot/<module>                          base pose, Transform3D (static)
+    robot/<module>/<source>/spine           spine through the rib centres, LineStrips3D
+    robot/<module>/<source>/ribs            one 25 mm strip per rib, LineStrips3D
+    robot/<module>/<source>/cable           cable through its holes (needs a threading)
+    plots/<module>/cable_length_mm/commanded|measured
+    plots/<module>/tip_error_mm             commanded versus predicted tip distance
+    plots/<module>/solve_time_ms/<source>
+    plots/<module>/battery_v
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Iterable, Mapping, Sequence
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+APPLICATION_ID = 'softsnap'
+TIMELINE = 'ros_time'
+STEP_TIMELINE = 'step'
+ROBOT_ROOT = 'robot'
+PLOTS_ROOT = 'plots'
+SOURCES = ('commanded', 'predicted')
+
+# Skeleton constants (authors' CAD, see FACTS.md), in millimetres.
+RIB_SPACING_MM = 18.0
+RIB_HALF_LENGTH_MM = 12.5
+
+# Colours (RGB): commanded blue, predicted orange; ribs are lighter and the cable darker
+# shades of the same hue so the two shapes stay apart when they overlap.
+SPINE_COLORS = {'commanded': (40, 110, 240), 'predicted': (245, 130, 20)}
+RIB_COLORS = {'commanded': (150, 185, 250), 'predicted': (250, 195, 140)}
+CABLE_COLORS = {'commanded': (20, 50, 140), 'predicted': (170, 60, 0)}
+CONNECTOR_COLOR = (110, 110, 110)
+# Line radii in metres.
+SPINE_RADIUS_M = 0.0012
+RIB_RADIUS_M = 0.0006
+CABLE_RADIUS_M = 0.0003
+
+MM = 1e-3  # metres per millimetre
+
+
+# --- entity paths -----------------------------------------------------------------------
+
+def module_path(module: str) -> str:
+    """Entity carrying the base pose of ``module``: ``robot/<module>``."""
+    _check_name(module)
+    return f'{ROBOT_ROOT}/{module}'
+
+
+def shape_path(module: str, source: str, part: str) -> str:
+    """Entity of one drawn part (spine, ribs, cable) of a module's shape."""
+    if source not in SOURCES:
+        raise ValueError(f'source must be one of {SOURCES}, got {source!r}')
+    return f'{module_path(module)}/{source}/{part}'
+
+
+def plot_path(module: str, *series: str) -> str:
+    """Entity of a time series of ``module``, e.g. ``plot_path('red', 'battery_v')``."""
+    _check_name(module)
+    return '/'.join((PLOTS_ROOT, module, *series))
+
+
+def _check_name(module: str) -> None:
+    if not module or '/' in module or module.strip() != module:
+        raise ValueError(f'module name must be a non-empty word without "/", got {module!r}')
+
+
+# --- blueprint --------------------------------------------------------------------------
+
+def build_blueprint() -> rrb.Blueprint:
+    """The layout: the assembled robot in 3D on the left, the time series on the right.
+
+    Built from wildcard paths, so one blueprint fits every robot and module count.
+    """
+    plots = rrb.Vertical(
+        rrb.TimeSeriesView(name='Cable length (mm)', origin=PLOTS_ROOT,
+                           contents='$origin/*/cable_length_mm/**'),
+        rrb.TimeSeriesView(name='Tip error, commanded vs predicted (mm)', origin=PLOTS_ROOT,
+                           contents='$origin/*/tip_error_mm'),
+        rrb.TimeSeriesView(name='Solver time (ms)', origin=PLOTS_ROOT,
+                           contents='$origin/*/solve_time_ms/**'),
+        rrb.TimeSeriesView(name='Battery (V)', origin=PLOTS_ROOT,
+                           contents='$origin/*/battery_v'),
+    )
+    scene = rrb.Spatial3DView(name='Robot: commanded (blue) vs predicted (orange)',
+                              origin=ROBOT_ROOT)
+    return rrb.Blueprint(rrb.Horizontal(scene, plots, column_shares=[3, 2]),
+                         collapse_panels=True)
+
+
+def build_sweep_blueprint() -> rrb.Blueprint:
+    """Layout of the no-ROS recordings: shapes in 3D, the swept quantities below."""
+    return rrb.Blueprint(
+        rrb.Vertical(
+            rrb.Spatial3DView(name='Shapes', origin=ROBOT_ROOT),
+            rrb.TimeSeriesView(name='Sweep', origin=PLOTS_ROOT),
+            row_shares=[3, 1],
+        ),
+        collapse_panels=True,
+    )
+
+
+# --- recording streams ------------------------------------------------------------------
+
+def open_recording(output: str | Path | None = None, viewer_url: str | None = None, *,
+                   blueprint: rrb.Blueprint | None = None,
+                   application_id: str = APPLICATION_ID,
+                   recording_id: str | None = None) -> rr.RecordingStream:
+    """A recording stream writing to the file ``output`` and/or a viewer at ``viewer_url``.
+
+    The parent directories of ``output`` are created. ``viewer_url`` is a rerun gRPC
+    address such as ``rerun+http://127.0.0.1:9876/proxy``. At least one of the two must be
+    given. Close it with :func:`close_recording` so the file gets its footer.
+    """
+    if output is None and not viewer_url:
+        raise ValueError('open_recording needs an output file, a viewer_url, or both')
+    rec = rr.RecordingStream(application_id, recording_id=recording_id)
+    sinks = []
+    if output is not None:
+        output = Path(output)
+        output.parent.mkdir(parents=True, exist_ok=True)
+        sinks.append(rr.FileSink(str(output)))
+    if viewer_url:
+        sinks.append(rr.GrpcSink(viewer_url))
+    rec.set_sinks(*sinks, default_blueprint=blueprint)
+    return rec
+
+
+def close_recording(rec: rr.RecordingStream, timeout_s: float = 10.0) -> None:
+    """Flush everything logged so far and close the sinks (the file gets its footer)."""
+    rec.flush(timeout_sec=timeout_s)
+    rec.disconnect()
+
+
+def set_stamp(rec: rr.RecordingStream, stamp_ns: int) -> None:
+    """Set the ``ros_time`` timeline (nanoseconds since the epoch) for this thread."""
+    rec.set_time(TIMELINE, timestamp=np.datetime64(int(stamp_ns), 'ns'))
+
+
+# --- geometry helpers (module base frame) -----------------------------------------------
+
+@dataclass(frozen=True)
+class RibFrames:
+    """Rib centres (n, 3) in metres and spine headings (n,) in radians, rib 0 first."""
+
+    centres_m: np.ndarray
+    headings_rad: np.ndarray
+
+
+def _as_vector(values, name: str) -> np.ndarray:
+    arr = np.asarray(values, dtype=float)
+    if arr.ndim != 1:
+        raise ValueError(f'{name} must be a flat sequence, got shape {arr.shape}')
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f'{name} must be finite, got {arr.tolist()}')
+    return arr
+
+
+def rib_centres_mm(angles_rad: Sequence[float], spacing_mm: float = RIB_SPACING_MM
+                   ) -> np.ndarray:
+    """Rib centres (n + 1, 2) in mm of a module with bending angles ``angles_rad`` (n).
+
+    Each segment is a circular arc of length ``spacing_mm``; the chord to the next rib
+    has length ``spacing_mm * sinc(a / 2)`` and leaves at heading ``t_k + a_k / 2``.
+    Uses the solver core's ``geometry.rib_centers`` when it is installed.
+    """
+    angles = _as_vector(angles_rad, 'angles_rad')
+    core = _core_geometry()
+    if core is not None and hasattr(core, 'rib_centers'):
+        return np.asarray(core.rib_centers(angles, spacing_mm), dtype=float)[:, :2]
+    headings = np.concatenate(([0.0], np.cumsum(angles)))
+    chord = spacing_mm * np.sinc(angles / (2.0 * np.pi))  # np.sinc(x) = sin(pi x)/(pi x)
+    mid = headings[:-1] + angles / 2.0
+    steps = np.stack((chord * np.cos(mid), chord * np.sin(mid)), axis=1)
+    return np.vstack((np.zeros((1, 2)), np.cumsum(steps, axis=0)))
+
+
+def _core_geometry():
+    try:
+        from softsnap_model import geometry
+    except ImportError:
+        return None
+    return geometry
+
+
+def rib_frames(angles_rad: Sequence[float], rib_centres_m: np.ndarray | None = None,
+               spacing_mm: float = RIB_SPACING_MM) -> RibFrames:
+    """Rib frames from a message's angles, using its rib centres (m) when it has them."""
+    angles = _as_vector(angles_rad, 'angles_rad')
+    headings = np.concatenate(([0.0], np.cumsum(angles)))
+    if rib_centres_m is not None and len(rib_centres_m):
+        centres = np.asarray(rib_centres_m, dtype=float).reshape(-1, 3)
+        if len(centres) != len(headings):
+            raise ValueError(f'expected {len(headings)} rib centres for {len(angles)} angles, '
+                             f'got {len(centres)}')
+    else:
+        planar = rib_centres_mm(angles, spacing_mm) * MM
+        centres = np.column_stack((planar, np.zeros(len(planar))))
+    return RibFrames(centres, headings)
+
+
+def rib_segments_m(frames: RibFrames) -> np.ndarray:
+    """End points (n, 2, 3) of each rib: centre -/+ 12.5 mm along (-sin t, cos t)."""
+    t = frames.headings_rad
+    half = RIB_HALF_LENGTH_MM * MM * np.column_stack((-np.sin(t), np.cos(t), np.zeros_like(t)))
+    return np.stack((frames.centres_m + half, frames.centres_m - half), axis=1)
+
+
+def cable_points_m(frames: RibFrames, threading_mm: Sequence[float]) -> np.ndarray:
+    """Cable holes (n, 3): hole offset d (mm, + = right) on rib k is P_k + d (sin t, -cos t).
+
+    The cable is taut, so it runs straight from hole to hole and the polyline through the
+    holes is the cable path.
+    """
+    d = _as_vector(threading_mm, 'threading_mm') * MM
+    t = frames.headings_rad
+    if len(d) != len(t):
+        raise ValueError(f'expected {len(t)} hole offsets (one per rib), got {len(d)}')
+    return frames.centres_m + np.column_stack((d * np.sin(t), -d * np.cos(t), np.zeros_like(t)))
+
+
+def tip_error_mm(commanded: RibFrames, predicted: RibFrames) -> float:
+    """Distance between the last rib centres of two shapes of one module, in mm."""
+    return float(np.linalg.norm(commanded.centres_m[-1] - predicted.centres_m[-1]) / MM)
+
+
+# --- logging functions (one per data source) --------------------------------------------
+
+def log_scene_setup(rec: rr.RecordingStream) -> None:
+    """Static view coordinates of the robot frame (REP 103: x forward, y left, z up)."""
+    rec.log(ROBOT_ROOT, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+
+
+def log_series_styles(rec: rr.RecordingStream, module: str) -> None:
+    """Static names and colours of a module's time series."""
+    styles = {
+        ('cable_length_mm', 'commanded'): SPINE_COLORS['commanded'],
+        ('cable_length_mm', 'measured'): SPINE_COLORS['predicted'],
+        ('solve_time_ms', 'commanded'): SPINE_COLORS['commanded'],
+        ('solve_time_ms', 'predicted'): SPINE_COLORS['predicted'],
+    }
+    for parts, color in styles.items():
+        rec.log(plot_path(module, *parts), rr.SeriesLines(colors=[color],
+                                                          names=[f'{module} {parts[1]}']),
+                static=True)
+    rec.log(plot_path(module, 'tip_error_mm'), rr.SeriesLines(names=[module]), static=True)
+    rec.log(plot_path(module, 'battery_v'), rr.SeriesLines(names=[module]), static=True)
+
+
+def log_base_poses(rec: rr.RecordingStream, poses: Mapping[str, tuple[Sequence[float],
+                                                                       Sequence[float]]]
+                   ) -> None:
+    """Static module base transforms and connector markers.
+
+    ``poses`` maps module name to (translation_m xyz, quaternion xyzw) in the robot frame.
+    """
+    names, positions = [], []
+    for module, (translation, quaternion) in poses.items():
+        rec.log(module_path(module),
+                rr.Transform3D(translation=[float(v) for v in translation],
+                               quaternion=rr.Quaternion(xyzw=[float(v) for v in quaternion])),
+                static=True)
+        names.append(module)
+        positions.append([float(v) for v in translation])
+    if positions:
+        rec.log(f'{ROBOT_ROOT}/connector',
+                rr.Points3D(positions, radii=0.004, colors=[CONNECTOR_COLOR], labels=names),
+                static=True)
+
+
+def log_module_shape(rec: rr.RecordingStream, module: str, source: str, frames: RibFrames,
+                     threading_mm: Sequence[float] | None = None) -> None:
+    """Spine, ribs and (given a threading) cable of one shape, at the current time."""
+    rec.log(shape_path(module, source, 'spine'),
+            rr.LineStrips3D([frames.centres_m], radii=SPINE_RADIUS_M,
+                            colors=[SPINE_COLORS[source]]))
+    rec.log(shape_path(module, source, 'ribs'),
+            rr.LineStrips3D(rib_segments_m(frames), radii=RIB_RADIUS_M,
+                            colors=[RIB_COLORS[source]]))
+    if threading_mm is not None:
+        rec.log(shape_path(module, source, 'cable'),
+                rr.LineStrips3D([cable_points_m(frames, threading_mm)], radii=CABLE_RADIUS_M,
+                                colors=[CABLE_COLORS[source]]))
+
+
+def log_scalar(rec: rr.RecordingStream, path: str, value: float) -> None:
+    """One sample of a time series; NaN (for example no target yet) is skipped."""
+    if math.isfinite(value):
+        rec.log(path, rr.Scalars(float(value)))
+
+
+# --- the recorder the ROS node drives ---------------------------------------------------
+
+class RateLimiter:
+    """At most ``rate_hz`` events per key, measured on the events' own time stamps.
+
+    ``rate_hz = 0`` lets everything through. Stamps going backwards (a replayed bag, a
+    restarted clock) reset the key.
+    """
+
+    def __init__(self, rate_hz: float):
+        if not (rate_hz >= 0.0 and math.isfinite(rate_hz)):
+            raise ValueError(f'rate_hz must be finite and >= 0, got {rate_hz!r}')
+        self.period_ns = int(1e9 / rate_hz) if rate_hz > 0 else 0
+        self._last: dict[object, int] = {}
+
+    def allow(self, key: object, stamp_ns: int) -> bool:
+        last = self._last.get(key)
+        if last is not None and last <= stamp_ns < last + self.period_ns:
+            return False
+        self._last[key] = stamp_ns
+        return True
+
+
+class RobotRecorder:
+    """Logs a robot's shapes, cable lengths and module states to one recording stream.
+
+    Parameters
+    ----------
+    rec:
+        The recording stream (see :func:`open_recording`).
+    modules:
+        Names of the modules to log (the scene's); ``None`` logs every module seen.
+    threadings_mm:
+        Hole offsets per rib (mm) by module name, for drawing the cable; optional.
+    rate_hz:
+        Largest logging rate per module and data source (0: log everything).
+    spacing_mm:
+        Spine arc length between ribs, used when a message carries no rib centres.
+    """
+
+    def __init__(self, rec: rr.RecordingStream, *, modules: Iterable[str] | None = None,
+                 threadings_mm: Mapping[str, Sequence[float]] | None = None,
+                 rate_hz: float = 30.0, spacing_mm: float = RIB_SPACING_MM):
+        self.rec = rec
+        self.modules = None if modules is None else frozenset(modules)
+        self.threadings_mm = dict(threadings_mm or {})
+        self.spacing_mm = spacing_mm
+        self.limiter = RateLimiter(rate_hz)
+        self.logged = 0
+        self.dropped = 0
+        self._poses: dict[str, tuple[tuple[float, ...], tuple[float, ...]]] = {}
+        self._latest: dict[tuple[str, str], RibFrames] = {}
+        self._styled: set[str] = set()
+        log_scene_setup(rec)
+
+    def wants(self, module: str) -> bool:
+        """True if ``module`` belongs to the logged set."""
+        return self.modules is None or module in self.modules
+
+    def _admit(self, module: str, stream: str, stamp_ns: int) -> bool:
+        if not self.wants(module):
+            return False
+        if not self.limiter.allow((module, stream), stamp_ns):
+            self.dropped += 1
+            return False
+        if module not in self._styled:
+            self._styled.add(module)
+            log_series_styles(self.rec, module)
+        self.logged += 1
+        set_stamp(self.rec, stamp_ns)
+        return True
+
+    def base_poses(self, poses: Mapping[str, tuple[Sequence[float], Sequence[float]]]) -> None:
+        """Record the module base poses; logged (static) only when they change."""
+        wanted = {m: (tuple(map(float, p)), tuple(map(float, q)))
+                  for m, (p, q) in poses.items() if self.wants(m)}
+        merged = {**self._poses, **wanted}
+        if merged != self._poses:
+            self._poses = merged
+            log_base_poses(self.rec, self._poses)
+
+    def shape(self, stamp_ns: int, module: str, source: str, angles_rad: Sequence[float],
+              rib_centres_m: np.ndarray | None = None, solve_time_s: float | None = None
+              ) -> bool:
+        """One shape of one module; returns False if skipped (other module, rate limit)."""
+        if not self.wants(module):
+            return False
+        frames = rib_frames(angles_rad, rib_centres_m, self.spacing_mm)
+        self._latest[(module, source)] = frames
+        if not self._admit(module, source, stamp_ns):
+            return False
+        log_module_shape(self.rec, module, source, frames, self.threadings_mm.get(module))
+        if solve_time_s is not None:
+            log_scalar(self.rec, plot_path(module, 'solve_time_ms', source), solve_time_s * 1e3)
+        other = self._latest.get((module, 'predicted' if source == 'commanded' else 'commanded'))
+        if other is not None and len(other.centres_m) == len(frames.centres_m):
+            pair = (frames, other) if source == 'commanded' else (other, frames)
+            log_scalar(self.rec, plot_path(module, 'tip_error_mm'), tip_error_mm(*pair))
+        return True
+
+    def cable_length(self, stamp_ns: int, module: str, kind: str, length_m: float) -> bool:
+        """A commanded or measured cable length (m), plotted in mm."""
+        if kind not in ('commanded', 'measured'):
+            raise ValueError(f'kind must be "commanded" or "measured", got {kind!r}')
+        if not self._admit(module, f'cable_length/{kind}', stamp_ns):
+            return False
+        log_scalar(self.rec, plot_path(module, 'cable_length_mm', kind), length_m / MM)
+        return True
+
+    def module_state(self, stamp_ns: int, module: str, battery_v: float) -> bool:
+        """A driver state report (battery voltage, V)."""
+        if not self._admit(module, 'state', stamp_ns):
+            return False
+        log_scalar(self.rec, plot_path(module, 'battery_v'), battery_v)
+        return True
+
+
+# --- no-ROS writers ---------------------------------------------------------------------
+
+Solve = Callable[[Sequence[float], float], Sequence[float]]
+"""``solve(threading_mm, contraction_mm) -> angles_rad``: a forward solve of one module."""
+
+
+def _default_solve() -> Solve:
+    """The solver core's forward solve, adapted to :data:`Solve`."""
+    try:
+        from softsnap_model import forward
+    except ImportError as exc:  # the forward solver is not installed
+        raise RuntimeError('softsnap_model.forward is not available; pass solve=') from exc
+    solve_fn = getattr(forward, 'solve_contraction', None) or getattr(forward, 'solve')
+
+    def solve(threading_mm: Sequence[float], contraction_mm: float) -> Sequence[float]:
+        result = solve_fn(threading_mm, contraction_mm)
+        return getattr(result, 'angles_rad', getattr(result, 'angles', result))
+
+    return solve
+
+
+def _write_shapes(path: str | Path, shapes: Mapping[str, Sequence[Sequence[float]]],
+                  threadings_mm: Mapping[str, Sequence[float]],
+                  contractions_mm: Sequence[float], spacing_mm: float,
+                  row_spacing_m: float) -> Path:
+    """Log pre-solved shapes: ``shapes[name][i]`` are the angles at ``contractions_mm[i]``."""
+    path = Path(path)
+    rec = open_recording(path, blueprint=build_sweep_blueprint())
+    try:
+        log_scene_setup(rec)
+        poses = {name: ((0.0, -row_spacing_m * i, 0.0), (0.0, 0.0, 0.0, 1.0))
+                 for i, name in enumerate(shapes)}
+        log_base_poses(rec, poses)
+        tips: dict[str, list[np.ndarray]] = {name: [] for name in shapes}
+        for step, contraction in enumerate(contractions_mm):
+            rec.set_time(STEP_TIMELINE, sequence=step)
+            for name, series in shapes.items():
+                frames = rib_frames(series[step], None, spacing_mm)
+                log_module_shape(rec, name, 'predicted', frames, threadings_mm.get(name))
+                tips[name].append(frames.centres_m[-1])
+                log_scalar(rec, plot_path(name, 'contraction_mm'), contraction)
+                log_scalar(rec, plot_path(name, 'tip_angle_deg'),
+                           math.degrees(frames.headings_rad[-1]))
+        for name, points in tips.items():
+            # The workspace: where the tip goes over the whole sweep.
+            rec.log(f'{module_path(name)}/workspace/tip_path',
+                    rr.LineStrips3D([np.asarray(points)], radii=SPINE_RADIUS_M / 2,
+                                    colors=[CABLE_COLORS['commanded']]), static=True)
+    finally:
+        close_recording(rec)
+    return path
+
+
+def record_sweep(path: str | Path, threading_mm: Sequence[float],
+                 contractions_mm: Sequence[float], *, solve: Solve | None = None,
+                 module: str = 'module', spacing_mm: float = RIB_SPACING_MM) -> Path:
+    """Write a recording of one module's shapes over a sweep of cable contractions.
+
+    Step ``i`` of the ``step`` timeline shows the shape at ``contractions_mm[i]`` (mm of
+    cable pulled in); the tip path over the whole sweep is logged static.
+    """
+    solve = solve or _default_solve()
+    angles = [solve(threading_mm, float(c)) for c in contractions_mm]
+    return _write_shapes(path, {module: angles}, {module: threading_mm}, contractions_mm,
+                         spacing_mm, row_spacing_m=0.0)
+
+
+def record_threadings(path: str | Path, threadings_mm: Mapping[str, Sequence[float]],
+                      contractions_mm: Sequence[float], *, solve: Solve | None = None,
+                      spacing_mm: float = RIB_SPACING_MM, row_spacing_m: float = 0.08
+                      ) -> Path:
+    """Write a recording comparing threadings side by side over the same contractions.
+
+    Each threading is drawn as a module named by its key, placed ``row_spacing_m`` apart
+    along -y, all stepping through ``contractions_mm`` together.
+    """
+    solve = solve or _default_solve()
+    shapes = {name: [solve(t, float(c)) for c in contractions_mm]
+              for name, t in threadings_mm.items()}
+    return _write_shapes(path, shapes, threadings_mm, contractions_mm, spacing_mm,
+                         row_spacing_m)
+
+
+# --- command line -----------------------------------------------------------------------
+
+HOLE_OFFSETS_MM = {'L0': -0.5, 'L1': -3.0, 'L2': -6.5, 'L3': -10.0,
+                   'R0': 0.5, 'R1': 3.0, 'R2': 6.5, 'R3': 10.0}
+
+
+def parse_threading(text: str, ribs: int = 12) -> list[float]:
+    """Hole offsets (mm) from names: ``"R1 R1 R2 ..."``, ``"R3x6 L3x6"`` or ``"R3x12"``."""
+    offsets: list[float] = []
+    for word in text.replace(',', ' ').split():
+        name, _, count = word.upper().partition('X')
+        if name not in HOLE_OFFSETS_MM or (count and not count.isdigit()):
+            raise ValueError(f'unknown hole {word!r}; expected one of '
+                             f'{sorted(HOLE_OFFSETS_MM)} optionally followed by xN')
+        offsets += [HOLE_OFFSETS_MM[name]] * (int(count) if count else 1)
+    if len(offsets) != ribs:
+        raise ValueError(f'expected {ribs} holes (one per rib), got {len(offsets)} from {text!r}')
+    return offsets
+
+
+def add_record_arguments(parser: argparse.ArgumentParser) -> None:
+    """Arguments of the ``record`` command (for a ``softsnap-model record`` subcommand)."""
+    sub = parser.add_subparsers(dest='what', required=True)
+    sweep = sub.add_parser('sweep', help="one module's shapes over a range of contractions")
+    sweep.add_argument('--threading', required=True, help='e.g. "R3x12" or "R1 R1 ... R3"')
+    compare = sub.add_parser('threadings', help='several threadings side by side')
+    compare.add_argument('--threading', action='append', required=True, metavar='NAME=HOLES',
+                         help='repeat per threading, e.g. --threading s="R3x6 L3x6"')
+    for p in (sweep, compare):
+        p.add_argument('--max-contraction-mm', type=float, default=40.0)
+        p.add_argument('--steps', type=int, default=41)
+        p.add_argument('--out', required=True, help='.rrd file to write')
+
+
+def run_record(args: argparse.Namespace) -> int:
+    """Carry out a parsed ``record`` command."""
+    contractions = np.linspace(0.0, args.max_contraction_mm, args.steps).tolist()
+    if args.what == 'sweep':
+        path = record_sweep(args.out, parse_threading(args.threading), contractions)
+    else:
+        named = {}
+        for item in args.threading:
+            name, sep, holes = item.partition('=')
+            if not sep:
+                raise ValueError(f'expected NAME=HOLES, got {item!r}')
+            named[name.strip()] = parse_threading(holes)
+        path = record_threadings(args.out, named, contractions)
+    print(f'wrote {path}')
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m softsnap_model.recording {sweep,threadings} ...``."""
+    parser = argparse.ArgumentParser(prog='python -m softsnap_model.recording',
+                                     description='Write a rerun recording without ROS.')
+    add_record_arguments(parser)
+    args = parser.parse_args(argv)
+    try:
+        return run_record(args)
+    except (ValueError, RuntimeError) as exc:
+        print(f'error: {exc}', file=sys.stderr)
+        return 2
+
+
+if __name__ == '__main__':
+    sys.exit(main())
