@@ -39,7 +39,7 @@ import yaml
 
 __all__ = [
     'Scene', 'SceneModule', 'SceneError', 'load_scene', 'find_scene', 'list_scenes',
-    'compose_base_pose', 'quaternion_to_matrix', 'SCENE_FORMAT', 'DEFAULT_HOST',
+    'compose_base_pose', 'straight_tip_pose', 'quaternion_to_matrix', 'SCENE_FORMAT', 'DEFAULT_HOST',
     'DEFAULT_COUNTS_PER_MM', 'PAPER_MAX_CONTRACTION_MM', 'SCENE_PATH_ENV',
 ]
 
@@ -59,6 +59,9 @@ SCENE_PATH_ENV = 'SOFTSNAP_SCENE_PATH'
 
 #: Tolerance on the orthogonality and length of orientation axes given in a file.
 AXIS_TOL = 1e-6
+#: Tolerances (m, rad) on a chained module's stated base pose against its parent's.
+CHAIN_POSE_TOL_M = 5e-4
+CHAIN_ANGLE_TOL_RAD = 1e-3
 #: Largest distance (m) of a module base from the robot origin that we accept.
 MAX_BASE_DISTANCE_M = 5.0
 
@@ -541,6 +544,32 @@ def _threading(chk: _Checker, value, key: str, skeleton):
     return holes, offsets, straight
 
 
+def straight_tip_pose(module: SceneModule, skeleton):
+    """Robot-frame pose of a straight module's tip rib: base pose moved along the spine."""
+    n_ribs = int(getattr(skeleton, 'n_ribs', 12))
+    spine_m = (n_ribs - 1) * float(getattr(skeleton, 'spacing_mm', 18.0)) / 1000.0
+    rot = quaternion_to_matrix(module.base_orientation_xyzw)
+    tip = _apply(rot, (spine_m, 0.0, 0.0))
+    return (tuple(b + t for b, t in zip(module.base_position_m, tip)),
+            module.base_orientation_xyzw)
+
+
+def _check_chained_pose(chk: _Checker, i: int, module: SceneModule, parent: SceneModule,
+                        skeleton) -> None:
+    """A chained module's straight base pose must follow from its parent's and the offset."""
+    expected_pos, expected_q = compose_base_pose(*straight_tip_pose(parent, skeleton), module)
+    err_m = math.dist(expected_pos, module.base_position_m)
+    dot = abs(sum(a * b for a, b in zip(expected_q, module.base_orientation_xyzw)))
+    err_rad = 2.0 * math.acos(min(1.0, dot))
+    if err_m > CHAIN_POSE_TOL_M or err_rad > CHAIN_ANGLE_TOL_RAD:
+        chk.fail(f'modules[{i}].base', 'the pose given by the parent '
+                 f'{parent.name!r} (straight) and parent_offset: position_mm '
+                 f'{[round(c * 1000.0, 3) for c in expected_pos]}, orientation_xyzw '
+                 f'{[round(c, 6) for c in expected_q]}',
+                 f'{[round(c * 1000.0, 3) for c in module.base_position_m]} mm, '
+                 f'{[round(c, 6) for c in module.base_orientation_xyzw]}')
+
+
 def load_scene(path_or_name: str | os.PathLike) -> Scene:
     """Read and validate a scene file; `path_or_name` is a path or a name for `find_scene`.
 
@@ -648,6 +677,8 @@ def load_scene(path_or_name: str | os.PathLike) -> Scene:
             if cur.name in visited:
                 chk.fail(f'modules[{i}].parent', 'a chain without cycles', m.parent)
             visited.add(cur.name)
+        if m.parent is not None:
+            _check_chained_pose(chk, i, m, modules[seen_names[m.parent]], skeleton)
 
     gaits = chk.mapping(data['gaits'], 'gaits')
     if not gaits:
