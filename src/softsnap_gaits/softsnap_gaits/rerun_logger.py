@@ -104,9 +104,9 @@ class RerunLoggerNode(Node):
             threadings_mm={m.name: m.threading_mm for m in getattr(scene, 'modules', [])},
             rate_hz=self.get_parameter('rate').value,
             spacing_mm=self.get_parameter('rib_spacing').value / recording.MM)
-        if scene is not None:
-            self.recorder.base_poses({m.name: (m.base_position_m, m.base_orientation_xyzw)
-                                      for m in scene.modules})
+        # Base poses from the scene, used when a RobotShape carries none.
+        self.scene_poses = {m.name: (m.base_position_m, m.base_orientation_xyzw)
+                            for m in getattr(scene, 'modules', [])}
         self._closed = False
 
         self.create_subscription(RobotShape, 'model/shape/commanded',
@@ -186,11 +186,15 @@ class RerunLoggerNode(Node):
             return
         stamp = self._stamp(msg.header)
         if len(msg.base_poses) == len(msg.modules):
-            self.recorder.base_poses({
+            self.recorder.base_poses(stamp, {
                 shape.module: ((p.position.x, p.position.y, p.position.z),
                                (p.orientation.x, p.orientation.y, p.orientation.z,
                                 p.orientation.w))
                 for shape, p in zip(msg.modules, msg.base_poses)})
+        else:
+            self.recorder.base_poses(stamp, {shape.module: self.scene_poses[shape.module]
+                                             for shape in msg.modules
+                                             if shape.module in self.scene_poses})
         for shape in msg.modules:
             if not self.recorder.wants(shape.module):
                 continue

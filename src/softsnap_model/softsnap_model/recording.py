@@ -8,10 +8,10 @@ comparison of threadings without ROS.
 Frames and units (REP 103)
 --------------------------
 * The 3D scene is in metres. ``robot`` is the robot (connector) frame, x forward, y left,
-  z up. ``robot/<module>`` carries the module base pose (a static ``Transform3D`` from
-  ``RobotShape.base_poses``); below it everything is in the module base frame: rib 0 at
-  the origin, spine along +x, bending in the x-y plane (positive angles counter-clockwise
-  about +z).
+  z up. ``robot/<module>`` carries the module base pose (a ``Transform3D`` from
+  ``RobotShape.base_poses``, logged when it changes); below it everything is in the
+  module base frame: rib 0 at the origin, spine along +x, bending in the x-y plane
+  (positive angles counter-clockwise about +z).
 * Plots carry their unit in the entity name (``tip_error_mm``, ``solve_time_ms``, ...).
 * One timeline, ``ros_time``, a timestamp taken from the message header stamps. The
   no-ROS writers use a sequence timeline ``step`` instead.
@@ -20,7 +20,7 @@ Entity tree (``<source>`` is ``commanded`` or ``predicted``)::
 
     robot                                   view coordinates (static)
     robot/connector                         module base positions, labelled (static)
-    robot/<module>                          base pose, Transform3D (static)
+    robot/<module>                          base pose, Transform3D (logged on change)
     robot/<module>/<source>/spine           spine through the rib centres, LineStrips3D
     robot/<module>/<source>/ribs            one 25 mm strip per rib, LineStrips3D
     robot/<module>/<source>/cable           cable through its holes (needs a threading)
@@ -275,24 +275,28 @@ def log_series_styles(rec: rr.RecordingStream, module: str) -> None:
     rec.log(plot_path(module, 'battery_v'), rr.SeriesLines(names=[module]), static=True)
 
 
-def log_base_poses(rec: rr.RecordingStream, poses: Mapping[str, tuple[Sequence[float],
-                                                                       Sequence[float]]]
-                   ) -> None:
-    """Static module base transforms and connector markers.
+def log_base_poses(rec: rr.RecordingStream,
+                   poses: Mapping[str, tuple[Sequence[float], Sequence[float]]], *,
+                   static: bool = False) -> None:
+    """Module base transforms: ``poses`` maps module name to (translation_m xyz,
+    quaternion xyzw) of the module base frame in the robot frame.
 
-    ``poses`` maps module name to (translation_m xyz, quaternion xyzw) in the robot frame.
+    Temporal by default, so chains whose bases move with their parents replay correctly
+    (static data would shadow every later pose).
     """
-    names, positions = [], []
     for module, (translation, quaternion) in poses.items():
         rec.log(module_path(module),
                 rr.Transform3D(translation=[float(v) for v in translation],
                                quaternion=rr.Quaternion(xyzw=[float(v) for v in quaternion])),
-                static=True)
-        names.append(module)
-        positions.append([float(v) for v in translation])
-    if positions:
+                static=static)
+
+
+def log_connector(rec: rr.RecordingStream, positions_m: Mapping[str, Sequence[float]]) -> None:
+    """Static markers where the modules attach to the connector, labelled by module."""
+    if positions_m:
         rec.log(f'{ROBOT_ROOT}/connector',
-                rr.Points3D(positions, radii=0.004, colors=[CONNECTOR_COLOR], labels=names),
+                rr.Points3D([[float(v) for v in p] for p in positions_m.values()],
+                            radii=0.004, colors=[CONNECTOR_COLOR], labels=list(positions_m)),
                 static=True)
 
 
@@ -389,14 +393,25 @@ class RobotRecorder:
         set_stamp(self.rec, stamp_ns)
         return True
 
-    def base_poses(self, poses: Mapping[str, tuple[Sequence[float], Sequence[float]]]) -> None:
-        """Record the module base poses; logged (static) only when they change."""
-        wanted = {m: (tuple(map(float, p)), tuple(map(float, q)))
-                  for m, (p, q) in poses.items() if self.wants(m)}
-        merged = {**self._poses, **wanted}
-        if merged != self._poses:
-            self._poses = merged
-            log_base_poses(self.rec, self._poses)
+    def base_poses(self, stamp_ns: int,
+                   poses: Mapping[str, tuple[Sequence[float], Sequence[float]]]) -> None:
+        """Module base poses (translation m, quaternion xyzw) in the robot frame.
+
+        A module's transform is logged when it first appears and whenever it changes; the
+        connector markers (static) come from the first poses seen.
+        """
+        changed = {}
+        for module, (p, q) in poses.items():
+            pose = (tuple(map(float, p)), tuple(map(float, q)))
+            if self.wants(module) and self._poses.get(module) != pose:
+                changed[module] = pose
+        if not changed:
+            return
+        if not self._poses:
+            log_connector(self.rec, {m: p for m, (p, _) in changed.items()})
+        self._poses.update(changed)
+        set_stamp(self.rec, stamp_ns)
+        log_base_poses(self.rec, changed)
 
     def shape(self, stamp_ns: int, module: str, source: str, angles_rad: Sequence[float],
               rib_centres_m: np.ndarray | None = None, solve_time_s: float | None = None
@@ -466,7 +481,8 @@ def _write_shapes(path: str | Path, shapes: Mapping[str, Sequence[Sequence[float
         log_scene_setup(rec)
         poses = {name: ((0.0, -row_spacing_m * i, 0.0), (0.0, 0.0, 0.0, 1.0))
                  for i, name in enumerate(shapes)}
-        log_base_poses(rec, poses)
+        log_base_poses(rec, poses, static=True)
+        log_connector(rec, {name: p for name, (p, _) in poses.items()})
         tips: dict[str, list[np.ndarray]] = {name: [] for name in shapes}
         for step, contraction in enumerate(contractions_mm):
             rec.set_time(STEP_TIMELINE, sequence=step)

@@ -1,0 +1,252 @@
+"""softsnap_model.recording without ROS: geometry, entity tree, frame counts, values, writers."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from softsnap_model import recording as rec_mod
+
+STAMP0 = 1_795_000_000_123_456_789  # ns since the epoch, a realistic ROS stamp
+PERIOD = 20_000_000                 # 50 Hz in ns
+
+
+def arc_angles(total_rad: float, segments: int = 11) -> list[float]:
+    return [total_rad / segments] * segments
+
+
+# --- geometry against known answers -----------------------------------------------------
+
+def test_straight_module_rib_centres_are_18_mm_apart_along_x():
+    centres = rec_mod.rib_centres_mm([0.0] * 11)
+    np.testing.assert_allclose(centres, np.column_stack((18.0 * np.arange(12), np.zeros(12))),
+                               atol=1e-12)
+
+
+def test_uniform_bend_by_pi_is_a_semicircle_of_the_spine_length():
+    centres = rec_mod.rib_centres_mm(arc_angles(math.pi))
+    radius = 198.0 / math.pi
+    # All rib centres lie on the circle centred at (0, R); the tip is at (0, 2R).
+    np.testing.assert_allclose(np.hypot(centres[:, 0], centres[:, 1] - radius), radius,
+                               atol=1e-9)
+    np.testing.assert_allclose(centres[-1], [0.0, 2 * radius], atol=1e-9)
+
+
+def test_ribs_are_25_mm_and_normal_to_the_spine_and_holes_right_of_it():
+    frames = rec_mod.rib_frames(arc_angles(-1.0))
+    ribs = rec_mod.rib_segments_m(frames)
+    lengths = np.linalg.norm(ribs[:, 1] - ribs[:, 0], axis=1)
+    np.testing.assert_allclose(lengths, 0.025, atol=1e-12)
+    tangents = np.column_stack((np.cos(frames.headings_rad), np.sin(frames.headings_rad), 0 * frames.headings_rad))
+    np.testing.assert_allclose(np.sum((ribs[:, 1] - ribs[:, 0]) * tangents, axis=1), 0.0,
+                               atol=1e-15)
+    straight = rec_mod.rib_frames([0.0] * 11)
+    holes = rec_mod.cable_points_m(straight, [10.0] * 12)
+    np.testing.assert_allclose(holes[:, 1], -0.010)  # right side is -y at straight
+
+
+def test_cable_chords_match_the_length_formula_of_facts():
+    # L(a; d1, d2)^2 = (d1 - d2)^2 + (2 sin(a/2)/a)^2 (s + d1 a)(s + d2 a), in mm.
+    angles = np.array([0.3, -0.2, 0.25, 0.1, -0.4, 0.05, 0.2, 0.3, -0.1, 0.15, 0.2])
+    threading = np.array([3, 6.5, 6.5, -6.5, -10, -10, -10, -10, -10, -10, -6.5, 6.5])
+    holes_mm = rec_mod.cable_points_m(rec_mod.rib_frames(angles), threading) / rec_mod.MM
+    chords = np.linalg.norm(np.diff(holes_mm, axis=0), axis=1)
+    d1, d2, s = threading[:-1], threading[1:], 18.0
+    expected = np.sqrt((d1 - d2) ** 2
+                       + (2 * np.sin(angles / 2) / angles) ** 2 * (s + d1 * angles) * (s + d2 * angles))
+    np.testing.assert_allclose(chords, expected, rtol=1e-12)
+
+
+def test_bad_inputs_are_refused_with_the_value():
+    with pytest.raises(ValueError, match='expected 12 hole offsets'):
+        rec_mod.cable_points_m(rec_mod.rib_frames([0.0] * 11), [1.0] * 11)
+    with pytest.raises(ValueError, match='finite'):
+        rec_mod.rib_frames([float('nan')] * 11)
+    with pytest.raises(ValueError, match='expected 12 rib centres'):
+        rec_mod.rib_frames([0.0] * 11, np.zeros((5, 3)))
+    with pytest.raises(ValueError, match='module name'):
+        rec_mod.module_path('a/b')
+    with pytest.raises(ValueError, match='rate_hz'):
+        rec_mod.RateLimiter(-1.0)
+    with pytest.raises(ValueError, match='expected 12 holes'):
+        rec_mod.parse_threading('R3x11')
+
+
+def test_parse_threading_names_and_repeats():
+    assert rec_mod.parse_threading('R3x6 L3x6') == [10.0] * 6 + [-10.0] * 6
+    assert rec_mod.parse_threading('R1 R1 R1 R1 R1 R1 R1 R1 R2 R2 R3 R3')[-3:] == [6.5, 10.0, 10.0]
+
+
+def test_rate_limiter_keeps_at_most_rate_per_key_on_stamps():
+    limiter = rec_mod.RateLimiter(10.0)  # 100 ms
+    kept = [t for t in range(0, 1_000_000_000, 20_000_000) if limiter.allow('a', t)]
+    assert kept == list(range(0, 1_000_000_000, 100_000_000))
+    assert limiter.allow('b', 20_000_000)       # keys are independent
+    assert limiter.allow('a', 0)                # stamps going back reset the key
+    assert all(rec_mod.RateLimiter(0.0).allow('a', 5) for _ in range(3))
+
+
+# --- the recorder, written to a file and read back --------------------------------------
+
+def robot_frames(n: int):
+    """Two modules over n ticks: commanded bends faster than predicted (known tip error)."""
+    for i in range(n):
+        stamp = STAMP0 + i * PERIOD
+        for module, sign in (('yellow', -1.0), ('blue', 1.0)):
+            commanded = arc_angles(sign * 0.1 * i)
+            predicted = arc_angles(sign * 0.08 * i)
+            yield stamp, module, commanded, predicted
+
+
+POSES = {'yellow': ((0.05, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0)),
+         'blue': ((-0.05, 0.0, 0.0), (0.0, 0.0, 1.0, 0.0))}  # blue turned by pi about z
+
+
+def write_robot(path, n=10, rate_hz=0.0, modules=None, threadings=None):
+    rec = rec_mod.open_recording(path, blueprint=rec_mod.build_blueprint())
+    recorder = rec_mod.RobotRecorder(rec, modules=modules, threadings_mm=threadings,
+                                     rate_hz=rate_hz)
+    recorder.base_poses(STAMP0, POSES)
+    for stamp, module, commanded, predicted in robot_frames(n):
+        recorder.shape(stamp, module, 'commanded', commanded, solve_time_s=0.002)
+        recorder.shape(stamp, module, 'predicted', predicted, solve_time_s=0.003)
+        recorder.cable_length(stamp, module, 'commanded', 0.2 - 0.001 * stamp_index(stamp))
+        recorder.cable_length(stamp, module, 'measured', 0.2 - 0.0009 * stamp_index(stamp))
+        recorder.module_state(stamp, module, 7.4)
+    rec_mod.close_recording(rec)
+    return recorder
+
+
+def stamp_index(stamp: int) -> int:
+    return (stamp - STAMP0) // PERIOD
+
+
+def test_robot_recording_entity_tree_frames_and_values(tmp_path, read_rrd):
+    path = tmp_path / 'robot.rrd'
+    threadings = {'yellow': [3.0] * 8 + [6.5, 6.5, 10.0, 10.0]}
+    write_robot(path, n=10, threadings=threadings)
+    rrd = read_rrd(path)
+
+    expected = {'robot', 'robot/connector'}
+    for module in ('yellow', 'blue'):
+        expected |= {f'robot/{module}', f'plots/{module}/tip_error_mm', f'plots/{module}/battery_v',
+                     f'plots/{module}/cable_length_mm/commanded',
+                     f'plots/{module}/cable_length_mm/measured',
+                     f'plots/{module}/solve_time_ms/commanded',
+                     f'plots/{module}/solve_time_ms/predicted'}
+        expected |= {f'robot/{module}/{source}/{part}' for source in ('commanded', 'predicted')
+                     for part in ('spine', 'ribs')}
+    expected |= {'robot/yellow/commanded/cable', 'robot/yellow/predicted/cable'}
+    assert expected <= rrd.entities
+    assert 'robot/blue/commanded/cable' not in rrd.entities  # no threading given for blue
+    assert rrd.blueprints, 'the blueprint was not stored in the file'
+
+    # One frame per tick and entity, on the ros_time timeline at the message stamps.
+    stamps = [STAMP0 + i * PERIOD for i in range(10)]
+    for entity in ('robot/yellow/commanded/spine', 'robot/blue/predicted/ribs',
+                   'plots/yellow/cable_length_mm/measured', 'plots/blue/battery_v'):
+        assert rrd.times(entity) == stamps, entity
+
+    # Spine points are the rib centres, in metres, in the module base frame.
+    spines = rrd.values('robot/yellow/predicted/spine', 'LineStrips3D:strips')
+    for i, strips in enumerate(spines):
+        expected_m = rec_mod.rib_centres_mm(arc_angles(-0.08 * i)) * 1e-3
+        got = np.asarray(strips[0])
+        np.testing.assert_allclose(got[:, :2], expected_m, atol=1e-7)  # float32 in the file
+        np.testing.assert_allclose(got[:, 2], 0.0)
+    assert len(rrd.values('robot/yellow/commanded/ribs', 'LineStrips3D:strips')[3]) == 12
+    cable = np.asarray(rrd.values('robot/yellow/commanded/cable', 'LineStrips3D:strips')[0][0])
+    np.testing.assert_allclose(cable[:, 1], -np.asarray(threadings['yellow']) * 1e-3, atol=1e-7)
+
+    # Base transforms in metres with the quaternion as given.
+    transform = rrd.rows['robot/blue'][0]
+    np.testing.assert_allclose(transform['Transform3D:translation'][0], [-0.05, 0.0, 0.0])
+    np.testing.assert_allclose(transform['Transform3D:quaternion'][0], [0.0, 0.0, 1.0, 0.0])
+    assert len(rrd.rows['robot/blue']) == 1  # logged once: the poses never changed
+    assert rrd.static['robot/connector']['Points3D:labels'] == ['yellow', 'blue']
+
+    # Time series values and units.
+    np.testing.assert_allclose(rrd.scalars('plots/yellow/cable_length_mm/commanded'),
+                               [200.0 - i for i in range(10)])
+    np.testing.assert_allclose(rrd.scalars('plots/blue/solve_time_ms/predicted'), [3.0] * 10)
+    np.testing.assert_allclose(rrd.scalars('plots/blue/battery_v'), [7.4] * 10, rtol=1e-6)
+    tip = rrd.scalars('plots/yellow/tip_error_mm')
+    expected_tip = [np.linalg.norm(rec_mod.rib_centres_mm(arc_angles(-0.1 * i))[-1]
+                                   - rec_mod.rib_centres_mm(arc_angles(-0.08 * i))[-1])
+                    for i in range(10)]
+    # The commanded shape of a tick is compared with the previous predicted one, then the
+    # predicted shape with the same tick's commanded: two samples per tick after the first.
+    assert len(tip) == 19
+    np.testing.assert_allclose(tip[2::2], expected_tip[1:], atol=1e-9)
+    assert tip[0] == pytest.approx(0.0, abs=1e-12)
+
+
+def test_rate_limit_and_module_filter_reduce_what_is_logged(tmp_path, read_rrd):
+    path = tmp_path / 'limited.rrd'
+    recorder = write_robot(path, n=25, rate_hz=10.0, modules={'blue'})  # ticks at 50 Hz
+    rrd = read_rrd(path)
+    assert not any('yellow' in e for e in rrd.entities)
+    assert 'robot/yellow' not in rrd.entities
+    # 25 ticks of 20 ms = 480 ms: stamps 0, 100, 200, 300, 400 ms are kept.
+    assert rrd.times('robot/blue/commanded/spine') == [STAMP0 + k * 100_000_000 for k in range(5)]
+    assert len(rrd.scalars('plots/blue/battery_v')) == 5
+    assert recorder.dropped == 5 * (25 - 5)
+
+
+def test_recording_without_close_is_detected_and_close_makes_it_complete(tmp_path, read_rrd):
+    # The tests of the ROS node rely on store() refusing a file that was never closed.
+    import rerun as rr
+    from rerun.chunk import RrdReader
+
+    path = tmp_path / 'open.rrd'
+    stream = rec_mod.open_recording(path)
+    stream.log('plots/x', rr.Scalars(1.0))
+    stream.flush()
+    with pytest.warns(Warning), pytest.raises(RuntimeError, match='without footer'):
+        RrdReader(str(path)).store()
+    rec_mod.close_recording(stream)
+    assert read_rrd(path).scalars('plots/x') == [1.0]
+
+
+def test_open_recording_needs_a_sink():
+    with pytest.raises(ValueError, match='output file'):
+        rec_mod.open_recording(None, None)
+
+
+# --- no-ROS writers ---------------------------------------------------------------------
+
+def fake_solve(threading_mm, contraction_mm):
+    """Stand-in forward solve with a known answer: a uniform bend by -contraction/40 rad."""
+    return arc_angles(-contraction_mm / 40.0)
+
+
+def test_record_sweep_writes_one_step_per_contraction_and_the_tip_path(tmp_path, read_rrd):
+    threading = rec_mod.parse_threading('R3x12')
+    contractions = [0.0, 10.0, 20.0, 30.0]
+    path = rec_mod.record_sweep(tmp_path / 'sweep.rrd', threading, contractions,
+                                solve=fake_solve, module='m')
+    rrd = read_rrd(path)
+    assert {'robot/m/predicted/spine', 'robot/m/predicted/ribs', 'robot/m/predicted/cable',
+            'robot/m/workspace/tip_path', 'plots/m/contraction_mm'} <= rrd.entities
+    assert rrd.times('robot/m/predicted/spine', 'step') == [0, 1, 2, 3]
+    np.testing.assert_allclose(rrd.scalars('plots/m/contraction_mm'), contractions)
+    np.testing.assert_allclose(rrd.scalars('plots/m/tip_angle_deg'),
+                               [-math.degrees(c / 40.0) for c in contractions], atol=1e-9)
+    tip_path = np.asarray(rrd.static['robot/m/workspace/tip_path']['LineStrips3D:strips'][0])
+    expected = [rec_mod.rib_centres_mm(fake_solve(threading, c))[-1] * 1e-3 for c in contractions]
+    np.testing.assert_allclose(tip_path[:, :2], expected, atol=1e-7)
+
+
+def test_record_threadings_places_each_threading_in_its_own_row(tmp_path, read_rrd):
+    threadings = {'s': rec_mod.parse_threading('R3x6 L3x6'),
+                  'w': rec_mod.parse_threading('R3 R3 R3 R3 L2 L3 L2 R3 R3 R3 R3 R3')}
+    path = rec_mod.record_threadings(tmp_path / 'cmp.rrd', threadings, [0.0, 20.0],
+                                     solve=fake_solve, row_spacing_m=0.1)
+    rrd = read_rrd(path)
+    for i, name in enumerate(threadings):
+        np.testing.assert_allclose(rrd.static[f'robot/{name}']['Transform3D:translation'][0],
+                                   [0.0, -0.1 * i, 0.0])
+        cable = np.asarray(rrd.values(f'robot/{name}/predicted/cable', 'LineStrips3D:strips')[0][0])
+        np.testing.assert_allclose(cable[:, 1], -np.asarray(threadings[name]) * 1e-3, atol=1e-7)
+        assert rrd.times(f'robot/{name}/predicted/spine', 'step') == [0, 1]
