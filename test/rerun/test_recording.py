@@ -250,3 +250,14 @@ def test_record_threadings_places_each_threading_in_its_own_row(tmp_path, read_r
         cable = np.asarray(rrd.values(f'robot/{name}/predicted/cable', 'LineStrips3D:strips')[0][0])
         np.testing.assert_allclose(cable[:, 1], -np.asarray(threadings[name]) * 1e-3, atol=1e-7)
         assert rrd.times(f'robot/{name}/predicted/spine', 'step') == [0, 1]
+
+
+def test_drawn_geometry_agrees_with_the_solver_core():
+    geometry = pytest.importorskip('softsnap_model.geometry')
+    angles = np.array([0.3, -0.2, 0.25, 0.1, -0.4, 0.05, 0.2, 0.3, -0.1, 0.15, 0.2])
+    threading = rec_mod.parse_threading('R1 R2 R2 L2 L3 L3 L3 L3 L3 L3 L2 R2')
+    frames = rec_mod.rib_frames(angles)
+    np.testing.assert_allclose(frames.centres_m[:, :2] * 1e3, geometry.rib_centers(angles, 18.0),
+                               atol=1e-12)
+    np.testing.assert_allclose(rec_mod.cable_points_m(frames, threading)[:, :2] * 1e3,
+                               geometry.cable_path(angles, threading, 18.0), atol=1e-12)

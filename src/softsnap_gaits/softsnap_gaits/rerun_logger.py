@@ -20,6 +20,7 @@ Parameters (read-only except ``rate``):
   modules     module names to log when no scene is given ([] = all seen)
   robot       robot name for the default file name ('' = the node's namespace)
   rib_spacing spine arc length between ribs, m, used when a shape has no rib centres
+              (the scene's skeleton spacing wins when a scene is given)
 """
 from __future__ import annotations
 
@@ -36,10 +37,11 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from softsnap_interfaces.msg import CableLength, ModuleState, RobotShape
 from softsnap_model import recording
 
-# Best effort matches both reliable and best-effort publishers; the depth absorbs bursts
-# (one RobotShape per model tick, one state per driver poll).
+# Reliable, like the default QoS the model node, the drivers and the gait node publish
+# with, so samples sent right after discovery are not lost; a KEEP_LAST reader never
+# blocks a publisher. The depth absorbs bursts (one RobotShape per model tick per source).
 SUBSCRIPTION_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=50,
-                              reliability=ReliabilityPolicy.BEST_EFFORT)
+                              reliability=ReliabilityPolicy.RELIABLE)
 MAX_RATE_HZ = 1000.0
 
 
@@ -103,7 +105,8 @@ class RerunLoggerNode(Node):
             self.rec, modules=modules,
             threadings_mm={m.name: m.threading_mm for m in getattr(scene, 'modules', [])},
             rate_hz=self.get_parameter('rate').value,
-            spacing_mm=self.get_parameter('rib_spacing').value / recording.MM)
+            spacing_mm=(scene.skeleton.spacing_mm if scene is not None
+                        else self.get_parameter('rib_spacing').value / recording.MM))
         # Base poses from the scene, used when a RobotShape carries none.
         self.scene_poses = {m.name: (m.base_position_m, m.base_orientation_xyzw)
                             for m in getattr(scene, 'modules', [])}
@@ -220,16 +223,20 @@ class RerunLoggerNode(Node):
 
     # --- shutdown -----------------------------------------------------------------------
 
-    def close(self) -> None:
-        """Flush and close the recording so the file is complete (idempotent)."""
-        if self._closed:
-            return
-        self._closed = True
-        recording.close_recording(self.rec)
+    def close(self) -> str:
+        """Flush and close the recording so the file is complete; returns a summary.
+
+        Idempotent. It does not log itself: after Ctrl-C the context is shut down and the
+        node's rosout publisher is gone, so main() logs the summary once the node is
+        destroyed.
+        """
+        if not self._closed:
+            self._closed = True
+            recording.close_recording(self.rec)
         size = self.output.stat().st_size if self.output and self.output.exists() else 0
-        self.get_logger().info(
-            f'recording closed: {self.output or "(no file)"} ({size} bytes), '
-            f'{self.recorder.logged} messages logged, {self.recorder.dropped} dropped by rate')
+        return (f'recording closed: {self.output or "(no file)"} ({size} bytes), '
+                f'{self.recorder.logged} messages logged, '
+                f'{self.recorder.dropped} dropped by rate')
 
 
 def main(args=None):
@@ -246,8 +253,10 @@ def main(args=None):
         pass
     finally:
         if node is not None:
-            node.close()
+            logger = node.get_logger()
+            summary = node.close()
             node.destroy_node()
+            logger.info(summary)
         rclpy.try_shutdown()
 
 

@@ -204,6 +204,7 @@ def rib_centres_mm(angles_rad: Sequence[float], spacing_mm: float = RIB_SPACING_
 
 
 def _core_geometry():
+    """The solver core's geometry module, or None where it is not installed."""
     try:
         from softsnap_model import geometry
     except ImportError:

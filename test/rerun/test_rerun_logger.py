@@ -1,0 +1,224 @@
+"""The rerun_logger node over real ROS traffic: publish shapes and states, stop it with
+SIGINT like Ctrl-C, read the .rrd back and check entity paths, frame counts and values."""
+from __future__ import annotations
+
+import datetime as dt
+import math
+import time
+import warnings
+
+import numpy as np
+import pytest
+
+from softsnap_model import recording as rec_mod
+
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
+
+NS = '/brittle_star'
+STAMP0 = 1_795_000_000_000_000_000
+PERIOD = 20_000_000  # ns between ticks (50 Hz model)
+SCENE_MODULES = ('yellow', 'blue', 'green', 'red', 'orange')
+
+
+def stamp(msg_header, ns: int):
+    msg_header.stamp.sec, msg_header.stamp.nanosec = divmod(ns, 1_000_000_000)
+
+
+def angles_for(module: str, source: str, tick: int) -> list[float]:
+    """A distinct known uniform bend per module, source and tick."""
+    k = SCENE_MODULES.index(module) + 1 if module in SCENE_MODULES else 9
+    total = (0.05 if source == 'commanded' else 0.04) * k * (tick + 1)
+    return [total / 11] * 11
+
+
+def robot_shape(source: str, tick: int, modules, with_centres: set[str], poses):
+    from geometry_msgs.msg import Point, Pose
+    from softsnap_interfaces.msg import ModuleShape, RobotShape
+
+    msg = RobotShape(robot='brittle_star')
+    stamp(msg.header, STAMP0 + tick * PERIOD)
+    msg.header.frame_id = 'brittle_star'
+    for module in modules:
+        shape = ModuleShape(module=module, source=source, converged=True, solve_time=0.0015)
+        shape.header = msg.header
+        shape.angles = angles_for(module, source, tick)
+        shape.cable_length = 0.2 - 0.001 * tick
+        if module in with_centres:
+            centres = rec_mod.rib_centres_mm(shape.angles) * 1e-3
+            shape.rib_centers = [Point(x=float(x), y=float(y), z=0.0) for x, y in centres]
+        msg.modules.append(shape)
+        pose = Pose()
+        (pose.position.x, pose.position.y, pose.position.z), q = poses[module]
+        pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w = q
+        msg.base_poses.append(pose)
+    return msg
+
+
+def scene_poses():
+    from softsnap_model.scene import load_scene
+    scene = load_scene('brittle_star')
+    poses = {m.name: (m.base_position_m, m.base_orientation_xyzw) for m in scene.modules}
+    poses['ghost'] = ((0.3, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0))
+    return scene, poses
+
+
+def rows_in_file(path, entity: str) -> int:
+    """Rows of one entity in a recording that may still be being written."""
+    from rerun.chunk import RrdReader
+    if not path.exists() or path.stat().st_size == 0:
+        return 0
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')  # no footer yet: expected while the node runs
+        try:
+            chunks = RrdReader(str(path)).stream().to_chunks()
+        except Exception:  # a chunk half written at the end of the file
+            return 0
+    return sum(c.num_rows for c in chunks if c.entity_path.lstrip('/') == entity)
+
+
+def wait_for_rows(path, entity: str, count: int, node, timeout: float = 20.0) -> None:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if rows_in_file(path, entity) >= count:
+            return
+        node.spin_until(lambda: False, 0.2)
+    pytest.fail(f'{entity}: fewer than {count} rows in {path} after {timeout} s')
+
+
+def publishers(ros_node, modules):
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from softsnap_interfaces.msg import CableLength, ModuleState, RobotShape
+
+    qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+    pubs = {source: ros_node.create_publisher(RobotShape, f'{NS}/model/shape/{source}', qos)
+            for source in ('commanded', 'predicted')}
+    for m in modules:
+        pubs[(m, 'command')] = ros_node.create_publisher(
+            CableLength, f'{NS}/{m}/cable_length/command', qos)
+        pubs[(m, 'measured')] = ros_node.create_publisher(
+            CableLength, f'{NS}/{m}/cable_length/measured', qos)
+        pubs[(m, 'state')] = ros_node.create_publisher(ModuleState, f'{NS}/{m}/state', qos)
+    return pubs
+
+
+def log_of(proc) -> str:
+    """The node's output, also after it was stopped (its log file is closed then)."""
+    return proc.log_path.read_text(errors='replace')
+
+
+def wait_matched(ros_node, pubs, proc):
+    ok = ros_node.spin_until(
+        lambda: all(p.get_subscription_count() >= 1 for p in pubs.values()) or not proc.alive(),
+        timeout=30.0)
+    assert proc.alive(), proc.output()
+    assert ok, 'rerun_logger did not subscribe to every topic:\n' + proc.output()
+
+
+def test_logger_records_scene_modules_and_completes_the_file_on_sigint(
+        tmp_path, start_node, ros_node, read_rrd):
+    from softsnap_interfaces.msg import CableLength, ModuleState
+
+    output = tmp_path / 'runs' / 'walk.rrd'  # the directory does not exist yet
+    proc = start_node('softsnap_gaits', 'rerun_logger', '--ros-args', '-r', f'__ns:={NS}',
+                      '-p', f'output:={output}', '-p', 'rate:=0.0', '-p', 'scene:=brittle_star')
+    scene, poses = scene_poses()
+    pubs = publishers(ros_node, ['yellow', 'red'])
+    wait_matched(ros_node, pubs, proc)
+
+    ticks = 6
+    modules = [*SCENE_MODULES, 'ghost']  # ghost is not in the scene: must not be logged
+    for tick in range(ticks):
+        for source in ('commanded', 'predicted'):
+            pubs[source].publish(robot_shape(source, tick, modules, {'yellow'}, poses))
+        t = STAMP0 + tick * PERIOD
+        for module in ('yellow', 'red'):
+            for kind, length in (('command', 0.2 - 0.001 * tick), ('measured', 0.2 - 0.0008 * tick)):
+                msg = CableLength(cable_length=length)
+                stamp(msg.header, t)
+                pubs[(module, kind)].publish(msg)
+            state = ModuleState(module=module, online=True, battery_voltage=7.5 - 0.1 * tick,
+                                measured_cable_length=0.2, target_cable_length=math.nan)
+            stamp(state.header, t)
+            pubs[(module, 'state')].publish(state)
+        ros_node.spin_until(lambda: False, 0.01)
+
+    wait_for_rows(output, 'robot/orange/predicted/spine', ticks, ros_node)
+    wait_for_rows(output, 'plots/red/battery_v', ticks, ros_node)
+    assert proc.stop() == 0, log_of(proc)
+    log = log_of(proc)
+    assert 'recording closed' in log and 'rosout' not in log, log
+
+    rrd = read_rrd(output)  # store() inside succeeds only if the file has its footer
+    assert rrd.blueprints
+    assert not any('ghost' in e for e in rrd.entities)
+    for module in SCENE_MODULES:
+        for source in ('commanded', 'predicted'):
+            for part in ('spine', 'ribs', 'cable'):
+                entity = f'robot/{module}/{source}/{part}'
+                assert rrd.times(entity) == [STAMP0 + i * PERIOD for i in range(ticks)], entity
+        transform = rrd.rows[f'robot/{module}']
+        assert len(transform) == 1  # poses never changed
+        np.testing.assert_allclose(transform[0]['Transform3D:translation'][0], poses[module][0],
+                                   atol=1e-7)
+        np.testing.assert_allclose(transform[0]['Transform3D:quaternion'][0], poses[module][1],
+                                   atol=1e-7)
+        assert len(rrd.scalars(f'plots/{module}/solve_time_ms/predicted')) == ticks
+    assert set(rrd.static['robot/connector']['Points3D:labels']) == set(SCENE_MODULES)
+
+    # Spines: yellow from the message's rib centres, blue computed from the angles; both
+    # must be the known shape in metres.
+    for module in ('yellow', 'blue'):
+        strips = rrd.values(f'robot/{module}/commanded/spine', 'LineStrips3D:strips')
+        for tick, value in enumerate(strips):
+            expected = rec_mod.rib_centres_mm(angles_for(module, 'commanded', tick)) * 1e-3
+            np.testing.assert_allclose(np.asarray(value[0])[:, :2], expected, atol=1e-7)
+    # The cable follows the scene's threading of that module.
+    cable = np.asarray(rrd.values('robot/red/predicted/cable', 'LineStrips3D:strips')[-1][0])
+    frames = rec_mod.rib_frames(angles_for('red', 'predicted', ticks - 1))
+    red = next(m for m in scene.modules if m.name == 'red')
+    np.testing.assert_allclose(cable, rec_mod.cable_points_m(frames, red.threading_mm), atol=1e-7)
+
+    # Time series in their units.
+    np.testing.assert_allclose(rrd.scalars('plots/red/cable_length_mm/commanded'),
+                               [200.0 - i for i in range(ticks)], atol=1e-9)
+    np.testing.assert_allclose(rrd.scalars('plots/yellow/cable_length_mm/measured'),
+                               [200.0 - 0.8 * i for i in range(ticks)], atol=1e-9)
+    np.testing.assert_allclose(rrd.scalars('plots/red/battery_v'),
+                               [7.5 - 0.1 * i for i in range(ticks)], atol=1e-6)
+    np.testing.assert_allclose(rrd.scalars('plots/green/solve_time_ms/commanded'), [1.5] * ticks)
+    tip = rrd.scalars('plots/green/tip_error_mm')
+    last = [rec_mod.rib_centres_mm(angles_for('green', s, ticks - 1))[-1] for s in
+            ('commanded', 'predicted')]
+    assert tip[-1] == pytest.approx(float(np.linalg.norm(last[0] - last[1])), abs=1e-6)
+    assert tip[-1] > 1.0  # the two shapes differ by millimetres, not a rounding error
+
+
+def test_rate_parameter_limits_logging_per_module_and_source(
+        tmp_path, start_node, ros_node, read_rrd):
+    output = tmp_path / 'limited.rrd'
+    proc = start_node('softsnap_gaits', 'rerun_logger', '--ros-args', '-r', f'__ns:={NS}',
+                      '-p', f'output:={output}', '-p', 'rate:=10.0',
+                      '-p', 'modules:=[yellow]')
+    _, poses = scene_poses()
+    pubs = publishers(ros_node, [])
+    wait_matched(ros_node, pubs, proc)
+    ticks = 20  # 20 ms apart in stamps: 0 .. 380 ms
+    for tick in range(ticks):
+        pubs['predicted'].publish(robot_shape('predicted', tick, ['yellow', 'blue'], set(), poses))
+    sentinel = 100  # 2 s later: always logged, and the last message of the publisher
+    pubs['predicted'].publish(robot_shape('predicted', sentinel, ['yellow', 'blue'], set(), poses))
+    wait_for_rows(output, 'robot/yellow/predicted/spine', 5, ros_node)
+    assert proc.stop() == 0, log_of(proc)
+
+    rrd = read_rrd(output)
+    expected = [STAMP0 + k * 100_000_000 for k in range(4)] + [STAMP0 + sentinel * PERIOD]
+    assert rrd.times('robot/yellow/predicted/spine') == expected
+    assert not any('blue' in e for e in rrd.entities)  # not in the modules parameter
+    # 21 messages with 2 modules each, of which blue is not wanted; 5 kept, 16 dropped.
+    assert '5 messages logged, 16 dropped by rate' in log_of(proc), log_of(proc)
+
+
+def test_default_output_is_under_runs_with_robot_and_utc_time():
+    from softsnap_gaits.rerun_logger import default_output
+    when = dt.datetime(2026, 11, 22, 1, 2, 3, tzinfo=dt.timezone.utc)
+    assert str(default_output('snake', when)) == 'runs/snake-20261122T010203Z.rrd'
