@@ -108,7 +108,7 @@ def ease_keyframes(t, times, values, *, period: float | None = None) -> np.ndarr
 
     Examples
     --------
-    >>> ease_keyframes([0.0, 0.5, 1.0, 2.0], [0.0, 1.0], [0.0, 10.0]).tolist()
+    >>> ease_keyframes([0.0, 0.5, 1.0, 2.0], [0.0, 1.0], [0.0, 10.0]).round(9).tolist()
     [0.0, 5.0, 10.0, 10.0]
     """
     t = np.asarray(t, dtype=float)

@@ -1,0 +1,253 @@
+"""gait_node: plays a scene's gait, publishing every module's commanded cable length.
+
+Run (``ros2 run softsnap_gaits gait_node`` or the installed script directly)::
+
+    .venv/lib/softsnap_gaits/gait_node --ros-args -r __ns:=/brittle_star \\
+        -p scene:=brittle_star -p gait:=walk
+
+Topics (relative, so inside the node's namespace):
+  ``<module>/cable_length/command`` softsnap_interfaces/CableLength, metres
+  ``gait/phase``                    softsnap_interfaces/GaitPhase
+Services (private): ``~/start``, ``~/stop``, ``~/pause``, ``~/resume`` (std_srvs/Trigger),
+``~/set_gait`` (softsnap_interfaces/SetGait).
+Parameters: scene, gait, rate, autostart, period, amplitude, transition_time (docs/gaits.md).
+
+The node is a thin shell: the gait library (gaits.py) computes contractions and the
+player (player.py) keeps the start/stop/pause state; here they are wired to ROS.
+"""
+from __future__ import annotations
+
+import math
+
+import rclpy
+from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParametersResult
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from softsnap_interfaces.msg import CableLength, GaitPhase
+from softsnap_interfaces.srv import SetGait
+from std_srvs.srv import Trigger
+
+from softsnap_gaits.gaits import GaitError, make_gait
+from softsnap_gaits.player import PAUSED, RUNNING, GaitPlayer
+from softsnap_model.scene import SceneError, load_scene
+
+#: Publishing rate limits (Hz).
+MIN_RATE_HZ, MAX_RATE_HZ = 1.0, 1000.0
+#: Largest period override (s) and amplitude override (m) the parameters accept.
+MAX_PERIOD_S, MAX_AMPLITUDE_M = 3600.0, 0.2
+MAX_TRANSITION_S = 10.0
+
+
+def _float_range(low: float, high: float) -> list[FloatingPointRange]:
+    return [FloatingPointRange(from_value=low, to_value=high, step=0.0)]
+
+
+class GaitNode(Node):
+    """Publishes the commanded cable length of each module of a scene at a fixed rate."""
+
+    def __init__(self, **kwargs):
+        super().__init__('gait_node', **kwargs)
+        self._accept_integer_overrides(('rate', 'period', 'amplitude', 'transition_time'))
+        self.declare_parameter('scene', 'brittle_star', ParameterDescriptor(
+            description='Scene name (brittle_star, starfish, snake, gripper, ring) or path '
+                        'to a scene YAML file; fixed at start-up.', read_only=True))
+        self.declare_parameter('gait', '', ParameterDescriptor(
+            description="Gait name from the scene's gaits; empty: the scene's default gait."))
+        self.declare_parameter('rate', 50.0, ParameterDescriptor(
+            description='Publishing rate of commands and phase, in Hz.',
+            floating_point_range=_float_range(MIN_RATE_HZ, MAX_RATE_HZ)))
+        self.declare_parameter('autostart', True, ParameterDescriptor(
+            description='Start the gait as soon as the node is up (otherwise call ~/start).'))
+        self.declare_parameter('period', 0.0, ParameterDescriptor(
+            description="Gait period override in s; 0 keeps the gait's own period.",
+            floating_point_range=_float_range(0.0, MAX_PERIOD_S)))
+        self.declare_parameter('amplitude', 0.0, ParameterDescriptor(
+            description='Override of the largest cable contraction, in m (every module is '
+                        "scaled alike); 0 keeps the gait's own amplitude.",
+            floating_point_range=_float_range(0.0, MAX_AMPLITUDE_M)))
+        self.declare_parameter('transition_time', 0.3, ParameterDescriptor(
+            description='Blend time in s from the last command to a new target on start, '
+                        'stop and gait switches (0: jump).',
+            floating_point_range=_float_range(0.0, MAX_TRANSITION_S)))
+
+        # Scene and initial gait: a failure here is a configuration error the caller sees
+        # (SceneError / GaitError propagate to main, which exits with the reason).
+        self.scene = load_scene(self.get_parameter('scene').value)
+        gait = self._build_gait(self._gait_config({}))
+        self.player = GaitPlayer(gait, transition_s=self.get_parameter('transition_time').value)
+
+        self.command_publishers = {
+            m.name: self.create_publisher(CableLength, f'{m.name}/cable_length/command', 10)
+            for m in self.scene.modules}
+        self.phase_publisher = self.create_publisher(GaitPhase, 'gait/phase', 10)
+        self.create_service(Trigger, '~/start', self.start_callback)
+        self.create_service(Trigger, '~/stop', self.stop_callback)
+        self.create_service(Trigger, '~/pause', self.pause_callback)
+        self.create_service(Trigger, '~/resume', self.resume_callback)
+        self.create_service(SetGait, '~/set_gait', self.set_gait_callback)
+        self.timer = self.create_timer(1.0 / self.get_parameter('rate').value,
+                                       self.timer_callback)
+        self.add_on_set_parameters_callback(self.parameters_callback)
+
+        if self.get_parameter('autostart').value:
+            self.player.start(self._now_s())
+        self.get_logger().info(
+            f'scene {self.scene.name!r} ({self.scene.path}), modules '
+            f'{", ".join(self.scene.module_names)}; gait {gait.name!r} ({gait.type}, period '
+            f'{gait.period_s:g} s, amplitude {gait.amplitude_mm:g} mm); publishing '
+            f'{self.get_parameter("rate").value:g} Hz on '
+            f'{self.resolve_topic_name("gait/phase").rsplit("/", 2)[0]}/<module>/cable_length/command; '
+            f'{"running" if self.player.state == RUNNING else "waiting for ~/start"}')
+
+    # ------------------------------------------------------------------ helpers
+    def _accept_integer_overrides(self, names) -> None:
+        """Let ``-p rate:=100`` mean 100.0 for our double parameters.
+
+        The command line parser types ``100`` as an integer and declaring a double
+        parameter with an integer override fails; users should not have to type ``100.0``.
+        """
+        overrides = getattr(self, '_parameter_overrides', None)
+        if not isinstance(overrides, dict):
+            return
+        for name in names:
+            p = overrides.get(name)
+            if p is not None and p.type_ == Parameter.Type.INTEGER:
+                overrides[name] = Parameter(name, Parameter.Type.DOUBLE, float(p.value))
+
+    def _now_s(self) -> float:
+        return self.get_clock().now().nanoseconds * 1e-9
+
+    def _gait_config(self, changes: dict) -> dict:
+        """Current gait, period and amplitude parameters with `changes` applied."""
+        config = {k: self.get_parameter(k).value for k in ('gait', 'period', 'amplitude')}
+        config.update(changes)
+        return config
+
+    def _build_gait(self, config: dict):
+        """Gait from parameter values (period s, amplitude m; 0 = the gait's own)."""
+        name = config['gait'] or self.scene.default_gait
+        period = config['period'] or None
+        amplitude = config['amplitude'] * 1000.0 if config['amplitude'] else None
+        return make_gait(name, self.scene, period_s=period, amplitude_mm=amplitude)
+
+    # ------------------------------------------------------------------ callbacks
+    def parameters_callback(self, parameters: list[Parameter]) -> SetParametersResult:
+        """Validate a parameter change and apply it; refuse it with the reason otherwise."""
+        changes = {p.name: p.value for p in parameters}
+        gait_changes = {k: v for k, v in changes.items() if k in ('gait', 'period', 'amplitude')}
+        new_gait = None
+        if gait_changes:
+            try:
+                new_gait = self._build_gait(self._gait_config(gait_changes))
+            except (GaitError, ValueError) as exc:
+                return SetParametersResult(successful=False, reason=str(exc))
+        if 'rate' in changes and not (isinstance(changes['rate'], float)
+                                      and MIN_RATE_HZ <= changes['rate'] <= MAX_RATE_HZ):
+            return SetParametersResult(
+                successful=False, reason=f'rate must be a number from {MIN_RATE_HZ:g} to '
+                                         f'{MAX_RATE_HZ:g} Hz, got {changes["rate"]!r}')
+        if 'transition_time' in changes:
+            value = changes['transition_time']
+            if not (isinstance(value, float) and 0.0 <= value <= MAX_TRANSITION_S):
+                return SetParametersResult(
+                    successful=False, reason=f'transition_time must be from 0 to '
+                                             f'{MAX_TRANSITION_S:g} s, got {value!r}')
+        # Everything checked: apply.
+        now = self._now_s()
+        if new_gait is not None:
+            ok, message = self.player.switch(new_gait, now)
+            if not ok:
+                return SetParametersResult(successful=False, reason=message)
+            self.get_logger().info(message)
+        if 'transition_time' in changes:
+            self.player.transition_s = changes['transition_time']
+        if 'rate' in changes:
+            self.timer.cancel()
+            self.destroy_timer(self.timer)
+            self.timer = self.create_timer(1.0 / changes['rate'], self.timer_callback)
+        return SetParametersResult(successful=True)
+
+    def timer_callback(self) -> None:
+        now = self.get_clock().now()
+        out = self.player.tick(now.nanoseconds * 1e-9)
+        stamp = now.to_msg()
+        if out.cable_length_mm is not None:
+            for name, length_mm in zip(self.player.gait.module_names, out.cable_length_mm):
+                msg = CableLength()
+                msg.header.stamp = stamp
+                msg.cable_length = float(length_mm) / 1000.0
+                self.command_publishers[name].publish(msg)
+        phase = GaitPhase()
+        phase.header.stamp = stamp
+        phase.gait = self.player.gait.name
+        phase.running = out.state == RUNNING
+        phase.paused = out.state == PAUSED
+        phase.phase = min(max(out.phase, 0.0), 1.0)
+        phase.cycle = out.cycle
+        phase.period = float(self.player.gait.period_s)
+        self.phase_publisher.publish(phase)
+
+    def _trigger(self, action, response: Trigger.Response) -> Trigger.Response:
+        response.success, response.message = action(self._now_s())
+        self.get_logger().info(response.message)
+        return response
+
+    def start_callback(self, request, response):
+        return self._trigger(self.player.start, response)
+
+    def stop_callback(self, request, response):
+        return self._trigger(self.player.stop, response)
+
+    def pause_callback(self, request, response):
+        return self._trigger(self.player.pause, response)
+
+    def resume_callback(self, request, response):
+        return self._trigger(self.player.resume, response)
+
+    def set_gait_callback(self, request: SetGait.Request, response: SetGait.Response):
+        """Switch gait through the parameters, so parameters and the running gait agree."""
+        values = {'gait': request.gait or self.get_parameter('gait').value,
+                  'period': float(request.period), 'amplitude': float(request.amplitude)}
+        for key, value in (('period', request.period), ('amplitude', request.amplitude)):
+            if not math.isfinite(value) or value < 0.0:
+                response.success = False
+                response.message = f'{key} must be >= 0 (0 keeps the default), got {value!r}'
+                return response
+        result = self.set_parameters_atomically(
+            [Parameter(k, value=v) for k, v in values.items()])
+        response.success = result.successful
+        if not result.successful:
+            response.message = result.reason
+        else:
+            gait = self.player.gait
+            response.message = (f'gait {gait.name!r}: period {gait.period_s:g} s, amplitude '
+                                f'{gait.amplitude_mm:g} mm, {self.player.state}')
+        return response
+
+
+def main(args=None) -> int:
+    rclpy.init(args=args)
+    node = None
+    try:
+        try:
+            node = GaitNode()
+        except (SceneError, GaitError) as exc:
+            rclpy.logging.get_logger('gait_node').fatal(f'cannot start: {exc}')
+            return 2
+        # One thread: the timer, services and parameter callbacks all touch the player,
+        # and serial execution keeps them consistent without locks.
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())
