@@ -452,7 +452,7 @@ _REACH_CACHE: dict[tuple, tuple[float, Any]] = {}
 def solver_available() -> bool:
     """True when softsnap_model provides `reachable_range` (the forward solver)."""
     try:
-        from softsnap_model import reachable_range  # noqa: F401, PLC0415
+        from softsnap_model.forward import reachable_range  # noqa: F401, PLC0415
     except ImportError:
         return False
     return True
@@ -461,12 +461,12 @@ def solver_available() -> bool:
 def reachable_contraction_mm(skeleton, threading_mm) -> float:
     """Largest contraction (mm) the solver can reach for a threading on `skeleton`.
 
-    ``straight_length_mm - min_length_mm`` from `softsnap_model.reachable_range`, cached
+    ``straight_length_mm - min_length_mm`` from `softsnap_model.forward.reachable_range`, cached
     per (skeleton, threading).
     """
     key = (id(skeleton), tuple(float(d) for d in threading_mm))
     if key not in _REACH_CACHE:
-        from softsnap_model import reachable_range  # noqa: PLC0415 - heavy, lazy
+        from softsnap_model.forward import reachable_range  # noqa: PLC0415 - heavy, lazy
         min_length, straight_length = reachable_range(skeleton, tuple(threading_mm))
         value = float(straight_length) - float(min_length)
         if not math.isfinite(value) or value < 0.0:

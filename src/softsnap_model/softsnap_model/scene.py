@@ -403,7 +403,7 @@ _MODULE_REQUIRED = {'name', 'threading', 'port', 'base'}
 _MODULE_OPTIONAL = {'host', 'counts_per_mm', 'max_contraction_mm', 'color', 'parent',
                     'parent_offset'}
 _POSE_ORIENTATIONS = ('axes', 'rpy_deg', 'orientation_xyzw')
-_SKELETON_KEYS = {'ribs', 'spacing_mm', 'holes_mm'}
+_SKELETON_KEYS = {'n_ribs', 'spacing_mm', 'rib_length_mm', 'holes_mm', 'stiffness'}
 
 
 def _orientation(chk: _Checker, pose: Mapping, key: str) -> tuple[float, float, float, float]:
@@ -453,35 +453,8 @@ def _pose(chk: _Checker, value, key: str):
     return pos_m, _orientation(chk, pose, key)
 
 
-class _InterimSkeleton:
-    """Stand-in used only while softsnap_model.skeleton is not importable.
-
-    Same constructor keywords and methods as the documented Skeleton contract, with the
-    authors' module as default (FACTS.md); the real class replaces it as soon as it exists.
-    """
-
-    AUTHORS_HOLES_MM = {'L0': -0.5, 'L1': -3.0, 'L2': -6.5, 'L3': -10.0,
-                        'R0': 0.5, 'R1': 3.0, 'R2': 6.5, 'R3': 10.0}
-
-    def __init__(self, n_ribs: int = 12, spacing_mm: float = 18.0,
-                 holes_mm: Mapping[str, float] | None = None):
-        self.n_ribs = n_ribs
-        self.spacing_mm = spacing_mm
-        self.holes_mm = dict(self.AUTHORS_HOLES_MM if holes_mm is None else holes_mm)
-
-    def threading_mm(self, names) -> tuple[float, ...]:
-        return tuple(self.holes_mm[n] for n in names)
-
-    def straight_length_mm(self, threading) -> float:
-        d = [self.holes_mm[h] if isinstance(h, str) else float(h) for h in threading]
-        return sum(math.hypot(self.spacing_mm, b - a) for a, b in zip(d[:-1], d[1:]))
-
-
 def _skeleton_class():
-    try:
-        from softsnap_model.skeleton import Skeleton  # noqa: PLC0415 - lazy: no import cycle
-    except ImportError:
-        return _InterimSkeleton
+    from softsnap_model.skeleton import Skeleton  # noqa: PLC0415 - lazy: no import cycle
     return Skeleton
 
 
@@ -490,26 +463,13 @@ def _default_skeleton():
 
 
 def _make_skeleton(chk: _Checker, value, key: str):
-    """The authors' skeleton, or one built from the file's override."""
+    """The authors' skeleton, or one built from the file's override (Skeleton.from_dict keys)."""
     if value is None:
         return _default_skeleton()
     spec = chk.mapping(value, key)
     chk.keys(spec, key, set(), _SKELETON_KEYS)
-    kwargs: dict[str, Any] = {}
-    if 'ribs' in spec:
-        kwargs['n_ribs'] = chk.integer(spec['ribs'], f'{key}.ribs', low=2, high=100)
-    if 'spacing_mm' in spec:
-        kwargs['spacing_mm'] = chk.number(spec['spacing_mm'], f'{key}.spacing_mm',
-                                          low=0.0, low_open=True, high=1000.0)
-    if 'holes_mm' in spec:
-        holes = chk.mapping(spec['holes_mm'], f'{key}.holes_mm')
-        if not holes:
-            chk.fail(f'{key}.holes_mm', 'at least one hole name: offset (mm)', holes)
-        kwargs['holes_mm'] = {name: chk.number(v, f'{key}.holes_mm.{name}', low=-1000.0,
-                                               high=1000.0)
-                              for name, v in holes.items()}
     try:
-        return _skeleton_class()(**kwargs)
+        return _skeleton_class().from_dict(dict(spec))
     except (TypeError, ValueError) as exc:
         raise SceneError(f'{chk.path}: {key}: invalid skeleton ({exc})') from None
 
