@@ -142,6 +142,14 @@ def test_robot_recording_entity_tree_frames_and_values(tmp_path, read_rrd):
     assert 'robot/blue/commanded/cable' not in rrd.entities  # no threading given for blue
     assert rrd.blueprints, 'the blueprint was not stored in the file'
 
+    # Commanded and predicted in distinct colours, logged once (static), packed RGBA.
+    def rgba(rgb):
+        return (rgb[0] << 24) | (rgb[1] << 16) | (rgb[2] << 8) | 0xFF
+    for source in ('commanded', 'predicted'):
+        style = rrd.static[f'robot/blue/{source}/spine']
+        assert style['LineStrips3D:colors'] == [rgba(rec_mod.SPINE_COLORS[source])]
+    assert rec_mod.SPINE_COLORS['commanded'] != rec_mod.SPINE_COLORS['predicted']
+
     # One frame per tick and entity, on the ros_time timeline at the message stamps.
     stamps = [STAMP0 + i * PERIOD for i in range(10)]
     for entity in ('robot/yellow/commanded/spine', 'robot/blue/predicted/ribs',

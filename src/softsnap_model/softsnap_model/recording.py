@@ -301,19 +301,34 @@ def log_connector(rec: rr.RecordingStream, positions_m: Mapping[str, Sequence[fl
                 static=True)
 
 
+def log_shape_styles(rec: rr.RecordingStream, module: str, source: str,
+                     cable: bool = True) -> None:
+    """Static colours and radii of a shape's strips, logged once per module and source.
+
+    Per-frame logs then carry the points only (about half the bytes and time per frame).
+    """
+    parts = [('spine', SPINE_COLORS, SPINE_RADIUS_M), ('ribs', RIB_COLORS, RIB_RADIUS_M)]
+    if cable:
+        parts.append(('cable', CABLE_COLORS, CABLE_RADIUS_M))
+    for part, color, radius in parts:
+        rec.log(shape_path(module, source, part),
+                rr.LineStrips3D.from_fields(colors=[color[source]], radii=[radius]),
+                static=True)
+
+
 def log_module_shape(rec: rr.RecordingStream, module: str, source: str, frames: RibFrames,
                      threading_mm: Sequence[float] | None = None) -> None:
-    """Spine, ribs and (given a threading) cable of one shape, at the current time."""
+    """Spine, ribs and (given a threading) cable of one shape, at the current time.
+
+    Colours and radii come from :func:`log_shape_styles`.
+    """
     rec.log(shape_path(module, source, 'spine'),
-            rr.LineStrips3D([frames.centres_m], radii=SPINE_RADIUS_M,
-                            colors=[SPINE_COLORS[source]]))
+            rr.LineStrips3D.from_fields(strips=[frames.centres_m]))
     rec.log(shape_path(module, source, 'ribs'),
-            rr.LineStrips3D(rib_segments_m(frames), radii=RIB_RADIUS_M,
-                            colors=[RIB_COLORS[source]]))
+            rr.LineStrips3D.from_fields(strips=rib_segments_m(frames)))
     if threading_mm is not None:
         rec.log(shape_path(module, source, 'cable'),
-                rr.LineStrips3D([cable_points_m(frames, threading_mm)], radii=CABLE_RADIUS_M,
-                                colors=[CABLE_COLORS[source]]))
+                rr.LineStrips3D.from_fields(strips=[cable_points_m(frames, threading_mm)]))
 
 
 def log_scalar(rec: rr.RecordingStream, path: str, value: float) -> None:
@@ -374,7 +389,7 @@ class RobotRecorder:
         self.dropped = 0
         self._poses: dict[str, tuple[tuple[float, ...], tuple[float, ...]]] = {}
         self._latest: dict[tuple[str, str], RibFrames] = {}
-        self._styled: set[str] = set()
+        self._styled: set[object] = set()
         log_scene_setup(rec)
 
     def wants(self, module: str) -> bool:
@@ -424,6 +439,9 @@ class RobotRecorder:
         self._latest[(module, source)] = frames
         if not self._admit(module, source, stamp_ns):
             return False
+        if (module, source) not in self._styled:
+            self._styled.add((module, source))
+            log_shape_styles(self.rec, module, source, module in self.threadings_mm)
         log_module_shape(self.rec, module, source, frames, self.threadings_mm.get(module))
         if solve_time_s is not None:
             log_scalar(self.rec, plot_path(module, 'solve_time_ms', source), solve_time_s * 1e3)
@@ -484,6 +502,8 @@ def _write_shapes(path: str | Path, shapes: Mapping[str, Sequence[Sequence[float
                  for i, name in enumerate(shapes)}
         log_base_poses(rec, poses, static=True)
         log_connector(rec, {name: p for name, (p, _) in poses.items()})
+        for name in shapes:
+            log_shape_styles(rec, name, 'predicted', name in threadings_mm)
         tips: dict[str, list[np.ndarray]] = {name: [] for name in shapes}
         for step, contraction in enumerate(contractions_mm):
             rec.set_time(STEP_TIMELINE, sequence=step)
