@@ -1,0 +1,301 @@
+"""Gait library: each robot's command sequence over one period against its definition."""
+import math
+
+import numpy as np
+import pytest
+
+from softsnap_gaits.gaits import (GAIT_TYPES, GaitError, ease_keyframes, make_gait,
+                                  pulse_shape, reachable_contraction_mm)
+from softsnap_gaits.player import PAUSED, RUNNING, STOPPED, GaitPlayer
+from softsnap_model.scene import list_scenes, load_scene
+
+RATE_HZ = 1000.0          # sampling of the command sequences in these tests
+ALL_GAITS = [(s, g) for s in ['brittle_star', 'starfish', 'snake', 'gripper', 'ring']
+             for g in load_scene(s).gaits]
+
+
+@pytest.fixture(scope='module')
+def scenes():
+    return {name: load_scene(name) for name in list_scenes()}
+
+
+def contraction(gait, module, t):
+    return gait.contraction_mm(np.asarray(t, dtype=float))[..., gait.index(module)]
+
+
+# --------------------------------------------------------------- properties of every gait
+
+@pytest.mark.parametrize('scene_name, gait_name', ALL_GAITS)
+def test_every_gait_starts_straight_stays_in_range_and_is_smooth(scenes, scene_name, gait_name):
+    scene = scenes[scene_name]
+    gait = make_gait(gait_name, scene)
+    assert gait.reachable_checked
+    assert gait.module_names == scene.module_names
+    t, c = gait.sample(RATE_HZ)
+    assert c.shape == (len(t), len(scene.modules))
+    assert np.all(gait.contraction_mm(0.0) == 0.0)                 # starts from straight
+    assert np.all(c >= 0.0)
+    assert np.all(c.max(axis=0) <= gait.peak_contraction_mm + 1e-9)
+    assert np.all(gait.peak_contraction_mm <= gait.limit_contraction_mm)
+    assert gait.amplitude_mm > 0
+    for m, limit in zip(scene.modules, gait.limit_contraction_mm):
+        assert limit <= min(m.max_contraction_mm,
+                            reachable_contraction_mm(scene.skeleton, m.threading_mm))
+    # Smooth for a motor: no step larger than the peak speed allows between samples.
+    dt = 1.0 / RATE_HZ
+    steps = np.abs(np.diff(gait.contraction_mm(np.arange(0, 2 * gait.period_s, dt)), axis=0))
+    assert np.all(np.isfinite(gait.peak_speed_mm_s))
+    assert np.all(steps <= gait.peak_speed_mm_s * dt * (1 + 1e-6) + 1e-9)
+    lengths = gait.cable_length_mm(t)
+    assert lengths == pytest.approx(gait.straight_length_mm - c)
+    if gait.loop:   # periodic after the first cycle
+        t2 = np.arange(gait.period_s, 2 * gait.period_s, 0.013)
+        assert gait.contraction_mm(t2 + gait.period_s) == pytest.approx(gait.contraction_mm(t2),
+                                                                        abs=1e-9)
+
+
+# --------------------------------------------------------------- each robot's definition
+
+def test_brittle_star_walk_alternates_two_groups_every_half_second(scenes):
+    gait = make_gait('walk', scenes['brittle_star'])
+    assert gait.period_s == 1.0 and gait.loop
+    first, second = ['blue', 'orange'], ['yellow', 'green', 'red']
+    rise = gait.params['rise_time_s']
+    for cycle in (0, 1, 5):
+        # Holding parts of each half: one group at 40 mm, the other straight.
+        for t in cycle + np.linspace(rise, 0.5, 20, endpoint=False):
+            c = dict(zip(gait.module_names, gait.contraction_mm(t)))
+            assert all(c[m] == pytest.approx(40.0) for m in first)
+            assert all(c[m] == pytest.approx(0.0, abs=1e-9) for m in second)
+        for t in cycle + np.linspace(0.5 + rise, 1.0, 20, endpoint=False):
+            c = dict(zip(gait.module_names, gait.contraction_mm(t)))
+            assert all(c[m] == pytest.approx(40.0) for m in second)
+            assert all(c[m] == pytest.approx(0.0, abs=1e-9) for m in first)
+    # Edges: half-way up half a rise time after each switch.
+    assert contraction(gait, 'blue', 1 + rise / 2) == pytest.approx(20.0)
+    assert contraction(gait, 'yellow', 1.5 + rise / 2) == pytest.approx(20.0)
+    assert contraction(gait, 'blue', 1.5 + rise / 2) == pytest.approx(20.0)
+    # First cycle: the second group rests until its first onset at 0.5 s.
+    assert contraction(gait, 'yellow', 0.25) == 0.0
+
+
+def test_snake_concertina_deforms_head_to_tail_then_restores_head_to_tail(scenes):
+    gait = make_gait('concertina', scenes['snake'])
+    assert gait.period_s == pytest.approx(1.1)
+    order = ['head', 'body2', 'body3', 'body4', 'tail']
+    t = np.arange(0.0, 1.1, 1e-4)
+    c = gait.contraction_mm(t)
+    half = 35.0 / 2
+    onsets, releases = [], []
+    for m in order:
+        x = c[:, gait.index(m)]
+        onsets.append(t[np.argmax(x >= half)])
+        releases.append(t[np.nonzero(x >= half)[0][-1]])
+    rise = gait.params['rise_time_s']
+    # Onset k at k * 0.11 s (+ half the rise), release 0.55 s (duty 0.5) later.
+    assert onsets == pytest.approx([k * 0.11 + rise / 2 for k in range(5)], abs=2e-4)
+    assert releases == pytest.approx([k * 0.11 + 0.55 + rise / 2 for k in range(5)], abs=2e-4)
+    # Fully contracted body between the tail's onset and the head's release.
+    full = (t > 0.44 + rise) & (t < 0.55)
+    assert np.all(c[full] == pytest.approx(35.0))
+    assert np.all(c[t > 0.99 + rise] == pytest.approx(0.0, abs=1e-9))  # straight before next cycle
+
+
+def test_starfish_righting_plays_the_script_then_relaxes(scenes):
+    scene = scenes['starfish']
+    gait = make_gait('righting', scene)
+    assert not gait.loop and gait.period_s == 10.5 and gait.duration_s == 10.5
+    for module, frames in scene.gaits['righting']['keyframes'].items():
+        for t, value in frames:
+            assert contraction(gait, module, t) == pytest.approx(value, abs=1e-9)
+    # Midway between two keyframes: the mean of their values (cosine ease).
+    assert contraction(gait, 'yellow', 0.5) == pytest.approx(22.5)
+    # The top legs are raised by 1.75 s and held until the fall at 3.25 s.
+    for m in ('yellow', 'green', 'red'):
+        assert contraction(gait, m, 1.75) > 25 and contraction(gait, m, 3.25) > 25
+    # After the script the robot relaxes and stays relaxed.
+    assert np.all(gait.contraction_mm(np.array([10.5, 11.25, 30.0])) == 0.0)
+    assert gait.phase(5.25) == (0.5, 0) and gait.phase(12.0) == (1.0, 1)
+    assert gait.finished(10.5) and not gait.finished(10.4)
+
+
+def test_gripper_grasp_closes_holds_opens_all_four_together(scenes):
+    gait = make_gait('grasp', scenes['gripper'])
+    p = gait.params
+    assert (p['close_s'], p['hold_s'], p['open_s'], p['rest_s']) == (1.5, 2.5, 1.5, 0.5)
+    assert gait.period_s == 6.0 and gait.loop
+    t, c = gait.sample(RATE_HZ)
+    assert np.all(c == c[:, :1])                                       # same signal
+    x = c[:, 0]
+    assert np.all(np.diff(x[t < 1.5]) >= 0) and x[t < 1.5].max() < 45.0   # closing
+    assert np.all(x[(t >= 1.5) & (t <= 4.0)] == pytest.approx(45.0))        # holding
+    assert np.all(np.diff(x[(t > 4.0) & (t < 5.5)]) <= 0)                  # opening
+    assert np.all(x[t >= 5.5] == pytest.approx(0.0, abs=1e-9))               # resting
+    assert x[t == 0.75][0] == pytest.approx(22.5)
+
+
+def test_ring_transport_always_cages_with_one_pair_while_the_other_regrips(scenes):
+    gait = make_gait('transport', scenes['ring'])
+    assert gait.period_s == 4.0
+    a, b = ['south', 'north'], ['east', 'west']
+    t = np.arange(gait.period_s, 2 * gait.period_s, 1e-3)               # steady state
+    c = gait.contraction_mm(t)
+    grip_a = np.all(c[:, [gait.index(m) for m in a]] >= 30.0 - 1e-9, axis=1)
+    grip_b = np.all(c[:, [gait.index(m) for m in b]] >= 30.0 - 1e-9, axis=1)
+    assert np.all(grip_a | grip_b)                                      # always caged
+    # Opposite modules move together.
+    for x, y in (a, b):
+        assert c[:, gait.index(x)] == pytest.approx(c[:, gait.index(y)])
+    # Each pair releases (returns to straight) once per cycle, in turn: B then A.
+    u = t - gait.period_s
+    released_b = u[c[:, gait.index('east')] < 1e-9]
+    released_a = u[c[:, gait.index('south')] < 1e-9]
+    assert released_b.min() > 1.0 and released_b.max() <= 2.0 + 1e-6
+    assert set(np.round(released_a, 3)) - {0.0} <= set(np.round(np.arange(3.3, 4.0, 1e-3), 3))
+    assert len(released_a) and len(released_b)
+
+
+# ------------------------------------------------------------------------ overrides
+
+def test_period_and_amplitude_overrides(scenes):
+    scene = scenes['brittle_star']
+    base = make_gait('walk', scene)
+    slow = make_gait('walk', scene, period_s=2.0, amplitude_mm=20.0)
+    assert slow.period_s == 2.0 and slow.amplitude_mm == pytest.approx(20.0)
+    assert slow.params['rise_time_s'] == base.params['rise_time_s']    # rise kept in seconds
+    assert slow.contraction_mm(2.5) == pytest.approx(base.contraction_mm(1.25) / 2)
+    righting = make_gait('righting', scenes['starfish'], period_s=21.0, amplitude_mm=25.0)
+    ref = make_gait('righting', scenes['starfish'])
+    assert righting.contraction_mm(7.0) == pytest.approx(ref.contraction_mm(3.5) * 0.5)
+
+
+def test_amplitude_beyond_the_paper_range_refused(scenes):
+    with pytest.raises(GaitError, match=r"module 'yellow' would contract 90\.000 mm, beyond "
+                                        r"the scene's max_contraction_mm \(80\.000 mm\)"):
+        make_gait('walk', scenes['brittle_star'], amplitude_mm=90.0)
+
+
+def test_amplitude_beyond_the_solver_reach_refused(tmp_path):
+    import yaml
+    from softsnap_model.scene import find_scene
+    data = yaml.safe_load(find_scene('brittle_star').read_text())
+    data['defaults']['max_contraction_mm'] = 150.0
+    path = tmp_path / 'greedy.yaml'
+    path.write_text(yaml.safe_dump(data))
+    scene = load_scene(path)
+    reach = reachable_contraction_mm(scene.skeleton, scene.module('yellow').threading_mm)
+    assert 80.0 < reach < 120.0                       # yellow (R1..R3) reaches about 83 mm
+    with pytest.raises(GaitError, match=r"'yellow'.*solver's reachable contraction"):
+        make_gait('walk', scene, amplitude_mm=120.0)
+    assert make_gait('walk', scene, amplitude_mm=80.0).amplitude_mm == 80.0
+
+
+@pytest.mark.parametrize('period', [0.0, -1.0, 1e9, math.nan])
+def test_bad_period_override_refused(scenes, period):
+    with pytest.raises(GaitError, match='period'):
+        make_gait('walk', scenes['brittle_star'], period_s=period)
+
+
+# --------------------------------------------------------------------- refusals
+
+def test_unknown_gait_and_type_refused_naming_the_known_ones(scenes):
+    with pytest.raises(GaitError, match="unknown gait 'fly'; known gaits: walk, walk_reverse"):
+        make_gait('fly', scenes['brittle_star'])
+    with pytest.raises(ValueError, match="unknown gait type 'hop'; known types: " +
+                       ', '.join(GAIT_TYPES)):
+        make_gait({'type': 'hop'}, scenes['brittle_star'])
+
+
+BAD_SPECS = [
+    ({'type': 'alternating', 'period_s': 1, 'groups': [['yellow', 'nobody']],
+      'amplitude_mm': 10}, r'groups\[0\]\[1\].*a module of scene'),
+    ({'type': 'alternating', 'period_s': 1, 'groups': [['yellow'], ['yellow']],
+      'amplitude_mm': 10}, r'groups\[1\]\[0\].*at most one group'),
+    ({'type': 'alternating', 'period_s': 1, 'groups': [['yellow']], 'duty': 0.5,
+      'amplitude_mm': 10, 'rise_time_s': 0.6}, r'rise_time_s: expected at most'),
+    ({'type': 'alternating', 'period_s': 1, 'groups': [['yellow']], 'duty': 1.0,
+      'amplitude_mm': 10}, r'duty'),
+    ({'type': 'alternating', 'period_s': 1, 'groups': [['yellow']], 'amplitude_mm': -3},
+     r'amplitude_mm: expected a number >= 0'),
+    ({'type': 'alternating', 'period_s': 1, 'groups': [['yellow']], 'amplitude_mm': 10,
+      'speed': 3}, r'speed: expected one of the known keys'),
+    ({'type': 'wave', 'period_s': 1, 'order': ['yellow', 'blue'], 'lag': 0.7,
+      'amplitude_mm': 10}, r'lag: expected a number <= 0.5'),
+    ({'type': 'keyframes', 'period_s': 2, 'keyframes': {'yellow': [[0.5, 0], [1, 10]]}},
+     r'keyframes\.yellow\[0\]: expected the first keyframe at \[0, 0\]'),
+    ({'type': 'keyframes', 'period_s': 2, 'keyframes': {'yellow': [[0, 0], [1, 10], [1, 5]]}},
+     r'keyframes\.yellow\[2\]\[0\]: expected a time after'),
+    ({'type': 'keyframes', 'period_s': 2, 'keyframes': {'yellow': [[0, 0], [3, 10]]}},
+     r'keyframes\.yellow\[1\]\[0\]: expected a number <= 2'),
+    ({'type': 'grasp', 'close_s': 0, 'open_s': 1, 'amplitude_mm': 5}, r'close_s'),
+    ({'type': 'pulse', 'period_s': 1, 'phases': {'yellow': 1.5}, 'amplitude_mm': 5},
+     r'phases\.yellow'),
+]
+
+
+@pytest.mark.parametrize('spec, pattern', BAD_SPECS)
+def test_invalid_gait_spec_refused_with_key_and_reason(scenes, spec, pattern):
+    with pytest.raises(GaitError, match=r"scene 'brittle_star'.*gaits\.custom\." + pattern):
+        make_gait(spec, scenes['brittle_star'])
+
+
+# ------------------------------------------------------------------------ pure shapes
+
+def test_pulse_shape_reference_values():
+    u = np.array([0.0, 0.025, 0.05, 0.3, 0.5, 0.525, 0.55, 0.8, 1.025])
+    assert pulse_shape(u, duty=0.5, rise=0.05) == pytest.approx(
+        [0.0, 0.5, 1.0, 1.0, 1.0, 0.5, 0.0, 0.0, 0.5])
+    assert pulse_shape([0.2, 0.7], duty=0.5, rise=0.0).tolist() == [1.0, 0.0]
+
+
+def test_ease_keyframes_loop_returns_to_the_start():
+    v = ease_keyframes([0.0, 1.0, 1.5, 2.0, 2.5], [0.0, 1.0], [0.0, 10.0], period=2.0)
+    assert v == pytest.approx([0.0, 10.0, 5.0, 0.0, 5.0])
+
+
+# ----------------------------------------------------------------------------- player
+
+def test_player_start_pause_resume_stop_and_switch(scenes):
+    scene = scenes['brittle_star']
+    walk, reverse = make_gait('walk', scene), make_gait('walk_reverse', scene)
+    player = GaitPlayer(walk, transition_s=0.0)
+    out = player.tick(0.0)
+    assert out.state == STOPPED and out.contraction_mm is None
+    assert player.start(10.0) == (True, "started gait 'walk'")
+    assert player.start(10.1)[0] is False
+    out = player.tick(10.25)
+    assert out.state == RUNNING and out.contraction_mm == pytest.approx(walk.contraction_mm(0.25))
+    assert out.phase == pytest.approx(0.25)
+    assert player.pause(10.3)[0] and player.state == PAUSED
+    held = player.tick(50.0).contraction_mm
+    assert held == pytest.approx(walk.contraction_mm(0.3))
+    assert player.resume(60.0)[0]
+    assert player.tick(60.1).contraction_mm == pytest.approx(walk.contraction_mm(0.4))
+    ok, message = player.switch(reverse, 61.0)
+    assert ok and 'walk_reverse' in message and player.state == RUNNING
+    assert player.tick(61.25).contraction_mm == pytest.approx(reverse.contraction_mm(0.25))
+    assert player.stop(62.0)[0]
+    relaxed = player.tick(62.0)
+    assert relaxed.contraction_mm == pytest.approx(np.zeros(5))      # one relax command
+    assert relaxed.cable_length_mm == pytest.approx(walk.straight_length_mm)
+    assert player.tick(62.1).contraction_mm is None                  # then silent
+    assert player.pause(63.0)[0] is False and player.resume(63.0)[0] is False
+
+
+def test_player_blends_without_jumps_and_finishes_a_script(scenes):
+    walk = make_gait('walk', scenes['brittle_star'])
+    player = GaitPlayer(walk, transition_s=0.3)
+    player.start(0.0)
+    before = player.tick(0.3).contraction_mm              # blue/orange at 40 mm
+    player.stop(0.3)
+    after = [player.tick(0.3 + k * 0.01).contraction_mm for k in range(1, 31)]
+    steps = np.abs(np.diff(np.vstack([before] + after), axis=0))
+    assert steps.max() < 40.0 * math.pi / 2 / 30 + 1e-9   # eased, no jump
+    assert after[-1] == pytest.approx(np.zeros(5))
+    righting = make_gait('righting', load_scene('starfish'))
+    player = GaitPlayer(righting, transition_s=0.0)
+    player.start(0.0)
+    assert player.tick(5.0).state == RUNNING
+    end = player.tick(11.0)
+    assert end.state == STOPPED and player.finished and end.phase == 1.0
+    assert end.contraction_mm == pytest.approx(np.zeros(5))
