@@ -3,8 +3,17 @@
 Core modules (no rclpy): :mod:`.geometry` (exact cable length and rib poses),
 :mod:`.skeleton` (module description), :mod:`.forward` (quasi-static forward solver).
 """
+from .forward import (CONSTRAINT_TOL_MM, STATIONARITY_TOL_RAD, BatchResult, ForwardResult,
+                      InfeasibleLengthError, SegmentBranch, SnapThroughError, SweepResult,
+                      reachable_range, segment_angle_at_tension, segment_branch,
+                      solve_forward, solve_forward_batch, sweep)
 from .geometry import cable_path, rib_centers, segment_length, segment_length_derivatives
 from .skeleton import Skeleton
 
-__all__ = ['Skeleton', 'segment_length', 'segment_length_derivatives', 'rib_centers',
-           'cable_path']
+__all__ = [
+    'Skeleton', 'solve_forward', 'solve_forward_batch', 'sweep', 'reachable_range',
+    'ForwardResult', 'BatchResult', 'SweepResult', 'InfeasibleLengthError',
+    'SnapThroughError', 'SegmentBranch', 'segment_branch', 'segment_angle_at_tension',
+    'CONSTRAINT_TOL_MM', 'STATIONARITY_TOL_RAD',
+    'segment_length', 'segment_length_derivatives', 'rib_centers', 'cable_path',
+]

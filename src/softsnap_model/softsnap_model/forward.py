@@ -1,0 +1,1095 @@
+"""Quasi-static forward model of a SoftSnap module (pure numpy).
+
+Model (paper, Algorithm 1; FACTS.md): the shape minimises the bending energy
+``E = sum_i k_i a_i^2`` subject to ``sum_i L(a_i; d_i, d_{i+1}) = L_target``.
+
+The problem is separable. With the multiplier ``lambda`` (the *tension*), stationarity
+reads ``2 k_i a_i + lambda dL/da(a_i; d_i, d_{i+1}) = 0`` for every segment on its own,
+so each segment's angle is a function of ``lambda`` and of its two holes only, and the
+shape reached by shortening the cable quasi-statically from straight is the family
+``a_i(lambda)``, ``lambda`` rising from 0. A forward solve is one scalar equation
+``T(lambda) = sum_i L_i(a_i(lambda)) = L_target``, with ``T`` non-increasing, so the
+answer is unique and a cold solve equals path following.
+
+Units and conventions
+---------------------
+Angles in rad (counter-clockwise positive), lengths in mm, stiffness ``k_i`` is
+dimensionless relative stiffness. ``tension`` is ``lambda`` in rad^2/mm: the physical
+cable tension is ``lambda * K`` where ``K`` (N mm/rad^2) is the bending stiffness that
+makes ``E = K sum k_i a_i^2`` an energy in N mm.
+
+Branch rule (per segment, so segments stay independent)
+-------------------------------------------------------
+* Bend direction: ``-sign(d1 + d2)`` (right-side holes bend clockwise). A mirror
+  segment (``d1 + d2 == 0``) has no first-order preference; it bends clockwise when
+  ``d1 >= 0`` and counter-clockwise when ``d1 < 0``: the way a cable through only its
+  proximal (base-side) hole would pull it.
+* A mirror segment stays straight until ``lambda`` reaches its buckling tension
+  ``lambda_c = 2 k / |L''(0)|`` (pitchfork), then follows the branch in its direction.
+  For the authors' hole set every mirror pitchfork is supercritical (verified in the
+  tests), so the buckled state is a true minimum.
+* A segment stops at the rib-contact angle ``Skeleton.contact_angle_rad`` (the ribs
+  meet at the centre of curvature); beyond the tension where it gets there it stays
+  at contact, like a hard stop, and the other segments take up further shortening.
+* If a segment's branch turns back (a fold: ``d lambda / d a = 0`` before contact) the
+  quasi-static path snaps there; lengths past the fold raise :class:`SnapThroughError`.
+  No pair of the authors' holes folds before contact.
+"""
+from __future__ import annotations
+
+import functools
+import math
+import numbers
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .geometry import cable_path as _cable_path
+from .geometry import rib_centers as _rib_centers
+from .geometry import segment_length_derivatives
+from .skeleton import Skeleton
+
+__all__ = [
+    'CONSTRAINT_TOL_MM', 'STATIONARITY_TOL_RAD', 'MAX_ITER',
+    'InfeasibleLengthError', 'SnapThroughError',
+    'SegmentBranch', 'segment_branch', 'segment_angle_at_tension',
+    'ForwardResult', 'BatchResult', 'SweepResult',
+    'reachable_range', 'solve_forward', 'solve_forward_batch', 'sweep',
+]
+
+#: Constraint contract: ``|sum_i L_i - L_target| <= CONSTRAINT_TOL_MM`` (mm) on success.
+CONSTRAINT_TOL_MM = 1e-9
+#: Stationarity contract: ``max_i |a_i + lambda L_i'(a_i) / (2 k_i)| <= STATIONARITY_TOL_RAD``
+#: (rad) over the segments that are not held straight or at contact.
+STATIONARITY_TOL_RAD = 1e-10
+#: Default cap on Newton iterations of one solve.
+MAX_ITER = 40
+# Samples along a branch for detecting its end and folds, and for the start tables.
+_BRANCH_SAMPLES = 129
+
+
+class InfeasibleLengthError(ValueError):
+    """Cable length below what the threading reaches along the quasi-static path.
+
+    Attributes
+    ----------
+    reachable_range_mm : tuple of float
+        ``(min_length_mm, straight_length_mm)``; the minimum itself is approached as
+        the tension grows without bound and is not attained.
+    """
+
+    def __init__(self, message, reachable_range_mm):
+        super().__init__(message)
+        self.reachable_range_mm = tuple(float(v) for v in reachable_range_mm)
+
+
+class SnapThroughError(InfeasibleLengthError):
+    """The quasi-static path folds (snap-through) before reaching the requested length.
+
+    ``reachable_range_mm[0]`` is the cable length at the fold.
+    """
+
+
+# ----------------------------------------------------------------------------------------
+# Per-segment branch
+# ----------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class SegmentBranch:
+    """The quasi-static branch of one segment (arrays broadcast over the inputs).
+
+    Tensions are per unit stiffness: multiply by ``k`` for a segment of stiffness ``k``.
+
+    Attributes
+    ----------
+    direction : ndarray of int
+        Bend direction, -1 clockwise or +1 counter-clockwise (rule in the module doc).
+    mirror : ndarray of bool
+        ``d1 + d2 == 0``: straight until ``buckling_tension``.
+    buckling_tension : ndarray
+        Tension at which the segment starts to bend (0 unless mirror).
+    end_angle_rad : ndarray
+        Angle magnitude where the branch ends (contact, shortest length or fold).
+    end_tension : ndarray
+        Tension at the branch end (inf when it ends at the segment's shortest length).
+    end_kind : ndarray of str
+        'contact', 'shortest' or 'fold'.
+    """
+
+    direction: np.ndarray
+    mirror: np.ndarray
+    buckling_tension: np.ndarray
+    end_angle_rad: np.ndarray
+    end_tension: np.ndarray
+    end_kind: np.ndarray
+
+    @property
+    def fold(self) -> np.ndarray:
+        """True where the branch folds before contact (tension is then not monotone)."""
+        return self.end_kind == 'fold'
+
+
+def _direction(d1, d2):
+    sigma = d1 + d2
+    return np.where(sigma > 0, -1.0, np.where(sigma < 0, 1.0, np.where(d1 >= 0, -1.0, 1.0)))
+
+
+def _branch_derivs(b, direction, d1, d2, s):
+    """Length and derivatives along a branch, in the magnitude ``b = direction * a``."""
+    length, l_a, l_aa = segment_length_derivatives(direction * b, d1, d2, s)
+    return length, direction * l_a, l_aa
+
+
+def _pair_profile_array(d1, d2, s, b_max, n_samples=_BRANCH_SAMPLES):
+    """Branch summary and a table ``b_j, mu_j = tension/k, length_j`` on its stable part.
+
+    Works on 1-D arrays of pairs; returns a dict of arrays, tables of shape (n, M).
+    """
+    d1 = np.asarray(d1, dtype=float)
+    d2 = np.asarray(d2, dtype=float)
+    direction = _direction(d1, d2)
+    mirror = (d1 + d2) == 0.0
+    # L''(0) in closed form: Q''(0)/(2 L0) with Q''(0) = 2 d1 d2 - s^2/6 when d1 = -d2.
+    l0 = np.hypot(s, d1 - d2)
+    curv0 = (2.0 * d1 * d2 - s * s / 6.0) / (2.0 * l0)
+    mu_c = np.where(mirror, 2.0 / np.abs(np.where(mirror, curv0, 1.0)), 0.0)
+    # Pitchfork coefficient of a mirror segment, phi(b) = mu_c (1 + beta b^2 + ...), from
+    # the Taylor series of Q = L^2 (c^2 = 1 - a^2/12 + a^4/360, P = s^2 + d1 d2 a^2):
+    # beta = L''''(0) / (6 |L''(0)|) > 0 means a supercritical (stable) pitchfork.
+    q2 = d1 * d2 - s * s / 12.0
+    q4 = s * s / 360.0 - d1 * d2 / 12.0
+    l4 = 24.0 * (q4 / (2.0 * l0) - q2 * q2 / (8.0 * l0 ** 3))
+    beta = np.where(mirror, l4 / (6.0 * np.abs(np.where(mirror, curv0, 1.0))), 0.0)
+
+    t = np.linspace(0.0, 1.0, n_samples)[1:]
+    b = b_max * t[None, :] + 0.0 * d1[:, None]
+    dcol, d1c, d2c = direction[:, None], d1[:, None], d2[:, None]
+    _, lp, lpp = _branch_derivs(b, dcol, d1c, d2c, s)
+    shortening = lp < 0.0
+    # d(mu)/db has the sign of b l'' - l' on a shortening branch (mu = 2 b / -l').
+    rising = b * lpp - lp > 0.0
+    good = shortening & rising
+    all_good = good.all(axis=1)
+    first_bad = np.where(all_good, b.shape[1], np.argmax(~good, axis=1))
+    kind = np.where(all_good, 'contact', 'contact').astype(object)
+    b_end = np.full(d1.shape, float(b_max))
+    for i in np.nonzero(~all_good)[0]:
+        # Rare (never for the authors' holes): refine the end by bisection on the sign.
+        j = first_bad[i]
+        lo = 0.0 if j == 0 else b[i, j - 1]
+        hi = b[i, j]
+        is_short = not shortening[i, j]
+        for _ in range(60):
+            mid = 0.5 * (lo + hi)
+            _, p, pp = _branch_derivs(mid, direction[i], d1[i], d2[i], s)
+            ok = (p < 0.0) if is_short else (mid * pp - p > 0.0 and p < 0.0)
+            lo, hi = (mid, hi) if ok else (lo, mid)
+        b_end[i] = lo if not is_short else hi
+        kind[i] = 'shortest' if is_short else 'fold'
+    # Table over the stable part [0, b_end].
+    tt = np.linspace(0.0, 1.0, n_samples)
+    bt = b_end[:, None] * tt[None, :]
+    length, lp, _ = _branch_derivs(bt, dcol, d1c, d2c, s)
+    with np.errstate(divide='ignore', invalid='ignore'):
+        mu = 2.0 * bt / -lp
+    mu[:, 0] = mu_c
+    is_short = kind == 'shortest'
+    mu[is_short, -1] = np.inf
+    mu_end = mu[:, -1].copy()
+    return dict(direction=direction, mirror=mirror, mu_c=mu_c, beta=beta, b_end=b_end,
+                mu_end=mu_end, kind=kind.astype(str), b=bt, mu=mu, length=length)
+
+
+@functools.lru_cache(maxsize=4096)
+def _pair_profile(d1: float, d2: float, s: float, b_max: float):
+    """Memoised profile of one hole pair (pure function of its arguments)."""
+    p = _pair_profile_array(np.array([d1]), np.array([d2]), s, b_max)
+    return {key: val[0] for key, val in p.items()}
+
+
+def segment_branch(d1_mm, d2_mm, spacing_mm, max_angle_rad=None) -> SegmentBranch:
+    """Describe the quasi-static branch of segments with holes ``d1``, ``d2``.
+
+    Parameters
+    ----------
+    d1_mm, d2_mm : array_like
+        Hole offsets on the proximal and distal rib (mm).
+    spacing_mm : float
+        Spine arc length (mm).
+    max_angle_rad : float, optional
+        Contact angle; default ``min(2 s / 25 mm, pi)`` for the authors' rib length.
+
+    Returns
+    -------
+    SegmentBranch
+    """
+    d1, d2 = np.broadcast_arrays(np.asarray(d1_mm, float), np.asarray(d2_mm, float))
+    shape = d1.shape
+    b_max = _default_max_angle(spacing_mm, max_angle_rad)
+    p = _pair_profile_array(d1.ravel(), d2.ravel(), float(spacing_mm), b_max)
+    return SegmentBranch(
+        direction=p['direction'].reshape(shape).astype(int),
+        mirror=p['mirror'].reshape(shape),
+        buckling_tension=p['mu_c'].reshape(shape),
+        end_angle_rad=p['b_end'].reshape(shape),
+        end_tension=p['mu_end'].reshape(shape),
+        end_kind=p['kind'].reshape(shape))
+
+
+def _default_max_angle(spacing_mm, max_angle_rad):
+    if max_angle_rad is None:
+        return min(2.0 * float(spacing_mm) / Skeleton().rib_length_mm, math.pi)
+    value = float(max_angle_rad)
+    if not (0.0 < value <= math.pi):
+        raise ValueError(f'max_angle_rad must be in (0, pi], got {max_angle_rad!r}')
+    return value
+
+
+def _branch_solve(mu, table_mu, table_b, direction, d1, d2, s, iters=30):
+    """Exact branch magnitude ``b`` with ``mu = 2 b / -l'(b)`` (per unit stiffness).
+
+    All arrays share the leading shape; tables have one more trailing axis (M samples,
+    ``table_mu`` non-decreasing). Safeguarded Newton inside the table cell that brackets
+    the root, so it cannot leave the branch.
+    """
+    m = table_mu.shape[-1]
+    idx = np.clip(np.sum(table_mu < mu[..., None], axis=-1), 1, m - 1)
+    lo = np.take_along_axis(table_b, (idx - 1)[..., None], -1)[..., 0]
+    hi = np.take_along_axis(table_b, idx[..., None], -1)[..., 0]
+    mu_lo = np.take_along_axis(table_mu, (idx - 1)[..., None], -1)[..., 0]
+    mu_hi = np.take_along_axis(table_mu, idx[..., None], -1)[..., 0]
+    below = mu <= table_mu[..., 0]
+    above = mu >= table_mu[..., -1]
+    with np.errstate(invalid='ignore', divide='ignore'):
+        w = np.where(np.isfinite(mu_hi), (mu - mu_lo) / (mu_hi - mu_lo), 0.5)
+    w = np.clip(np.nan_to_num(w, nan=0.5), 0.0, 1.0)
+    b = lo + w * (hi - lo)
+    for _ in range(iters):
+        _, lp, lpp = _branch_derivs(b, direction, d1, d2, s)
+        r = 2.0 * b + mu * lp
+        dr = 2.0 + mu * lpp
+        lo = np.where(r < 0.0, b, lo)
+        hi = np.where(r > 0.0, b, hi)
+        with np.errstate(invalid='ignore', divide='ignore'):
+            step = b - r / dr
+        ok = (step > lo) & (step < hi) & np.isfinite(step)
+        new = np.where(ok, step, 0.5 * (lo + hi))
+        done = np.abs(new - b) <= 1e-15 * (1.0 + np.abs(b))
+        b = new
+        if done.all():
+            break
+    b = np.where(below, table_b[..., 0], np.where(above, table_b[..., -1], b))
+    return b
+
+
+def segment_angle_at_tension(tension, d1_mm, d2_mm, spacing_mm, stiffness=1.0,
+                             max_angle_rad=None):
+    """Equilibrium angle (rad) of segments under cable tension, on the followed branch.
+
+    Solves ``2 k a + tension * dL/da(a; d1, d2) = 0`` on the branch the quasi-static
+    path follows (module docstring: direction rule, mirror buckling, contact). The
+    energy convention is ``E = sum k_i a_i^2``, so ``tension`` is the multiplier of the
+    length constraint in rad^2/mm; only ``tension / stiffness`` matters.
+
+    Parameters
+    ----------
+    tension : array_like
+        Multiplier ``lambda >= 0`` (rad^2/mm).
+    d1_mm, d2_mm : array_like
+        Hole offsets (mm).
+    spacing_mm : float
+        Spine arc length (mm).
+    stiffness : array_like, optional
+        Relative stiffness ``k > 0``.
+    max_angle_rad : float, optional
+        Contact angle (rad); default that of the authors' rib (``2 s / 25``).
+
+    Returns
+    -------
+    ndarray
+        Angle (rad), broadcast shape of the inputs. Beyond the branch end tension
+        (:func:`segment_branch`) the end angle is returned: the contact angle, or the
+        fold angle where the branch folds (then ``a(lambda)`` is not single valued past
+        it; none of the authors' hole pairs folds before contact).
+
+    Examples
+    --------
+    >>> a = segment_angle_at_tension(0.1, 10.0, 10.0, 18.0)
+    >>> bool(a < 0)     # right-side holes bend clockwise
+    True
+    """
+    lam, d1, d2, k = np.broadcast_arrays(*(np.asarray(v, dtype=float) for v in
+                                           (tension, d1_mm, d2_mm, stiffness)))
+    for name, v in (('tension', lam), ('d1_mm', d1), ('d2_mm', d2), ('stiffness', k)):
+        if not np.all(np.isfinite(v)):
+            raise ValueError(f'{name} must be finite, got {v[~np.isfinite(v)].ravel()[0]!r}')
+    if np.any(lam < 0):
+        raise ValueError(f'tension must be >= 0, got {lam[lam < 0].ravel()[0]!r}')
+    if np.any(k <= 0):
+        raise ValueError(f'stiffness must be > 0, got {k[k <= 0].ravel()[0]!r}')
+    s = float(spacing_mm)
+    if not (math.isfinite(s) and s > 0):
+        raise ValueError(f'spacing_mm must be finite and > 0, got {spacing_mm!r}')
+    shape = lam.shape
+    b_max = _default_max_angle(s, max_angle_rad)
+    p = _pair_profile_array(d1.ravel(), d2.ravel(), s, b_max)
+    b = _branch_solve(lam.ravel() / k.ravel(), p['mu'], p['b'], p['direction'],
+                      d1.ravel(), d2.ravel(), s)
+    return (p['direction'] * b).reshape(shape)
+
+
+# ----------------------------------------------------------------------------------------
+# Per-threading problem data and the path table (memoised, pure functions of the inputs)
+# ----------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class _Problem:
+    """Everything about one (skeleton, threading) that does not depend on the length."""
+
+    d: np.ndarray            # (n_ribs,) offsets mm
+    d1: np.ndarray           # (n,) proximal holes
+    d2: np.ndarray           # (n,) distal holes
+    k: np.ndarray            # (n,) stiffness
+    s: float
+    direction: np.ndarray    # (n,) +-1
+    lam_c: np.ndarray        # (n,) tension where the segment starts bending
+    mu_c: np.ndarray         # (n,) lam_c / k
+    beta: np.ndarray         # (n,) pitchfork coefficient (mirror segments), else 0
+    lam_end: np.ndarray      # (n,) tension where it reaches its branch end
+    b_end: np.ndarray        # (n,) angle magnitude at the branch end
+    kind: tuple              # per segment 'contact' | 'shortest' | 'fold'
+    table_mu: np.ndarray     # (n, M) per-unit-stiffness tension along each branch
+    table_b: np.ndarray      # (n, M) angle magnitude along each branch
+    straight_mm: float
+    min_mm: float            # infimum of reachable lengths (or length at the fold)
+    snap: bool               # the path ends at a fold (snap-through), not at contact
+    path_lam: np.ndarray     # (P,) increasing tensions along the whole path
+    path_len: np.ndarray     # (P,) non-increasing total length there
+    path_b: np.ndarray       # (P, n) exact branch magnitudes there
+
+
+@functools.lru_cache(maxsize=256)
+def _problem(skeleton: Skeleton, d: tuple) -> _Problem:
+    s = skeleton.spacing_mm
+    b_max = skeleton.contact_angle_rad
+    d_arr = np.array(d, dtype=float)
+    d1, d2 = d_arr[:-1], d_arr[1:]
+    k = skeleton.stiffness_array
+    prof = [_pair_profile(float(x), float(y), s, b_max) for x, y in zip(d1, d2)]
+    direction = np.array([p['direction'] for p in prof])
+    mu_c = np.array([p['mu_c'] for p in prof])
+    beta = np.array([p['beta'] for p in prof])
+    mu_end = np.array([p['mu_end'] for p in prof])
+    b_end = np.array([p['b_end'] for p in prof])
+    kind = tuple(str(p['kind']) for p in prof)
+    table_mu = np.stack([p['mu'] for p in prof])
+    table_b = np.stack([p['b'] for p in prof])
+    lam_c, lam_end = k * mu_c, k * mu_end
+    straight = float(np.sum(np.hypot(s, d2 - d1)))
+    folds = [i for i, kd in enumerate(kind) if kd == 'fold']
+    snap = bool(folds)
+    # Path table: every tension where some segment's table has a sample, up to where the
+    # path ends (all segments at their ends, or the first fold).
+    lam_all = (k[:, None] * table_mu).ravel()
+    lam_all = lam_all[np.isfinite(lam_all)]
+    if snap:
+        lam_top = float(np.min(lam_end[folds]))
+    else:
+        finite = lam_end[np.isfinite(lam_end)]
+        lam_top = float(finite.max()) if finite.size else float(lam_all.max())
+    lam_path = np.unique(np.concatenate([[0.0], lam_all[lam_all <= lam_top], [lam_top]]))
+    if lam_path.size > 4 * _BRANCH_SAMPLES:
+        # Thin to a bounded table; keep the ends and every buckling tension.
+        keep = np.unique(np.concatenate([np.linspace(0, lam_path.size - 1,
+                                                     4 * _BRANCH_SAMPLES).astype(int)]))
+        lam_path = np.unique(np.concatenate([lam_path[keep], lam_c, [lam_top]]))
+        lam_path = lam_path[lam_path <= lam_top]
+    mu = lam_path[:, None] / k[None, :]
+    shape = mu.shape
+    tm = np.broadcast_to(table_mu, shape + table_mu.shape[-1:])
+    tb = np.broadcast_to(table_b, shape + table_b.shape[-1:])
+    bb = _branch_solve(mu, tm, tb, np.broadcast_to(direction, shape),
+                       np.broadcast_to(d1, shape), np.broadcast_to(d2, shape), s)
+    lengths, _, _ = _branch_derivs(bb, direction, d1, d2, s)
+    path_len = np.minimum.accumulate(lengths.sum(axis=1))
+    path_len[0] = straight
+    if snap:
+        min_mm = float(path_len[-1])
+    else:
+        end_len, _, _ = _branch_derivs(b_end, direction, d1, d2, s)
+        min_mm = float(end_len.sum())
+    return _Problem(d=d_arr, d1=d1, d2=d2, k=k, s=s, direction=direction, lam_c=lam_c,
+                    mu_c=mu_c, beta=beta,
+                    lam_end=lam_end, b_end=b_end, kind=kind, table_mu=table_mu,
+                    table_b=table_b, straight_mm=straight, min_mm=min_mm, snap=snap,
+                    path_lam=lam_path, path_len=path_len, path_b=bb)
+
+
+def _check_length(prob: _Problem, length: np.ndarray, skeleton, threading_desc):
+    """Raise the documented errors for NaN/inf and unreachable lengths."""
+    if not np.all(np.isfinite(length)):
+        bad = length[~np.isfinite(length)].ravel()[0]
+        raise ValueError(f'cable_length_mm must be finite, got {bad!r}')
+    if np.any(length <= 0):
+        bad = length[length <= 0].ravel()[0]
+        raise ValueError(f'cable_length_mm must be > 0, got {bad!r}')
+    low = length <= prob.min_mm
+    if np.any(low):
+        bad = float(length[low].ravel()[0])
+        rng = (prob.min_mm, prob.straight_mm)
+        if prob.snap:
+            raise SnapThroughError(
+                f'cable length {bad!r} mm is past a snap-through of threading '
+                f'{threading_desc}: the quasi-static path folds at {rng[0]:.6f} mm; '
+                f'reachable range ({rng[0]:.6f}, {rng[1]:.6f}] mm', rng)
+        raise InfeasibleLengthError(
+            f'cable length {bad!r} mm is below what threading {threading_desc} can reach: '
+            f'reachable range ({rng[0]:.6f}, {rng[1]:.6f}] mm (the minimum is approached '
+            f'as every segment reaches rib contact)', rng)
+
+
+def _describe(skeleton: Skeleton, d: np.ndarray) -> str:
+    names = skeleton.hole_names(d)
+    return ' '.join(n if n is not None else f'{v:g}' for n, v in zip(names, d))
+
+
+def reachable_range(skeleton: Skeleton, threading) -> tuple[float, float]:
+    """Range of cable lengths (mm) the quasi-static path of a threading covers.
+
+    Returns
+    -------
+    (min_length_mm, straight_length_mm) : tuple of float
+        Lengths in ``(min_length_mm, straight_length_mm]`` have a solution; longer
+        lengths leave the cable slack (straight shape). The minimum is the length with
+        every segment at its branch end (rib contact for the authors' module), an
+        infimum reached only as the tension grows without bound; if the path folds
+        first, it is the length at the fold.
+
+    Examples
+    --------
+    >>> lo, hi = reachable_range(Skeleton(), ['R3'] * 12)
+    >>> hi
+    198.0
+    """
+    if not isinstance(skeleton, Skeleton):
+        raise ValueError(f'skeleton must be a Skeleton, got {type(skeleton).__name__}')
+    d = skeleton.threading_mm(threading)
+    prob = _problem(skeleton, tuple(d.tolist()))
+    return (prob.min_mm, prob.straight_mm)
+
+
+# ----------------------------------------------------------------------------------------
+# Results
+# ----------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class ForwardResult:
+    """Result of :func:`solve_forward` (scipy.optimize style).
+
+    Attributes
+    ----------
+    angles : ndarray, shape (n_segments,)
+        Bending angles (rad, counter-clockwise positive).
+    rib_centers : ndarray, shape (n_ribs, 2)
+        Rib centres (mm) in the base frame.
+    cable_path : ndarray, shape (n_ribs, 2)
+        Threaded hole positions (mm); the cable runs straight between them.
+    energy : float
+        ``sum k_i a_i^2`` (rad^2).
+    tension : float
+        Multiplier ``lambda`` (rad^2/mm); 0 when slack. See the module docstring.
+    iterations : int
+        Newton iterations (0 for a slack cable).
+    converged : bool
+        Both residual contracts hold and the point is a constrained local minimum.
+    residual : float
+        ``max(constraint_residual, stationarity_residual)``.
+    constraint_residual : float
+        ``|sum L_i - L_target|`` (mm); contract ``CONSTRAINT_TOL_MM``.
+    stationarity_residual : float
+        ``max |a_i + lambda L_i' / (2 k_i)|`` (rad) over segments that are neither held
+        straight nor at contact; contract ``STATIONARITY_TOL_RAD``.
+    is_minimum : bool
+        Second-order check: the Lagrangian Hessian ``diag(2 k_i + lambda L_i'')`` is
+        positive on the tangent space of the constraint (segments at contact are on
+        an active bound and excluded).
+    min_curvature : float
+        Smallest ``1 + lambda L_i'' / (2 k_i)`` over non-contact segments (> 0 for a
+        strict minimum; near 0 next to a buckling or fold point).
+    slack : bool
+        The requested length is at or above the straight length.
+    at_contact : ndarray of bool
+        Segments held at the rib-contact angle.
+    cable_length_mm : float
+        Requested length.
+    message : str
+    """
+
+    angles: np.ndarray
+    rib_centers: np.ndarray
+    cable_path: np.ndarray
+    energy: float
+    tension: float
+    iterations: int
+    converged: bool
+    residual: float
+    constraint_residual: float
+    stationarity_residual: float
+    is_minimum: bool
+    min_curvature: float
+    slack: bool
+    at_contact: np.ndarray
+    cable_length_mm: float
+    message: str
+
+    @property
+    def success(self) -> bool:
+        """Alias of ``converged`` (scipy naming)."""
+        return self.converged
+
+
+@dataclass(frozen=True)
+class BatchResult:
+    """Result of :func:`solve_forward_batch`: the ForwardResult fields as arrays.
+
+    ``angles`` (B, n_segments), ``rib_centers`` and ``cable_path`` (B, n_ribs, 2), the
+    scalar fields of :class:`ForwardResult` as (B,) arrays, ``at_contact`` (B, n).
+    """
+
+    angles: np.ndarray
+    rib_centers: np.ndarray
+    cable_path: np.ndarray
+    energy: np.ndarray
+    tension: np.ndarray
+    iterations: np.ndarray
+    converged: np.ndarray
+    residual: np.ndarray
+    constraint_residual: np.ndarray
+    stationarity_residual: np.ndarray
+    is_minimum: np.ndarray
+    min_curvature: np.ndarray
+    slack: np.ndarray
+    at_contact: np.ndarray
+    cable_length_mm: np.ndarray
+
+    def __len__(self):
+        return self.angles.shape[0]
+
+    def item(self, i: int, message: str = '') -> ForwardResult:
+        """The i-th solve as a :class:`ForwardResult`."""
+        return ForwardResult(
+            angles=self.angles[i], rib_centers=self.rib_centers[i],
+            cable_path=self.cable_path[i], energy=float(self.energy[i]),
+            tension=float(self.tension[i]), iterations=int(self.iterations[i]),
+            converged=bool(self.converged[i]), residual=float(self.residual[i]),
+            constraint_residual=float(self.constraint_residual[i]),
+            stationarity_residual=float(self.stationarity_residual[i]),
+            is_minimum=bool(self.is_minimum[i]), min_curvature=float(self.min_curvature[i]),
+            slack=bool(self.slack[i]), at_contact=self.at_contact[i],
+            cable_length_mm=float(self.cable_length_mm[i]), message=message)
+
+
+@dataclass(frozen=True)
+class SweepResult(BatchResult):
+    """Result of :func:`sweep`; ``contractions_mm`` (B,) is the swept input."""
+
+    contractions_mm: np.ndarray = field(default=None)
+
+
+# ----------------------------------------------------------------------------------------
+# Solver engine, vectorised over a batch axis: arrays (B, n) and (B,)
+# ----------------------------------------------------------------------------------------
+# Internal targets, tighter than the public contracts, so results are accurate to a few
+# ulp of the lengths; the loop stops early if rounding prevents reaching them.
+_INNER_TOL_MM = 1e-12
+_INNER_TOL_RAD = 1e-14
+
+
+def _start_from_table(P, L_t):
+    """Initial (lambda, b) and a tension bracket from the exact path tables.
+
+    ``P`` is a dict of stacked arrays; the path tables are exact samples of the path, so
+    ``[lam_lo, lam_hi]`` brackets the root of ``T(lambda) = L_t``.
+    """
+    path_len, path_lam, path_b = P['path_len'], P['path_lam'], P['path_b']
+    m = path_len.shape[-1]
+    # Rows are non-increasing; j = first sample with length <= L_t.
+    j = np.clip(np.sum(path_len > L_t[:, None], axis=-1), 1, m - 1)
+    rows = np.arange(L_t.shape[0])
+    len_lo, len_hi = path_len[rows, j - 1], path_len[rows, j]
+    lam_lo, lam_hi = path_lam[rows, j - 1], path_lam[rows, j]
+    span = len_lo - len_hi
+    w = np.where(span > 0, (len_lo - L_t) / np.where(span > 0, span, 1.0), 0.5)
+    lam = lam_lo + w * (lam_hi - lam_lo)
+    b = path_b[rows, j - 1] + w[:, None] * (path_b[rows, j] - path_b[rows, j - 1])
+    return lam, b, lam_lo, lam_hi
+
+
+def _guess_b(P, lam):
+    """Branch magnitudes interpolated from the per-segment tables (no solve)."""
+    mu = lam[:, None] / P['k']
+    tm, tb = P['table_mu'], P['table_b']
+    m = tm.shape[-1]
+    idx = np.clip(np.sum(tm < mu[..., None], axis=-1), 1, m - 1)[..., None]
+    mu_lo = np.take_along_axis(tm, idx - 1, -1)[..., 0]
+    mu_hi = np.take_along_axis(tm, idx, -1)[..., 0]
+    b_lo = np.take_along_axis(tb, idx - 1, -1)[..., 0]
+    b_hi = np.take_along_axis(tb, idx, -1)[..., 0]
+    with np.errstate(invalid='ignore', divide='ignore'):
+        w = np.clip(np.nan_to_num((mu - mu_lo) / (mu_hi - mu_lo), nan=0.5), 0.0, 1.0)
+    return b_lo + w * (b_hi - b_lo)
+
+
+def _newton(P, L_t, lam, b, lam_lo, lam_hi, max_iter, tol_mm, tol_rad, active=None):
+    """Bordered Newton on the KKT system, active sets following the branch rule.
+
+    Free segments solve ``k phi(b) = lambda`` with ``phi(b) = 2 b / -l'(b)``, which is
+    ``2 k b + lambda l'(b) = 0`` divided by ``-l' > 0``: this removes the trivial root
+    ``b = 0`` of mirror segments and keeps the Schur complement well conditioned right
+    at a buckling point (there ``l'/phi'`` stays finite while both vanish). Mirror
+    segments with ``b = 0`` and ``lambda <= lam_c`` are held straight; segments at
+    ``b_end`` with ``lambda >= lam_end`` are held at contact. O(n) per iteration.
+    """
+    d1, d2, k, s, direction = P['d1'], P['d2'], P['k'], P['s'], P['direction']
+    lam_c, lam_end, b_end = P['lam_c'], P['lam_end'], P['b_end']
+    two_k = 2.0 * k
+    mirror = lam_c > 0
+    has_mirror = bool(mirror.any())
+    iters = np.zeros(L_t.shape, dtype=int)
+    active = np.ones(L_t.shape, dtype=bool) if active is None else active.copy()
+    for it in range(max_iter + 1):
+        lamc = lam[:, None]
+        if has_mirror:
+            # Past its buckling tension a mirror segment at b = 0 sits on the unstable
+            # trivial root: restart it on its branch.
+            kick = mirror & (b <= 0.0) & (lamc > lam_c)
+            if kick.any():
+                b = np.where(kick, _kick_b(P, lam), b)
+            held = mirror & (b <= 0.0)
+        else:
+            held = np.zeros(b.shape, dtype=bool)
+        contact = (b >= b_end) & (lamc >= lam_end)
+        length, l_a, l_aa = segment_length_derivatives(direction * b, d1, d2, s)
+        lp = direction * l_a
+        free = ~(held | contact)
+        g = length.sum(axis=1) - L_t
+        f = np.where(free, b + lamc * lp / two_k, 0.0)
+        stat = np.max(np.abs(f), axis=1)
+        done = (np.abs(g) <= tol_mm) & (stat <= tol_rad)
+        active &= ~done
+        if not active.any() or it == max_iter:
+            break
+        iters += active
+        with np.errstate(divide='ignore', invalid='ignore'):
+            inv = 1.0 / lp
+            ft = np.where(free, -two_k * b * inv - lamc, 0.0)            # k phi - lambda
+            jac = two_k * (b * l_aa - lp) * inv * inv                     # k phi'
+            w = np.where(free, lp / jac, 0.0)
+            dlam = (np.sum(w * ft, axis=1) - g) / np.sum(w, axis=1)
+            db = np.where(free, (dlam[:, None] - ft) / jac, 0.0)
+        new_lam = lam + np.where(active, dlam, 0.0)
+        # Keep the tension inside the exact bracket; outside it (or with no free segment
+        # to move, e.g. every segment a straight mirror one), bisect and restart the
+        # angles from the tables instead of trusting a far Newton step.
+        out = active & ((new_lam <= lam_lo) | (new_lam >= lam_hi) | ~np.isfinite(dlam))
+        b = np.where(active[:, None] & np.isfinite(db), b + db, b)
+        if out.any():
+            new_lam = np.where(out, 0.5 * (lam_lo + lam_hi), new_lam)
+            b = np.where(out[:, None], _guess_b(P, new_lam), b)
+            # Shrink the bracket with the sign of the constraint at the rejected point.
+            lam_lo = np.where(out & (g > 0), np.maximum(lam_lo, lam), lam_lo)
+            lam_hi = np.where(out & (g < 0), np.minimum(lam_hi, lam), lam_hi)
+        lam = new_lam
+        b = np.clip(b, 0.0, b_end)
+    curv = _curvature(P, lam, b, lp, l_aa, held)
+    return dict(lam=lam, b=b, length=length, lp=lp, l_aa=l_aa, g=g, stat=stat,
+                held=held, contact=contact, curv=curv, iters=iters)
+
+
+def _kick_b(P, lam):
+    """Branch magnitude of mirror segments just past buckling, from the table or, nearer
+    the pitchfork than the first table node, from its quadratic ``phi = mu_c (1 + beta b^2)``.
+    """
+    guess = _guess_b(P, lam)
+    mu = lam[:, None] / P['k']
+    with np.errstate(divide='ignore', invalid='ignore'):
+        near = np.sqrt(np.maximum(mu / P['mu_c'] - 1.0, 0.0) / P['beta'])
+    near = np.nan_to_num(near, nan=0.0, posinf=0.0)
+    return np.where(guess < P['table_b'][..., 1], np.minimum(near, P['table_b'][..., 1]),
+                    guess)
+
+
+def _curvature(P, lam, b, lp, l_aa, held):
+    """``1 + lambda l''/(2k)`` per segment: the Lagrangian Hessian scaled by ``2k``.
+
+    For a free segment at equilibrium this equals ``(l' - b l'')/l'``; that form is used
+    (it does not depend on the accuracy of lambda) and, for a mirror segment within
+    1e-3 rad of straight where ``l' - b l''`` cancels, its series ``2 beta b^2``.
+    """
+    with np.errstate(divide='ignore', invalid='ignore'):
+        eq = (lp - b * l_aa) / lp
+    near_pitchfork = (P['lam_c'] > 0) & (b < 1e-3)
+    eq = np.where(near_pitchfork, 2.0 * P['beta'] * b * b, eq)
+    straight = 1.0 + lam[:, None] * l_aa / (2.0 * P['k'])
+    return np.where(held, straight, eq)
+
+
+def _robust(P, L_t, lam_lo, lam_hi, max_iter=200):
+    """Safeguarded Newton/bisection on T(lambda) with exact per-segment branch solves.
+
+    Slow (each evaluation solves every segment to machine precision) but cannot leave
+    the path; used when the bordered Newton does not certify its answer.
+    """
+    d1, d2, k, s, direction = P['d1'], P['d2'], P['k'], P['s'], P['direction']
+    lam = 0.5 * (lam_lo + lam_hi)
+    for _ in range(max_iter):
+        mu = lam[:, None] / k
+        b = _branch_solve(mu, P['table_mu'], P['table_b'], direction, d1, d2, s)
+        length, l_a, l_aa = segment_length_derivatives(direction * b, d1, d2, s)
+        lp = direction * l_a
+        g = length.sum(axis=1) - L_t
+        lam_lo = np.where(g > 0, lam, lam_lo)
+        lam_hi = np.where(g < 0, lam, lam_hi)
+        if np.all(np.abs(g) <= _INNER_TOL_MM) or np.all(lam_hi - lam_lo <= 1e-15 * lam_hi):
+            break
+        held = lam[:, None] <= P['lam_c']
+        contact = lam[:, None] >= P['lam_end']
+        h = 2.0 * k + lam[:, None] * l_aa
+        with np.errstate(divide='ignore', invalid='ignore'):
+            slope = -np.sum(np.where(held | contact, 0.0, lp * lp / h), axis=1)
+            step = lam - g / slope
+        ok = np.isfinite(step) & (step > lam_lo) & (step < lam_hi)
+        lam = np.where(ok, step, 0.5 * (lam_lo + lam_hi))
+    return lam, b, lam_lo, lam_hi
+
+
+def _stack(probs, index):
+    """Stack per-threading problem data into batch arrays (rows follow ``index``)."""
+    def rows(attr):
+        return np.stack([getattr(p, attr) for p in probs])[index]
+    pl = max(p.path_lam.size for p in probs)
+
+    def pad(arr, n):  # repeat the last sample: the path ends there
+        return np.concatenate([arr, np.repeat(arr[-1:], n - arr.shape[0], axis=0)])
+    return dict(
+        d=rows('d'), d1=rows('d1'), d2=rows('d2'), k=rows('k'), s=probs[0].s,
+        direction=rows('direction'), lam_c=rows('lam_c'), lam_end=rows('lam_end'),
+        mu_c=rows('mu_c'), beta=rows('beta'),
+        b_end=rows('b_end'), table_mu=rows('table_mu'), table_b=rows('table_b'),
+        path_lam=np.stack([pad(p.path_lam, pl) for p in probs])[index],
+        path_len=np.stack([pad(p.path_len, pl) for p in probs])[index],
+        path_b=np.stack([pad(p.path_b, pl) for p in probs])[index],
+        straight=np.array([p.straight_mm for p in probs])[index])
+
+
+def _solve_arrays(P, L_t, lam0=None, b0=None, max_iter=MAX_ITER, tol_mm=_INNER_TOL_MM,
+                  tol_rad=_INNER_TOL_RAD):
+    """Solve a batch; returns a dict of result arrays (angles, tension, residuals...)."""
+    slack = L_t >= P['straight']
+    lam, b, lam_lo, lam_hi = _start_from_table(P, L_t)
+    if lam0 is not None:
+        # Warm start: trust the given point only if it lies inside the exact bracket.
+        inside = (lam0 > lam_lo) & (lam0 < lam_hi)
+        lam = np.where(inside, lam0, lam)
+        b = np.where(inside[:, None], np.clip(b0, 0.0, P['b_end']), b)
+    lam = np.where(slack, 0.0, lam)
+    if np.any(P['lam_c'] > 0):
+        # Linear interpolation in lambda badly underestimates b ~ sqrt(lambda - lam_c)
+        # just past a pitchfork; start mirror segments from their own branch instead.
+        past = (P['lam_c'] > 0) & (lam[:, None] > P['lam_c'])
+        b = np.where(past, _kick_b(P, lam), b)
+    st = _newton(P, L_t, lam, b, lam_lo, lam_hi, max_iter, tol_mm, tol_rad, active=~slack)
+    ok = _accept(st, slack)
+    bad = ~ok
+    if bad.any():
+        # Fallback on the items Newton could not certify.
+        sub = {key: (val[bad] if isinstance(val, np.ndarray) and val.ndim >= 1
+                     and val.shape[0] == L_t.shape[0] else val) for key, val in P.items()}
+        lam_r, b_r, lo_r, hi_r = _robust(sub, L_t[bad], lam_lo[bad], lam_hi[bad])
+        st_r = _newton(sub, L_t[bad], lam_r, b_r, lo_r, hi_r, 4, tol_mm, tol_rad)
+        for key in st:
+            st[key] = st[key].copy()
+            st[key][bad] = st_r[key]
+        st['iters'][bad] += max_iter
+    return _finish(P, L_t, st, slack)
+
+
+def _accept(st, slack):
+    curv_ok = np.all(np.where(st['contact'], True, st['curv'] > 0), axis=1)
+    return slack | ((np.abs(st['g']) <= CONSTRAINT_TOL_MM)
+                    & (st['stat'] <= STATIONARITY_TOL_RAD) & curv_ok)
+
+
+def _finish(P, L_t, st, slack):
+    k = P['k']
+    lam = np.where(slack, 0.0, st['lam'])
+    b = np.where(slack[:, None], 0.0, st['b'])
+    angles = P['direction'] * b
+    length = np.where(slack[:, None], np.hypot(P['s'], P['d2'] - P['d1']), st['length'])
+    contact = st['contact'] & ~slack[:, None]
+    g = np.where(slack, 0.0, st['g'])
+    stat = np.where(slack, 0.0, st['stat'])
+    curv = np.where(contact | slack[:, None], np.inf, st['curv'])
+    min_curv = np.where(slack, 1.0, np.min(curv, axis=1))
+    is_min = min_curv > 0
+    converged = slack | ((np.abs(g) <= CONSTRAINT_TOL_MM) & (stat <= STATIONARITY_TOL_RAD)
+                         & is_min)
+    energy = np.sum(k * angles * angles, axis=1)
+    del length
+    return dict(angles=angles, tension=lam, energy=energy, iterations=st['iters'],
+                converged=converged, constraint_residual=np.abs(g),
+                stationarity_residual=stat, residual=np.maximum(np.abs(g), stat),
+                is_minimum=is_min, min_curvature=min_curv, slack=slack, at_contact=contact)
+
+
+# ----------------------------------------------------------------------------------------
+# Public solvers
+# ----------------------------------------------------------------------------------------
+@functools.lru_cache(maxsize=256)
+def _single(skeleton: Skeleton, d: tuple):
+    """Problem data stacked as a batch of one (memoised with the problem)."""
+    prob = _problem(skeleton, d)
+    return prob, _stack([prob], np.zeros(1, dtype=int))
+
+
+def _as_length(value, name='cable_length_mm') -> float:
+    if isinstance(value, bool) or not isinstance(value, (numbers.Real, np.floating,
+                                                         np.integer)):
+        raise ValueError(f'{name} must be a real number (mm), got {value!r}')
+    return float(value)
+
+
+def _check_skeleton(skeleton):
+    if not isinstance(skeleton, Skeleton):
+        raise ValueError(f'skeleton must be a Skeleton, got {type(skeleton).__name__}')
+
+
+def _initial_state(initial, prob_n, direction, d1, d2, k, s):
+    """(lambda0, b0) from a ForwardResult or an array of angles."""
+    if isinstance(initial, (ForwardResult,)):
+        a = np.asarray(initial.angles, dtype=float)
+        lam = float(initial.tension)
+    else:
+        a = np.asarray(initial, dtype=float)
+        lam = None
+    if a.shape != (prob_n,):
+        raise ValueError(f'initial: expected {prob_n} angles, got shape {a.shape}')
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f'initial: angles must be finite, got {a.tolist()}')
+    b = np.clip(direction * a, 0.0, None)
+    if lam is None or not math.isfinite(lam):
+        # Least-squares multiplier for the given angles: min ||2 k b + lam l'||.
+        _, l_a, _ = segment_length_derivatives(direction * b, d1, d2, s)
+        lp = direction * l_a
+        den = float(np.dot(lp, lp))
+        lam = float(-np.dot(2.0 * k * b, lp) / den) if den > 0 else 0.0
+    return max(lam, 0.0), b
+
+
+def solve_forward(skeleton: Skeleton, threading, cable_length_mm, initial=None, *,
+                  max_iter: int = MAX_ITER) -> ForwardResult:
+    """Quasi-static shape of a module for a given cable length.
+
+    Parameters
+    ----------
+    skeleton : Skeleton
+        Module description (``Skeleton()`` is the authors' module).
+    threading : sequence of str or float
+        One hole per rib, rib 0 first: hole names (``'R3'``) or offsets in mm.
+    cable_length_mm : float
+        Cable length between the holes of rib 0 and the last rib (mm).
+    initial : ForwardResult or array_like of shape (n_segments,), optional
+        Warm start (e.g. the previous solve of a sweep). It only changes the cost: the
+        answer is the same shape as a cold solve.
+    max_iter : int, optional
+        Cap on bordered-Newton iterations before the robust fallback.
+
+    Returns
+    -------
+    ForwardResult
+        Check ``converged``; residuals and the second-order check are included. A
+        length at or above the straight length gives the straight shape with zero
+        tension and ``slack=True``.
+
+    Raises
+    ------
+    InfeasibleLengthError
+        Length at or below the reachable minimum (``reachable_range_mm`` attached).
+    SnapThroughError
+        The path folds before the requested length (custom skeletons only).
+    ValueError
+        Bad skeleton, threading, length (NaN, inf, <= 0) or initial guess.
+
+    Examples
+    --------
+    >>> res = solve_forward(Skeleton(), ['R3'] * 12, 170.0)
+    >>> bool(res.converged), res.angles.shape, bool(res.angles[0] < 0)
+    (True, (11,), True)
+    """
+    _check_skeleton(skeleton)
+    d = skeleton.threading_mm(threading)
+    L = _as_length(cable_length_mm)
+    if isinstance(max_iter, bool) or not isinstance(max_iter, numbers.Integral) \
+            or max_iter < 0:
+        raise ValueError(f'max_iter must be an integer >= 0, got {max_iter!r}')
+    prob, P = _single(skeleton, tuple(d.tolist()))
+    L_t = np.array([L])
+    if not (math.isfinite(L) and L > prob.min_mm):
+        _check_length(prob, L_t, skeleton, _describe(skeleton, d))
+    lam0 = b0 = None
+    if initial is not None:
+        lam_i, b_i = _initial_state(initial, skeleton.n_segments, prob.direction, prob.d1,
+                                    prob.d2, prob.k, prob.s)
+        lam0, b0 = np.array([lam_i]), b_i[None, :]
+    out = _solve_arrays(P, L_t, lam0, b0, max_iter=int(max_iter))
+    angles = out['angles'][0]
+    centers, theta = _frames(angles, prob.s)
+    holes = centers + prob.d[:, None] * np.stack([np.sin(theta), -np.cos(theta)], axis=-1)
+    slack = bool(out['slack'][0])
+    converged = bool(out['converged'][0])
+    if slack:
+        message = 'slack cable: length at or above the straight length, straight shape'
+    elif converged:
+        message = 'converged'
+    else:
+        message = ('not converged: residuals or the second-order check failed '
+                   f'(constraint {out["constraint_residual"][0]:.3g} mm, stationarity '
+                   f'{out["stationarity_residual"][0]:.3g} rad, min curvature '
+                   f'{out["min_curvature"][0]:.3g})')
+    return ForwardResult(
+        angles=angles, rib_centers=centers, cable_path=holes,
+        energy=float(out['energy'][0]), tension=float(out['tension'][0]),
+        iterations=int(out['iterations'][0]), converged=converged,
+        residual=float(out['residual'][0]),
+        constraint_residual=float(out['constraint_residual'][0]),
+        stationarity_residual=float(out['stationarity_residual'][0]),
+        is_minimum=bool(out['is_minimum'][0]), min_curvature=float(out['min_curvature'][0]),
+        slack=slack, at_contact=out['at_contact'][0], cable_length_mm=L, message=message)
+
+
+def _frames(angles, s):
+    """Rib centres and orientations (few numpy calls: this is on the single-solve path)."""
+    from .geometry import _rib_frames
+    return _rib_frames(angles, s)
+
+
+def solve_forward_batch(skeleton: Skeleton, threadings, cable_lengths_mm, *,
+                        max_iter: int = MAX_ITER) -> BatchResult:
+    """Solve many (threading, length) pairs at once, vectorised over the batch.
+
+    Parameters
+    ----------
+    skeleton : Skeleton
+    threadings : sequence of threadings, or one threading
+        Either B threadings (one per length) or a single threading used for all.
+    cable_lengths_mm : array_like, shape (B,)
+
+    Returns
+    -------
+    BatchResult
+        ``angles`` of shape (B, n_segments) and the other fields as (B,) arrays.
+
+    Raises
+    ------
+    InfeasibleLengthError, SnapThroughError, ValueError
+        As :func:`solve_forward`, for the first offending item (all are validated
+        before any solving).
+    """
+    _check_skeleton(skeleton)
+    lengths = np.asarray(cable_lengths_mm, dtype=float)
+    if lengths.ndim != 1:
+        raise ValueError(f'cable_lengths_mm must be 1-D, got shape {lengths.shape}')
+    nb = lengths.shape[0]
+    single = _is_single_threading(threadings)
+    if single:
+        ds = [skeleton.threading_mm(threadings)]
+        index = np.zeros(nb, dtype=int)
+    else:
+        items = list(threadings)
+        if len(items) != nb:
+            raise ValueError(f'expected {nb} threadings (one per length), got {len(items)}')
+        keys: dict = {}
+        ds, index = [], np.empty(nb, dtype=int)
+        for i, t in enumerate(items):
+            key = tuple(skeleton.threading_mm(t).tolist())
+            if key not in keys:
+                keys[key] = len(ds)
+                ds.append(np.array(key))
+            index[i] = keys[key]
+    probs = [_problem(skeleton, tuple(d.tolist())) for d in ds]
+    for j, prob in enumerate(probs):
+        sel = lengths[index == j]
+        _check_length(prob, sel, skeleton, _describe(skeleton, prob.d))
+    if nb == 0:
+        n = skeleton.n_segments
+        empty = np.zeros((0,))
+        return BatchResult(np.zeros((0, n)), np.zeros((0, n + 1, 2)), np.zeros((0, n + 1, 2)),
+                           empty, empty, empty.astype(int), empty.astype(bool), empty, empty,
+                           empty, empty.astype(bool), empty, empty.astype(bool),
+                           np.zeros((0, n), bool), empty)
+    P = _stack(probs, index)
+    out = _solve_arrays(P, lengths, max_iter=int(max_iter))
+    return _batch_result(BatchResult, P, out, lengths)
+
+
+def _batch_result(cls, P, out, lengths, **extra):
+    from .geometry import _rib_frames
+    centers, theta = _rib_frames(out['angles'], P['s'])
+    holes = centers + P['d'][..., None] * np.stack([np.sin(theta), -np.cos(theta)], axis=-1)
+    return cls(angles=out['angles'], rib_centers=centers, cable_path=holes,
+               energy=out['energy'], tension=out['tension'], iterations=out['iterations'],
+               converged=out['converged'], residual=out['residual'],
+               constraint_residual=out['constraint_residual'],
+               stationarity_residual=out['stationarity_residual'],
+               is_minimum=out['is_minimum'], min_curvature=out['min_curvature'],
+               slack=out['slack'], at_contact=out['at_contact'], cable_length_mm=lengths,
+               **extra)
+
+
+def _is_single_threading(threadings) -> bool:
+    if isinstance(threadings, str):
+        return True
+    if isinstance(threadings, np.ndarray):
+        return threadings.ndim == 1
+    try:
+        first = next(iter(threadings))
+    except (TypeError, StopIteration):
+        return False
+    return isinstance(first, (str, numbers.Real))
+
+
+def sweep(skeleton: Skeleton, threading, contractions_mm, *,
+          max_iter: int = MAX_ITER) -> SweepResult:
+    """Follow a contraction range (e.g. the paper's 0-80 mm workspace plot).
+
+    Parameters
+    ----------
+    skeleton : Skeleton
+    threading : sequence of str or float
+    contractions_mm : array_like, shape (B,)
+        Cable shortening from the straight length (mm), ``>= 0``.
+
+    Returns
+    -------
+    SweepResult
+        Fields of :class:`BatchResult` plus ``contractions_mm``.
+
+    Notes
+    -----
+    Every step is warm-started from the exact samples of the traced path of this
+    threading (memoised), i.e. from the nearest already-traced shapes, and all steps are
+    polished together, vectorised. Since the path is a single-valued function of the
+    tension, the result equals small-step path following.
+    """
+    _check_skeleton(skeleton)
+    c = np.asarray(contractions_mm, dtype=float)
+    if c.ndim != 1:
+        raise ValueError(f'contractions_mm must be 1-D, got shape {c.shape}')
+    if not np.all(np.isfinite(c)):
+        raise ValueError(f'contractions_mm must be finite, got {c[~np.isfinite(c)][0]!r}')
+    if np.any(c < 0):
+        raise ValueError(f'contractions_mm must be >= 0, got {c[c < 0][0]!r}')
+    d = skeleton.threading_mm(threading)
+    prob, _ = _single(skeleton, tuple(d.tolist()))
+    lengths = prob.straight_mm - c
+    _check_length(prob, lengths, skeleton, _describe(skeleton, d))
+    P = _stack([prob], np.zeros(c.shape[0], dtype=int))
+    out = _solve_arrays(P, lengths, max_iter=int(max_iter))
+    return _batch_result(SweepResult, P, out, lengths, contractions_mm=c)
