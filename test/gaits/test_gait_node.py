@@ -1,0 +1,165 @@
+"""gait_node in its own process: publishing rate, services, gait switching and refusals."""
+import time
+
+import pytest
+
+pytestmark = pytest.mark.ros
+
+NS = '/brittle_star'
+TIMEOUT_S = 20.0          # discovery on a loaded 2-core machine can take seconds
+
+
+def straight_length_m(module):
+    from softsnap_model.scene import load_scene
+    return load_scene('brittle_star').module(module).straight_length_mm / 1000.0
+
+
+def subscribe(node, topic, msg_type, depth=200):
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    received = []
+    qos = QoSProfile(depth=depth, reliability=ReliabilityPolicy.RELIABLE)
+    node.create_subscription(msg_type, topic, lambda m: received.append((time.monotonic(), m)), qos)
+    return received
+
+
+def measure_rate(node, received, window_s):
+    """Receive rate (Hz) over `window_s` seconds, from arrival times."""
+    start = len(received)
+    deadline = time.monotonic() + window_s
+    node.spin_until(lambda: time.monotonic() >= deadline, window_s + 1.0)
+    times = [t for t, _ in received[start:]]
+    assert len(times) >= 3, f'only {len(times)} messages in {window_s} s'
+    return (len(times) - 1) / (times[-1] - times[0]), received[start:]
+
+
+def set_parameters(node, client, **values):
+    from rcl_interfaces.srv import SetParameters
+    from rclpy.parameter import Parameter
+    request = SetParameters.Request(
+        parameters=[Parameter(k, value=v).to_parameter_msg() for k, v in values.items()])
+    return node.call(client, request, TIMEOUT_S).results
+
+
+def test_gait_node_publishes_at_the_configured_rate(start_node, ros_node):
+    from rcl_interfaces.srv import SetParameters
+    from softsnap_interfaces.msg import CableLength, GaitPhase
+
+    proc = start_node('softsnap_gaits', 'gait_node', '--ros-args', '-r', f'__ns:={NS}',
+                      '-p', 'scene:=brittle_star', '-p', 'gait:=walk', '-p', 'rate:=50')
+    yellow = subscribe(ros_node, f'{NS}/yellow/cable_length/command', CableLength)
+    blue = subscribe(ros_node, f'{NS}/blue/cable_length/command', CableLength)
+    phases = subscribe(ros_node, f'{NS}/gait/phase', GaitPhase)
+    assert ros_node.spin_until(lambda: len(yellow) > 5 and len(phases) > 5, TIMEOUT_S), \
+        proc.output()
+
+    rate, window = measure_rate(ros_node, yellow, 1.5)
+    print(f'measured command rate at 50 Hz: {rate:.1f} Hz')
+    assert rate == pytest.approx(50.0, rel=0.15)
+    stamps = [m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec for _, m in window]
+    assert (len(stamps) - 1) / (stamps[-1] - stamps[0]) == pytest.approx(50.0, rel=0.05)
+    # Commands follow the walk: over 1.5 s yellow is both straight and 40 mm contracted.
+    lengths = [m.cable_length for _, m in window]
+    straight = straight_length_m('yellow')
+    assert max(lengths) == pytest.approx(straight, abs=1e-9)
+    assert min(lengths) == pytest.approx(straight - 0.040, abs=1e-9)
+    assert all(straight - 0.040 - 1e-9 <= v <= straight + 1e-9 for v in lengths)
+    assert min(m.cable_length for _, m in blue) == pytest.approx(
+        straight_length_m('blue') - 0.040, abs=1e-9)
+    phase = phases[-1][1]
+    assert phase.gait == 'walk' and phase.running and not phase.paused
+    assert phase.period == 1.0 and 0.0 <= phase.phase <= 1.0 and phase.cycle >= 1
+
+    # Change the rate at run time, then refuse an out-of-range one.
+    client = ros_node.create_client(SetParameters, f'{NS}/gait_node/set_parameters')
+    assert set_parameters(ros_node, client, rate=20.0)[0].successful
+    rate, _ = measure_rate(ros_node, yellow, 0.2)        # let the new timer settle
+    rate, _ = measure_rate(ros_node, yellow, 1.5)
+    print(f'measured command rate at 20 Hz: {rate:.1f} Hz')
+    assert rate == pytest.approx(20.0, rel=0.15)
+    result = set_parameters(ros_node, client, rate=5000.0)[0]
+    assert not result.successful and 'rate' in result.reason
+    assert proc.alive()
+
+
+def test_gait_node_services_start_stop_pause_resume_switch(start_node, ros_node):
+    from rcl_interfaces.srv import SetParameters
+    from softsnap_interfaces.msg import CableLength, GaitPhase
+    from softsnap_interfaces.srv import SetGait
+    from std_srvs.srv import Trigger
+
+    proc = start_node('softsnap_gaits', 'gait_node', '--ros-args', '-r', f'__ns:={NS}',
+                      '-p', 'scene:=brittle_star', '-p', 'autostart:=false', '-p', 'rate:=50',
+                      '-p', 'transition_time:=0.1')
+    yellow = subscribe(ros_node, f'{NS}/yellow/cable_length/command', CableLength)
+    phases = subscribe(ros_node, f'{NS}/gait/phase', GaitPhase)
+    trigger = {name: ros_node.create_client(Trigger, f'{NS}/gait_node/{name}')
+               for name in ('start', 'stop', 'pause', 'resume')}
+    set_gait = ros_node.create_client(SetGait, f'{NS}/gait_node/set_gait')
+    params = ros_node.create_client(SetParameters, f'{NS}/gait_node/set_parameters')
+
+    def last_phase():
+        return phases[-1][1] if phases else None
+
+    def wait_phase(pred):
+        n = len(phases)
+        ok = ros_node.spin_until(lambda: len(phases) > n and pred(phases[-1][1]), TIMEOUT_S)
+        assert ok, f'phase never matched; last {last_phase()}\n{proc.output()}'
+
+    # Not started: phase says stopped, and no commands are published.
+    wait_phase(lambda p: not p.running and not p.paused and p.gait == 'walk')
+    assert yellow == []
+    assert not ros_node.call(trigger['pause'], Trigger.Request(), TIMEOUT_S).success
+
+    response = ros_node.call(trigger['start'], Trigger.Request(), TIMEOUT_S)
+    assert response.success and 'walk' in response.message
+    wait_phase(lambda p: p.running)
+    assert ros_node.spin_until(lambda: len(yellow) > 10, TIMEOUT_S)
+    assert not ros_node.call(trigger['start'], Trigger.Request()).success   # already running
+
+    # Pause: commands keep coming but hold still; resume: they move again.
+    assert ros_node.call(trigger['pause'], Trigger.Request()).success
+    wait_phase(lambda p: p.paused and not p.running)
+    _, held = measure_rate(ros_node, yellow, 0.6)
+    assert len({m.cable_length for _, m in held}) == 1
+    assert ros_node.call(trigger['resume'], Trigger.Request()).success
+    wait_phase(lambda p: p.running and not p.paused)
+    _, moving = measure_rate(ros_node, yellow, 1.2)
+    assert len({round(m.cable_length, 9) for _, m in moving}) > 2
+
+    # Switch gait and period through the service.
+    response = ros_node.call(set_gait, SetGait.Request(gait='walk_reverse', period=2.0))
+    assert response.success, response.message
+    wait_phase(lambda p: p.gait == 'walk_reverse' and p.period == 2.0 and p.running)
+    # Unknown gait and out-of-range amplitude are refused with a reason; the gait stays.
+    response = ros_node.call(set_gait, SetGait.Request(gait='fly'))
+    assert not response.success
+    assert "unknown gait 'fly'" in response.message and 'walk_reverse' in response.message
+    response = ros_node.call(set_gait, SetGait.Request(gait='walk', amplitude=0.09))
+    assert not response.success and '80.000 mm' in response.message
+    result = set_parameters(ros_node, params, gait='hop')[0]
+    assert not result.successful and "unknown gait 'hop'" in result.reason
+    wait_phase(lambda p: p.gait == 'walk_reverse' and p.period == 2.0)
+
+    # Stop: the modules relax to straight, then the node stops commanding them.
+    response = ros_node.call(trigger['stop'], Trigger.Request())
+    assert response.success
+    wait_phase(lambda p: not p.running and not p.paused)
+    t_stop = time.monotonic()
+    ros_node.spin_until(lambda: time.monotonic() > t_stop + 0.5, 2.0)
+    count = len(yellow)
+    assert yellow[-1][1].cable_length == pytest.approx(straight_length_m('yellow'), abs=1e-9)
+    ros_node.spin_until(lambda: time.monotonic() > t_stop + 1.0, 2.0)
+    assert len(yellow) == count
+    assert proc.alive()
+
+
+@pytest.mark.parametrize('args, reason', [
+    (['-p', 'scene:=dragon'], "unknown scene 'dragon'; known scenes:"),
+    (['-p', 'scene:=brittle_star', '-p', 'gait:=fly'],
+     "unknown gait 'fly'; known gaits: walk, walk_reverse"),
+])
+def test_gait_node_refuses_invalid_scene_or_gait_at_start(start_node, args, reason):
+    proc = start_node('softsnap_gaits', 'gait_node', '--ros-args', *args)
+    proc.proc.wait(TIMEOUT_S)
+    assert proc.proc.returncode == 2
+    assert reason in proc.output()
