@@ -130,11 +130,11 @@ def test_robot_recording_entity_tree_frames_and_values(tmp_path, read_rrd):
 
     expected = {'robot', 'robot/connector'}
     for module in ('yellow', 'blue'):
-        expected |= {f'robot/{module}', f'plots/{module}/tip_error_mm', f'plots/{module}/battery_v',
-                     f'plots/{module}/cable_length_mm/commanded',
-                     f'plots/{module}/cable_length_mm/measured',
-                     f'plots/{module}/solve_time_ms/commanded',
-                     f'plots/{module}/solve_time_ms/predicted'}
+        expected |= {f'robot/{module}', f'plots/tip_error_mm/{module}', f'plots/battery_v/{module}',
+                     f'plots/cable_length_mm/{module}/commanded',
+                     f'plots/cable_length_mm/{module}/measured',
+                     f'plots/solve_time_ms/{module}/commanded',
+                     f'plots/solve_time_ms/{module}/predicted'}
         expected |= {f'robot/{module}/{source}/{part}' for source in ('commanded', 'predicted')
                      for part in ('spine', 'ribs')}
     expected |= {'robot/yellow/commanded/cable', 'robot/yellow/predicted/cable'}
@@ -153,7 +153,7 @@ def test_robot_recording_entity_tree_frames_and_values(tmp_path, read_rrd):
     # One frame per tick and entity, on the ros_time timeline at the message stamps.
     stamps = [STAMP0 + i * PERIOD for i in range(10)]
     for entity in ('robot/yellow/commanded/spine', 'robot/blue/predicted/ribs',
-                   'plots/yellow/cable_length_mm/measured', 'plots/blue/battery_v'):
+                   'plots/cable_length_mm/yellow/measured', 'plots/battery_v/blue'):
         assert rrd.times(entity) == stamps, entity
 
     # Spine points are the rib centres, in metres, in the module base frame.
@@ -175,11 +175,11 @@ def test_robot_recording_entity_tree_frames_and_values(tmp_path, read_rrd):
     assert rrd.static['robot/connector']['Points3D:labels'] == ['yellow', 'blue']
 
     # Time series values and units.
-    np.testing.assert_allclose(rrd.scalars('plots/yellow/cable_length_mm/commanded'),
+    np.testing.assert_allclose(rrd.scalars('plots/cable_length_mm/yellow/commanded'),
                                [200.0 - i for i in range(10)])
-    np.testing.assert_allclose(rrd.scalars('plots/blue/solve_time_ms/predicted'), [3.0] * 10)
-    np.testing.assert_allclose(rrd.scalars('plots/blue/battery_v'), [7.4] * 10, rtol=1e-6)
-    tip = rrd.scalars('plots/yellow/tip_error_mm')
+    np.testing.assert_allclose(rrd.scalars('plots/solve_time_ms/blue/predicted'), [3.0] * 10)
+    np.testing.assert_allclose(rrd.scalars('plots/battery_v/blue'), [7.4] * 10, rtol=1e-6)
+    tip = rrd.scalars('plots/tip_error_mm/yellow')
     expected_tip = [np.linalg.norm(rec_mod.rib_centres_mm(arc_angles(-0.1 * i))[-1]
                                    - rec_mod.rib_centres_mm(arc_angles(-0.08 * i))[-1])
                     for i in range(10)]
@@ -198,7 +198,7 @@ def test_rate_limit_and_module_filter_reduce_what_is_logged(tmp_path, read_rrd):
     assert 'robot/yellow' not in rrd.entities
     # 25 ticks of 20 ms = 480 ms: stamps 0, 100, 200, 300, 400 ms are kept.
     assert rrd.times('robot/blue/commanded/spine') == [STAMP0 + k * 100_000_000 for k in range(5)]
-    assert len(rrd.scalars('plots/blue/battery_v')) == 5
+    assert len(rrd.scalars('plots/battery_v/blue')) == 5
     assert recorder.dropped == 5 * (25 - 5)
 
 
@@ -236,10 +236,10 @@ def test_record_sweep_writes_one_step_per_contraction_and_the_tip_path(tmp_path,
                                 solve=fake_solve, module='m')
     rrd = read_rrd(path)
     assert {'robot/m/predicted/spine', 'robot/m/predicted/ribs', 'robot/m/predicted/cable',
-            'robot/m/workspace/tip_path', 'plots/m/contraction_mm'} <= rrd.entities
+            'robot/m/workspace/tip_path', 'plots/contraction_mm/m'} <= rrd.entities
     assert rrd.times('robot/m/predicted/spine', 'step') == [0, 1, 2, 3]
-    np.testing.assert_allclose(rrd.scalars('plots/m/contraction_mm'), contractions)
-    np.testing.assert_allclose(rrd.scalars('plots/m/tip_angle_deg'),
+    np.testing.assert_allclose(rrd.scalars('plots/contraction_mm/m'), contractions)
+    np.testing.assert_allclose(rrd.scalars('plots/tip_angle_deg/m'),
                                [-math.degrees(c / 40.0) for c in contractions], atol=1e-9)
     tip_path = np.asarray(rrd.static['robot/m/workspace/tip_path']['LineStrips3D:strips'][0])
     expected = [rec_mod.rib_centres_mm(fake_solve(threading, c))[-1] * 1e-3 for c in contractions]

@@ -143,7 +143,7 @@ def test_logger_records_scene_modules_and_completes_the_file_on_sigint(
         ros_node.spin_until(lambda: False, 0.01)
 
     wait_for_rows(output, 'robot/orange/predicted/spine', ticks, ros_node)
-    wait_for_rows(output, 'plots/red/battery_v', ticks, ros_node)
+    wait_for_rows(output, 'plots/battery_v/red', ticks, ros_node)
     assert proc.stop() == 0, log_of(proc)
     log = log_of(proc)
     assert 'recording closed' in log and 'rosout' not in log, log
@@ -162,7 +162,7 @@ def test_logger_records_scene_modules_and_completes_the_file_on_sigint(
                                    atol=1e-7)
         np.testing.assert_allclose(transform[0]['Transform3D:quaternion'][0], poses[module][1],
                                    atol=1e-7)
-        assert len(rrd.scalars(f'plots/{module}/solve_time_ms/predicted')) == ticks
+        assert len(rrd.scalars(f'plots/solve_time_ms/{module}/predicted')) == ticks
     assert set(rrd.static['robot/connector']['Points3D:labels']) == set(SCENE_MODULES)
 
     # Spines: yellow from the message's rib centres, blue computed from the angles; both
@@ -179,14 +179,14 @@ def test_logger_records_scene_modules_and_completes_the_file_on_sigint(
     np.testing.assert_allclose(cable, rec_mod.cable_points_m(frames, red.threading_mm), atol=1e-7)
 
     # Time series in their units.
-    np.testing.assert_allclose(rrd.scalars('plots/red/cable_length_mm/commanded'),
+    np.testing.assert_allclose(rrd.scalars('plots/cable_length_mm/red/commanded'),
                                [200.0 - i for i in range(ticks)], atol=1e-9)
-    np.testing.assert_allclose(rrd.scalars('plots/yellow/cable_length_mm/measured'),
+    np.testing.assert_allclose(rrd.scalars('plots/cable_length_mm/yellow/measured'),
                                [200.0 - 0.8 * i for i in range(ticks)], atol=1e-9)
-    np.testing.assert_allclose(rrd.scalars('plots/red/battery_v'),
+    np.testing.assert_allclose(rrd.scalars('plots/battery_v/red'),
                                [7.5 - 0.1 * i for i in range(ticks)], atol=1e-6)
-    np.testing.assert_allclose(rrd.scalars('plots/green/solve_time_ms/commanded'), [1.5] * ticks)
-    tip = rrd.scalars('plots/green/tip_error_mm')
+    np.testing.assert_allclose(rrd.scalars('plots/solve_time_ms/green/commanded'), [1.5] * ticks)
+    tip = rrd.scalars('plots/tip_error_mm/green')
     last = [rec_mod.rib_centres_mm(angles_for('green', s, ticks - 1))[-1] for s in
             ('commanded', 'predicted')]
     assert tip[-1] == pytest.approx(float(np.linalg.norm(last[0] - last[1])), abs=1e-6)

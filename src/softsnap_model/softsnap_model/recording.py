@@ -24,19 +24,24 @@ Entity tree (``<source>`` is ``commanded`` or ``predicted``)::
     robot/<module>/<source>/spine           spine through the rib centres, LineStrips3D
     robot/<module>/<source>/ribs            one 25 mm strip per rib, LineStrips3D
     robot/<module>/<source>/cable           cable through its holes (needs a threading)
-    plots/<module>/cable_length_mm/commanded|measured
-    plots/<module>/tip_error_mm             commanded versus predicted tip distance
-    plots/<module>/solve_time_ms/<source>
-    plots/<module>/battery_v
+    plots/cable_length_mm/<module>/commanded|measured
+    plots/tip_error_mm/<module>             commanded versus predicted tip distance
+    plots/solve_time_ms/<module>/<source>
+    plots/battery_v/<module>
+
+Plots are grouped by quantity first because a blueprint view selects a subtree
+(``plots/tip_error_mm/**``); rerun's path filters have no wildcard for one level.
 """
 from __future__ import annotations
 
 import argparse
 import math
 import sys
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Iterable, Mapping, Sequence
+from urllib.parse import quote
 
 import numpy as np
 import rerun as rr
@@ -82,10 +87,13 @@ def shape_path(module: str, source: str, part: str) -> str:
     return f'{module_path(module)}/{source}/{part}'
 
 
-def plot_path(module: str, *series: str) -> str:
-    """Entity of a time series of ``module``, e.g. ``plot_path('red', 'battery_v')``."""
+def plot_path(quantity: str, module: str, *series: str) -> str:
+    """Entity of a time series: ``plots/<quantity>/<module>[/<series>]``.
+
+    For example ``plot_path('cable_length_mm', 'red', 'measured')``.
+    """
     _check_name(module)
-    return '/'.join((PLOTS_ROOT, module, *series))
+    return '/'.join((PLOTS_ROOT, quantity, module, *series))
 
 
 def _check_name(module: str) -> None:
@@ -100,15 +108,14 @@ def build_blueprint() -> rrb.Blueprint:
 
     Built from wildcard paths, so one blueprint fits every robot and module count.
     """
+    def plot(title: str, quantity: str) -> rrb.TimeSeriesView:
+        return rrb.TimeSeriesView(name=title, origin=f'{PLOTS_ROOT}/{quantity}')
+
     plots = rrb.Vertical(
-        rrb.TimeSeriesView(name='Cable length (mm)', origin=PLOTS_ROOT,
-                           contents='$origin/*/cable_length_mm/**'),
-        rrb.TimeSeriesView(name='Tip error, commanded vs predicted (mm)', origin=PLOTS_ROOT,
-                           contents='$origin/*/tip_error_mm'),
-        rrb.TimeSeriesView(name='Solver time (ms)', origin=PLOTS_ROOT,
-                           contents='$origin/*/solve_time_ms/**'),
-        rrb.TimeSeriesView(name='Battery (V)', origin=PLOTS_ROOT,
-                           contents='$origin/*/battery_v'),
+        plot('Cable length, commanded and measured (mm)', 'cable_length_mm'),
+        plot('Tip error, commanded vs predicted (mm)', 'tip_error_mm'),
+        plot('Solver time (ms)', 'solve_time_ms'),
+        plot('Battery (V)', 'battery_v'),
     )
     scene = rrb.Spatial3DView(name='Robot: commanded (blue) vs predicted (orange)',
                               origin=ROBOT_ROOT)
@@ -121,7 +128,10 @@ def build_sweep_blueprint() -> rrb.Blueprint:
     return rrb.Blueprint(
         rrb.Vertical(
             rrb.Spatial3DView(name='Shapes', origin=ROBOT_ROOT),
-            rrb.TimeSeriesView(name='Sweep', origin=PLOTS_ROOT),
+            rrb.Horizontal(
+                rrb.TimeSeriesView(name='Contraction (mm)', origin=f'{PLOTS_ROOT}/contraction_mm'),
+                rrb.TimeSeriesView(name='Tip angle (deg)', origin=f'{PLOTS_ROOT}/tip_angle_deg'),
+            ),
             row_shares=[3, 1],
         ),
         collapse_panels=True,
@@ -261,19 +271,13 @@ def log_scene_setup(rec: rr.RecordingStream) -> None:
 
 
 def log_series_styles(rec: rr.RecordingStream, module: str) -> None:
-    """Static names and colours of a module's time series."""
-    styles = {
-        ('cable_length_mm', 'commanded'): SPINE_COLORS['commanded'],
-        ('cable_length_mm', 'measured'): SPINE_COLORS['predicted'],
-        ('solve_time_ms', 'commanded'): SPINE_COLORS['commanded'],
-        ('solve_time_ms', 'predicted'): SPINE_COLORS['predicted'],
-    }
-    for parts, color in styles.items():
-        rec.log(plot_path(module, *parts), rr.SeriesLines(colors=[color],
-                                                          names=[f'{module} {parts[1]}']),
-                static=True)
-    rec.log(plot_path(module, 'tip_error_mm'), rr.SeriesLines(names=[module]), static=True)
-    rec.log(plot_path(module, 'battery_v'), rr.SeriesLines(names=[module]), static=True)
+    """Static legend names of a module's time series (the viewer picks the colours)."""
+    for quantity, series in (('cable_length_mm', 'commanded'), ('cable_length_mm', 'measured'),
+                             ('solve_time_ms', 'commanded'), ('solve_time_ms', 'predicted')):
+        rec.log(plot_path(quantity, module, series),
+                rr.SeriesLines(names=[f'{module} {series}']), static=True)
+    for quantity in ('tip_error_mm', 'battery_v'):
+        rec.log(plot_path(quantity, module), rr.SeriesLines(names=[module]), static=True)
 
 
 def log_base_poses(rec: rr.RecordingStream,
@@ -444,11 +448,11 @@ class RobotRecorder:
             log_shape_styles(self.rec, module, source, module in self.threadings_mm)
         log_module_shape(self.rec, module, source, frames, self.threadings_mm.get(module))
         if solve_time_s is not None:
-            log_scalar(self.rec, plot_path(module, 'solve_time_ms', source), solve_time_s * 1e3)
+            log_scalar(self.rec, plot_path('solve_time_ms', module, source), solve_time_s * 1e3)
         other = self._latest.get((module, 'predicted' if source == 'commanded' else 'commanded'))
         if other is not None and len(other.centres_m) == len(frames.centres_m):
             pair = (frames, other) if source == 'commanded' else (other, frames)
-            log_scalar(self.rec, plot_path(module, 'tip_error_mm'), tip_error_mm(*pair))
+            log_scalar(self.rec, plot_path('tip_error_mm', module), tip_error_mm(*pair))
         return True
 
     def cable_length(self, stamp_ns: int, module: str, kind: str, length_m: float) -> bool:
@@ -457,14 +461,14 @@ class RobotRecorder:
             raise ValueError(f'kind must be "commanded" or "measured", got {kind!r}')
         if not self._admit(module, f'cable_length/{kind}', stamp_ns):
             return False
-        log_scalar(self.rec, plot_path(module, 'cable_length_mm', kind), length_m / MM)
+        log_scalar(self.rec, plot_path('cable_length_mm', module, kind), length_m / MM)
         return True
 
     def module_state(self, stamp_ns: int, module: str, battery_v: float) -> bool:
         """A driver state report (battery voltage, V)."""
         if not self._admit(module, 'state', stamp_ns):
             return False
-        log_scalar(self.rec, plot_path(module, 'battery_v'), battery_v)
+        log_scalar(self.rec, plot_path('battery_v', module), battery_v)
         return True
 
 
@@ -511,8 +515,8 @@ def _write_shapes(path: str | Path, shapes: Mapping[str, Sequence[Sequence[float
                 frames = rib_frames(series[step], None, spacing_mm)
                 log_module_shape(rec, name, 'predicted', frames, threadings_mm.get(name))
                 tips[name].append(frames.centres_m[-1])
-                log_scalar(rec, plot_path(name, 'contraction_mm'), contraction)
-                log_scalar(rec, plot_path(name, 'tip_angle_deg'),
+                log_scalar(rec, plot_path('contraction_mm', name), contraction)
+                log_scalar(rec, plot_path('tip_angle_deg', name),
                            math.degrees(frames.headings_rad[-1]))
         for name, points in tips.items():
             # The workspace: where the tip goes over the whole sweep.
@@ -574,8 +578,11 @@ def parse_threading(text: str, ribs: int = 12) -> list[float]:
     return offsets
 
 
-def add_record_arguments(parser: argparse.ArgumentParser) -> None:
-    """Arguments of the ``record`` command (for a ``softsnap-model record`` subcommand)."""
+def add_record_arguments(parser: argparse.ArgumentParser):
+    """Arguments of the ``record`` command (for a ``softsnap-model record`` subcommand).
+
+    Returns the subparsers object so callers can add more commands beside these.
+    """
     sub = parser.add_subparsers(dest='what', required=True)
     sweep = sub.add_parser('sweep', help="one module's shapes over a range of contractions")
     sweep.add_argument('--threading', required=True, help='e.g. "R3x12" or "R1 R1 ... R3"')
@@ -583,13 +590,18 @@ def add_record_arguments(parser: argparse.ArgumentParser) -> None:
     compare.add_argument('--threading', action='append', required=True, metavar='NAME=HOLES',
                          help='repeat per threading, e.g. --threading s="R3x6 L3x6"')
     for p in (sweep, compare):
-        p.add_argument('--max-contraction-mm', type=float, default=40.0)
-        p.add_argument('--steps', type=int, default=41)
+        p.add_argument('--max-contraction-mm', type=float, default=40.0,
+                       help='largest cable contraction of the sweep (mm, default 40)')
+        p.add_argument('--steps', type=int, default=41, help='number of contractions (41)')
         p.add_argument('--out', required=True, help='.rrd file to write')
+    return sub
 
 
 def run_record(args: argparse.Namespace) -> int:
     """Carry out a parsed ``record`` command."""
+    if args.steps < 1 or not args.max_contraction_mm >= 0.0:
+        raise ValueError(f'need steps >= 1 and max contraction >= 0 mm, got {args.steps} '
+                         f'and {args.max_contraction_mm}')
     contractions = np.linspace(0.0, args.max_contraction_mm, args.steps).tolist()
     if args.what == 'sweep':
         path = record_sweep(args.out, parse_threading(args.threading), contractions)
@@ -605,14 +617,45 @@ def run_record(args: argparse.Namespace) -> int:
     return 0
 
 
+def serve_recording(path: str | Path, *, web_port: int = 9090, grpc_port: int = 9876
+                    ) -> tuple[str, rr.RecordingStream]:
+    """Serve an .rrd file to rerun's bundled web viewer, offline; returns (url, stream).
+
+    The viewer's files come from the installed rerun-sdk; a browser opening the url gets
+    the recording over gRPC from this process. Keep the returned stream (and the process)
+    alive while the page is open.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f'no recording at {path}')
+    rec = rr.RecordingStream(f'{APPLICATION_ID}_view')
+    grpc_url = rec.serve_grpc(grpc_port=grpc_port)
+    rec.log_file_from_path(path)
+    rr.serve_web_viewer(web_port=web_port, open_browser=False, connect_to=grpc_url)
+    return f'http://127.0.0.1:{web_port}/?url={quote(grpc_url, safe="")}', rec
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m softsnap_model.recording {sweep,threadings} ...``."""
+    """``python -m softsnap_model.recording {sweep,threadings,view} ...``."""
     parser = argparse.ArgumentParser(prog='python -m softsnap_model.recording',
-                                     description='Write a rerun recording without ROS.')
-    add_record_arguments(parser)
+                                     description='Write or view rerun recordings without ROS.')
+    sub = add_record_arguments(parser)
+    view = sub.add_parser('view', help="serve an .rrd to rerun's web viewer (offline)")
+    view.add_argument('file', help='.rrd recording')
+    view.add_argument('--web-port', type=int, default=9090)
+    view.add_argument('--grpc-port', type=int, default=9876)
     args = parser.parse_args(argv)
     try:
-        return run_record(args)
+        if args.what != 'view':
+            return run_record(args)
+        url, _stream = serve_recording(args.file, web_port=args.web_port,
+                                       grpc_port=args.grpc_port)
+        print(f'open {url}  (Ctrl-C to stop)', flush=True)
+        try:
+            while True:
+                time.sleep(3600)
+        except KeyboardInterrupt:
+            return 0
     except (ValueError, RuntimeError) as exc:
         print(f'error: {exc}', file=sys.stderr)
         return 2
