@@ -1,0 +1,279 @@
+"""Live shape prediction for a whole robot: the model node's logic, free of ROS.
+
+A :class:`RobotPredictor` holds, per module of a scene and per source ("commanded": the
+length the gait asked for; "predicted": the length the driver measured), the latest cable
+length and the last solved shape. Lengths arrive at any time through :meth:`submit`;
+:meth:`tick` solves what changed and returns the new shapes. It skips work the robot does
+not need, and counts what it skipped:
+
+- a length within ``length_tol_mm`` of the last solved one is not solved again;
+- modules with the same threading, stiffness and length in one tick share one solve (a
+  snake of five identical modules given the same command costs one solve), across both
+  sources;
+- every solve is warm-started from that module's previous shape;
+- rib centres are computed only when the caller asks for them (someone subscribes).
+
+Units: millimetres and radians inside (the solver core's units); the node converts to SI.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from typing import Callable, Mapping
+
+import numpy as np
+
+from . import geometry
+from .forward import reachable_range, solve_forward
+from .scene import Scene, compose_base_pose
+
+__all__ = ['SOURCES', 'ModulePrediction', 'PredictorCounters', 'RobotPredictor']
+
+#: The two shapes kept per module: from the commanded and from the measured cable length.
+SOURCES = ('commanded', 'predicted')
+
+#: Default length change (mm) below which a module is not solved again (0.1 µm: far below
+#: an encoder count, so no visible shape change is ever skipped).
+DEFAULT_LENGTH_TOL_MM = 1e-4
+
+
+@dataclasses.dataclass(frozen=True)
+class ModulePrediction:
+    """Solved shape of one module for one source.
+
+    Attributes
+    ----------
+    module, source : str
+        Module name and "commanded" or "predicted".
+    cable_length_mm : float
+        Length the shape was solved for, mm.
+    angles : ndarray, shape (n_segments,)
+        Bending angles, rad.
+    rib_centers_mm : ndarray, shape (n_ribs, 2), or None
+        Rib centres in the module base frame, mm; None when not requested.
+    tension : float
+        Lagrange multiplier of the length constraint per unit stiffness, rad^2/mm.
+    energy : float
+        Bending energy ``sum k_i a_i^2``, rad^2.
+    converged : bool
+    residual : float
+        Solver residual (max of constraint and stationarity residuals).
+    solve_time_s : float
+        Wall time of the solve, s; 0 when the shape was shared from another module's solve.
+    stamp_ns : int
+        Stamp of the length message the shape was solved from, ns.
+    """
+
+    module: str
+    source: str
+    cable_length_mm: float
+    angles: np.ndarray
+    rib_centers_mm: np.ndarray | None
+    tension: float
+    energy: float
+    converged: bool
+    residual: float
+    solve_time_s: float
+    stamp_ns: int
+
+
+@dataclasses.dataclass
+class PredictorCounters:
+    """Work done and skipped since the predictor was created (counts, seconds)."""
+
+    solves: int = 0
+    skipped_unchanged: int = 0
+    skipped_duplicate: int = 0
+    skipped_rib_points: int = 0
+    refused: int = 0
+    solve_time_s: float = 0.0
+
+
+@dataclasses.dataclass
+class _Slot:
+    """Latest requested length and last solved shape of one (module, source)."""
+
+    pending_mm: float | None = None
+    pending_stamp_ns: int = 0
+    shape: ModulePrediction | None = None
+
+
+class RobotPredictor:
+    """Predicts every module's shape of a scene from its cable lengths.
+
+    Parameters
+    ----------
+    scene : Scene
+        Modules (threadings, base poses) and the skeleton.
+    length_tol_mm : float
+        Length change below which a module is not solved again, mm.
+    solver : callable, optional
+        ``solver(skeleton, threading_mm, cable_length_mm, initial=None)``; the forward
+        solver by default.
+    skip : bool
+        Skip unneeded work (unchanged lengths, duplicate problems, unrequested rib
+        centres). False solves every length received, separately, with rib centres: the
+        reference the benchmark compares against.
+    """
+
+    def __init__(self, scene: Scene, length_tol_mm: float = DEFAULT_LENGTH_TOL_MM,
+                 solver: Callable = solve_forward, skip: bool = True):
+        if not (math.isfinite(length_tol_mm) and length_tol_mm >= 0.0):
+            raise ValueError(f'length_tol_mm must be finite and >= 0, got {length_tol_mm!r}')
+        self.scene = scene
+        self.skeleton = scene.skeleton
+        self.length_tol_mm = float(length_tol_mm)
+        self._solver = solver
+        self.skip = bool(skip)
+        self.counters = PredictorCounters()
+        self._index = {m.name: i for i, m in enumerate(scene.modules)}
+        self._threading = {m.name: np.asarray(m.threading_mm, dtype=float) for m in scene.modules}
+        # Modules with equal threadings share solves: key them by their offsets.
+        self._threading_key = {name: tuple(t.tolist()) for name, t in self._threading.items()}
+        ranges = {}
+        for key in set(self._threading_key.values()):
+            ranges[key] = reachable_range(self.skeleton, np.asarray(key))
+        self.reachable_mm = {name: ranges[self._threading_key[name]] for name in self._index}
+        self._slots = {(name, source): _Slot() for name in self._index for source in SOURCES}
+
+    # ------------------------------------------------------------------ input
+    def submit(self, source: str, module: str, cable_length_mm: float, stamp_ns: int = 0) -> None:
+        """Queue a new cable length for one module; solved at the next :meth:`tick`.
+
+        Raises
+        ------
+        ValueError
+            Unknown source or module, a non-finite length, or a length the threading
+            cannot reach (the message names the reachable range). The last valid length
+            and shape are kept.
+        """
+        try:
+            if source not in SOURCES:
+                raise ValueError(f'unknown source {source!r}; expected one of {SOURCES}')
+            if module not in self._index:
+                raise ValueError(f'unknown module {module!r}; scene {self.scene.name!r} has '
+                                 f'{", ".join(self._index)}')
+            length = float(cable_length_mm)
+            if not math.isfinite(length):
+                raise ValueError(f'cable length of {module!r} must be finite, got {length!r}')
+            low, _straight = self.reachable_mm[module]
+            if length < low:
+                raise ValueError(f'cable length {length:.6g} mm of {module!r} is below the '
+                                 f'reachable minimum {low:.6g} mm (reachable range '
+                                 f'[{low:.6g}, {_straight:.6g}] mm; longer means slack)')
+        except ValueError:
+            self.counters.refused += 1
+            raise
+        slot = self._slots[(module, source)]
+        solved = slot.shape.cable_length_mm if slot.shape is not None else None
+        if self.skip and solved is not None and abs(length - solved) <= self.length_tol_mm:
+            self.counters.skipped_unchanged += 1
+            slot.pending_mm = None
+            return
+        slot.pending_mm = length
+        slot.pending_stamp_ns = int(stamp_ns)
+
+    # ------------------------------------------------------------------ solving
+    def tick(self, rib_centers: bool | Mapping[str, bool] = False) -> dict[str, list[ModulePrediction]]:
+        """Solve all pending lengths; return the new shapes per source (scene order).
+
+        Parameters
+        ----------
+        rib_centers : bool or mapping source -> bool
+            Whether to compute rib centres for the new shapes (per source if a mapping).
+        """
+        want = rib_centers if isinstance(rib_centers, Mapping) else dict.fromkeys(SOURCES, rib_centers)
+        if not self.skip:
+            want = dict.fromkeys(SOURCES, True)
+        pending = [(name, source) for (name, source), slot in self._slots.items()
+                   if slot.pending_mm is not None]
+        # Group identical problems (threading, length) across modules and sources.
+        groups: dict[tuple, list[tuple[str, str]]] = {}
+        for name, source in pending:
+            key = (self._threading_key[name], self._slots[(name, source)].pending_mm)
+            if not self.skip:
+                key += (name, source)  # every module and source solved on its own
+            groups.setdefault(key, []).append((name, source))
+        updated: dict[str, list[ModulePrediction]] = {source: [] for source in SOURCES}
+        for (threading_key, length), members in groups.items():
+            first = self._slots[members[0]]
+            initial = first.shape.angles if first.shape is not None else None
+            start = time.perf_counter()
+            result = self._solver(self.skeleton, self._threading[members[0][0]], length,
+                                  initial=initial)
+            elapsed = time.perf_counter() - start
+            self.counters.solves += 1
+            self.counters.solve_time_s += elapsed
+            self.counters.skipped_duplicate += len(members) - 1
+            angles = np.array(result.angles, dtype=float)
+            centers = None
+            for i, (name, source) in enumerate(members):
+                slot = self._slots[(name, source)]
+                if want.get(source, False):
+                    if centers is None:
+                        centers = geometry.rib_centers(angles, self.skeleton.spacing_mm)
+                else:
+                    self.counters.skipped_rib_points += 1
+                slot.shape = ModulePrediction(
+                    module=name, source=source, cable_length_mm=length, angles=angles,
+                    rib_centers_mm=centers if want.get(source, False) else None,
+                    tension=float(result.tension), energy=float(result.energy),
+                    converged=bool(result.converged), residual=float(result.residual),
+                    solve_time_s=elapsed if i == 0 else 0.0, stamp_ns=slot.pending_stamp_ns)
+                slot.pending_mm = None
+                updated[source].append(slot.shape)
+        for source in SOURCES:
+            updated[source].sort(key=lambda shape: self._index[shape.module])
+        return updated
+
+    # ------------------------------------------------------------------ queries
+    def shapes(self, source: str) -> list[ModulePrediction | None]:
+        """Last solved shape per module in scene order (None before the first length)."""
+        return [self._slots[(m.name, source)].shape for m in self.scene.modules]
+
+    def base_poses(self, source: str) -> list[tuple[tuple[float, float, float],
+                                                     tuple[float, float, float, float]]]:
+        """Base pose (position m, quaternion xyzw) of every module in the robot frame.
+
+        Chained modules (a snake) sit on their parent's tip rib, so their pose follows the
+        parent's current shape of the same source; others use the scene's fixed pose.
+        """
+        poses: dict[str, tuple] = {}
+
+        def pose_of(module):
+            # Scenes may list a child before its parent (the snake lists head first).
+            if module.name not in poses:
+                if module.parent is None:
+                    poses[module.name] = (module.base_position_m, module.base_orientation_xyzw)
+                else:
+                    parent = self.scene.module(module.parent)
+                    shape = self._slots[(parent.name, source)].shape
+                    angles = (shape.angles if shape is not None
+                              else np.zeros(self.skeleton.n_segments))
+                    tip = self._tip_pose(pose_of(parent), angles)
+                    poses[module.name] = compose_base_pose(tip[0], tip[1], module)
+            return poses[module.name]
+
+        return [pose_of(m) for m in self.scene.modules]
+
+    def _tip_pose(self, base_pose, angles):
+        """Robot-frame pose of the last rib of a module with the given base pose, angles."""
+        from .scene import quaternion_to_matrix
+        position, orientation = base_pose
+        tip_xy_mm = geometry.rib_centers(angles, self.skeleton.spacing_mm)[-1]
+        heading = float(np.sum(angles))
+        rot = np.array(quaternion_to_matrix(tuple(orientation)))
+        tip = np.asarray(position) + rot @ np.array([tip_xy_mm[0], tip_xy_mm[1], 0.0]) * 1e-3
+        c, s = math.cos(heading / 2.0), math.sin(heading / 2.0)
+        return tuple(tip.tolist()), _quat_multiply(tuple(orientation), (0.0, 0.0, s, c))
+
+
+def _quat_multiply(q1, q2):
+    """Hamilton product of two xyzw quaternions (q1 then q2 in the body frame)."""
+    x1, y1, z1, w1 = q1
+    x2, y2, z2, w2 = q2
+    return (w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
+            w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2)

@@ -1,0 +1,155 @@
+"""RobotPredictor: the model node's core, tested directly with the real forward solver."""
+import math
+
+import numpy as np
+import pytest
+
+from softsnap_model import geometry
+from softsnap_model.forward import reachable_range, solve_forward
+from softsnap_model.predictor import RobotPredictor
+from softsnap_model.scene import load_scene
+
+
+@pytest.fixture(scope='module')
+def brittle_star():
+    return load_scene('brittle_star')
+
+
+@pytest.fixture(scope='module')
+def snake():
+    return load_scene('snake')
+
+
+def straight(scene, name):
+    return scene.module(name).straight_length_mm
+
+
+def test_shapes_equal_direct_forward_solves(brittle_star):
+    predictor = RobotPredictor(brittle_star)
+    lengths = {m.name: m.straight_length_mm - 10.0 - 5.0 * i
+               for i, m in enumerate(brittle_star.modules)}
+    for name, length in lengths.items():
+        predictor.submit('commanded', name, length, stamp_ns=42)
+    updated = predictor.tick(rib_centers=True)
+    assert [s.module for s in updated['commanded']] == list(brittle_star.module_names)
+    assert updated['predicted'] == []
+    for shape, module in zip(updated['commanded'], brittle_star.modules):
+        direct = solve_forward(brittle_star.skeleton, module.threading_mm, lengths[module.name])
+        np.testing.assert_allclose(shape.angles, direct.angles, atol=1e-9)
+        np.testing.assert_allclose(shape.rib_centers_mm, direct.rib_centers, atol=1e-7)
+        assert shape.cable_length_mm == lengths[module.name]
+        assert shape.converged and shape.stamp_ns == 42
+        assert shape.tension == pytest.approx(direct.tension, rel=1e-6)
+    assert predictor.counters.solves == 5
+
+
+def test_identical_modules_are_solved_once(snake):
+    predictor = RobotPredictor(snake)
+    length = straight(snake, 'head') - 30.0
+    for name in snake.module_names:
+        predictor.submit('commanded', name, length)
+        predictor.submit('predicted', name, length)
+    updated = predictor.tick()
+    assert predictor.counters.solves == 1
+    assert predictor.counters.skipped_duplicate == 9
+    shapes = updated['commanded'] + updated['predicted']
+    assert len(shapes) == 10
+    for shape in shapes[1:]:
+        np.testing.assert_array_equal(shape.angles, shapes[0].angles)
+    assert sum(s.solve_time_s > 0 for s in shapes) == 1
+
+
+def test_unchanged_length_is_not_solved_again(brittle_star):
+    predictor = RobotPredictor(brittle_star, length_tol_mm=1e-3)
+    length = straight(brittle_star, 'yellow') - 20.0
+    predictor.submit('predicted', 'yellow', length)
+    predictor.tick()
+    predictor.submit('predicted', 'yellow', length + 5e-4)
+    assert predictor.tick() == {'commanded': [], 'predicted': []}
+    assert predictor.counters.solves == 1
+    assert predictor.counters.skipped_unchanged == 1
+    predictor.submit('predicted', 'yellow', length + 0.5)
+    assert len(predictor.tick()['predicted']) == 1
+    assert predictor.counters.solves == 2
+
+
+def test_solves_are_warm_started_from_the_previous_shape(brittle_star):
+    calls = []
+
+    def recording_solver(skeleton, threading, length, initial=None):
+        calls.append(None if initial is None else np.array(initial))
+        return solve_forward(skeleton, threading, length, initial=initial)
+
+    predictor = RobotPredictor(brittle_star, solver=recording_solver)
+    for contraction in (10.0, 12.0):
+        predictor.submit('commanded', 'green', straight(brittle_star, 'green') - contraction)
+        predictor.tick()
+    assert calls[0] is None
+    first = solve_forward(brittle_star.skeleton, brittle_star.module('green').threading_mm,
+                          straight(brittle_star, 'green') - 10.0)
+    np.testing.assert_allclose(calls[1], first.angles, atol=1e-9)
+
+
+def test_rib_centres_only_when_asked(brittle_star):
+    predictor = RobotPredictor(brittle_star)
+    predictor.submit('commanded', 'red', straight(brittle_star, 'red') - 15.0)
+    predictor.submit('predicted', 'red', straight(brittle_star, 'red') - 16.0)
+    updated = predictor.tick({'commanded': False, 'predicted': True})
+    assert updated['commanded'][0].rib_centers_mm is None
+    centers = updated['predicted'][0].rib_centers_mm
+    assert centers.shape == (brittle_star.skeleton.n_ribs, 2)
+    np.testing.assert_allclose(centers, geometry.rib_centers(updated['predicted'][0].angles,
+                                                             brittle_star.skeleton.spacing_mm))
+    assert predictor.counters.skipped_rib_points == 1
+
+
+@pytest.mark.parametrize('module, length, reason', [
+    ('nobody', 150.0, 'unknown module'),
+    ('yellow', math.nan, 'finite'),
+    ('yellow', math.inf, 'finite'),
+    ('yellow', 1.0, 'reachable'),
+])
+def test_bad_lengths_are_refused_and_the_last_shape_kept(brittle_star, module, length, reason):
+    predictor = RobotPredictor(brittle_star)
+    good = straight(brittle_star, 'yellow') - 25.0
+    predictor.submit('commanded', 'yellow', good)
+    predictor.tick()
+    before = predictor.shapes('commanded')[0]
+    with pytest.raises(ValueError, match=reason):
+        predictor.submit('commanded', module, length)
+    assert predictor.counters.refused == 1
+    assert predictor.tick() == {'commanded': [], 'predicted': []}
+    assert predictor.shapes('commanded')[0] is before
+
+
+def test_reachable_minimum_is_accepted_and_slack_is_straight(brittle_star):
+    predictor = RobotPredictor(brittle_star)
+    low, high = reachable_range(brittle_star.skeleton, brittle_star.module('blue').threading_mm)
+    predictor.submit('commanded', 'blue', high + 3.0)
+    shape = predictor.tick()['commanded'][0]
+    np.testing.assert_allclose(shape.angles, 0.0, atol=1e-12)
+    assert shape.tension == 0.0
+
+
+def test_chained_modules_sit_on_their_parents_tips(snake):
+    predictor = RobotPredictor(snake)
+    # Straight: the scene's stated base poses.
+    for (position, orientation), module in zip(predictor.base_poses('commanded'), snake.modules):
+        np.testing.assert_allclose(position, module.base_position_m, atol=1e-9)
+        np.testing.assert_allclose(np.abs(orientation), np.abs(module.base_orientation_xyzw),
+                                   atol=1e-9)
+    predictor.submit('commanded', 'tail', straight(snake, 'tail') - 40.0)
+    predictor.tick(rib_centers=True)
+    tail = predictor.shapes('commanded')[snake.module_names.index('tail')]
+    poses = dict(zip(snake.module_names, predictor.base_poses('commanded')))
+    # body4 is attached 50 mm beyond the tail's tip rib, along the tip's spine direction.
+    heading = float(np.sum(tail.angles))
+    tip_mm = tail.rib_centers_mm[-1]
+    expected = (np.array([tip_mm[0], tip_mm[1], 0.0])
+                + 50.0 * np.array([math.cos(heading), math.sin(heading), 0.0])) / 1000.0
+    np.testing.assert_allclose(poses['body4'][0], expected, atol=1e-9)
+    yaw = 2.0 * math.atan2(poses['body4'][1][2], poses['body4'][1][3])
+    assert math.remainder(yaw - heading, 2 * math.pi) == pytest.approx(0.0, abs=1e-9)
+    # The head moved too (it rides on the chain), the tail did not.
+    assert not np.allclose(poses['head'][0], snake.module('head').base_position_m)
+    np.testing.assert_allclose(poses['tail'][0], snake.module('tail').base_position_m)
