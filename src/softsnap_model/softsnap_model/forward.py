@@ -46,7 +46,7 @@ import numpy as np
 
 from .geometry import cable_path as _cable_path
 from .geometry import rib_centers as _rib_centers
-from .geometry import segment_length_derivatives
+from .geometry import _g_functions_series, half_angle_functions, segment_length_derivatives
 from .skeleton import Skeleton
 
 __all__ = [
@@ -627,14 +627,27 @@ def _guess_b(P, lam):
     mu = lam[:, None] / P['k']
     tm, tb = P['table_mu'], P['table_b']
     m = tm.shape[-1]
-    idx = np.clip(np.sum(tm < mu[..., None], axis=-1), 1, m - 1)[..., None]
-    mu_lo = np.take_along_axis(tm, idx - 1, -1)[..., 0]
-    mu_hi = np.take_along_axis(tm, idx, -1)[..., 0]
-    b_lo = np.take_along_axis(tb, idx - 1, -1)[..., 0]
-    b_hi = np.take_along_axis(tb, idx, -1)[..., 0]
-    with np.errstate(invalid='ignore', divide='ignore'):
-        w = np.clip(np.nan_to_num((mu - mu_lo) / (mu_hi - mu_lo), nan=0.5), 0.0, 1.0)
+    idx = np.clip(np.sum(tm < mu[..., None], axis=-1), 1, m - 1)
+    flat = P['row_base'] + idx
+    mu_lo, mu_hi = tm.ravel()[flat - 1], tm.ravel()[flat]
+    b_lo, b_hi = tb.ravel()[flat - 1], tb.ravel()[flat]
+    w = (mu - mu_lo) / (mu_hi - mu_lo)
+    w = np.where(np.isfinite(w), np.clip(w, 0.0, 1.0), 0.5)
     return b_lo + w * (b_hi - b_lo)
+
+
+def _branch_eval(b, P):
+    """``l, l', l''`` along the branches (derivatives in ``b``), for ``0 <= b <= pi``.
+
+    Same algebra as :func:`segment_length_derivatives` with the per-segment weights
+    precomputed (``s^2, s (d1 + d2) direction, d1 d2``): a handful of numpy calls, which
+    is what a single solve of 11 segments costs.
+    """
+    q = (_g_functions_series(b) @ P['weights'])[..., 0]
+    length = np.sqrt(q[..., 0] + P['dd2'])
+    half_inv = 0.5 / length
+    lp = q[..., 1] * half_inv
+    return length, lp, (q[..., 2] - 2.0 * lp * lp) * half_inv
 
 
 def _newton(P, L_t, lam, b, lam_lo, lam_hi, max_iter, tol_mm, tol_rad, active=None):
@@ -647,13 +660,13 @@ def _newton(P, L_t, lam, b, lam_lo, lam_hi, max_iter, tol_mm, tol_rad, active=No
     segments with ``b = 0`` and ``lambda <= lam_c`` are held straight; segments at
     ``b_end`` with ``lambda >= lam_end`` are held at contact. O(n) per iteration.
     """
-    d1, d2, k, s, direction = P['d1'], P['d2'], P['k'], P['s'], P['direction']
     lam_c, lam_end, b_end = P['lam_c'], P['lam_end'], P['b_end']
-    two_k = 2.0 * k
-    mirror = lam_c > 0
-    has_mirror = bool(mirror.any())
+    two_k, inv_two_k = P['two_k'], P['inv_two_k']
+    mirror = P['mirror']
+    has_mirror = P['has_mirror']
     iters = np.zeros(L_t.shape, dtype=int)
     active = np.ones(L_t.shape, dtype=bool) if active is None else active.copy()
+    held = np.zeros(b.shape, dtype=bool)
     for it in range(max_iter + 1):
         lamc = lam[:, None]
         if has_mirror:
@@ -663,33 +676,32 @@ def _newton(P, L_t, lam, b, lam_lo, lam_hi, max_iter, tol_mm, tol_rad, active=No
             if kick.any():
                 b = np.where(kick, _kick_b(P, lam), b)
             held = mirror & (b <= 0.0)
-        else:
-            held = np.zeros(b.shape, dtype=bool)
         contact = (b >= b_end) & (lamc >= lam_end)
-        length, l_a, l_aa = segment_length_derivatives(direction * b, d1, d2, s)
-        lp = direction * l_a
-        free = ~(held | contact)
+        fixed = held | contact
+        length, lp, l_aa = _branch_eval(b, P)
         g = length.sum(axis=1) - L_t
-        f = np.where(free, b + lamc * lp / two_k, 0.0)
-        stat = np.max(np.abs(f), axis=1)
-        done = (np.abs(g) <= tol_mm) & (stat <= tol_rad)
-        active &= ~done
-        if not active.any() or it == max_iter:
+        f = b + lamc * lp * inv_two_k
+        f[fixed] = 0.0
+        stat = np.abs(f).max(axis=1)
+        active &= (np.abs(g) > tol_mm) | (stat > tol_rad)
+        if it == max_iter or not active.any():
             break
         iters += active
-        with np.errstate(divide='ignore', invalid='ignore'):
-            inv = 1.0 / lp
-            ft = np.where(free, -two_k * b * inv - lamc, 0.0)            # k phi - lambda
-            jac = two_k * (b * l_aa - lp) * inv * inv                     # k phi'
-            w = np.where(free, lp / jac, 0.0)
-            dlam = (np.sum(w * ft, axis=1) - g) / np.sum(w, axis=1)
-            db = np.where(free, (dlam[:, None] - ft) / jac, 0.0)
-        new_lam = lam + np.where(active, dlam, 0.0)
+        inv = 1.0 / lp
+        ft = -two_k * b * inv - lamc                  # k phi(b) - lambda
+        jac = two_k * (b * l_aa - lp) * inv * inv     # k phi'(b) > 0 on the branch
+        w = lp / jac
+        ft[fixed] = 0.0
+        w[fixed] = 0.0
+        dlam = ((w * ft).sum(axis=1) - g) / w.sum(axis=1)
+        db = (dlam[:, None] - ft) / jac
+        db[fixed] = 0.0
+        new_lam = np.where(active, lam + dlam, lam)
+        b = np.where(active[:, None], b + db, b)
         # Keep the tension inside the exact bracket; outside it (or with no free segment
         # to move, e.g. every segment a straight mirror one), bisect and restart the
         # angles from the tables instead of trusting a far Newton step.
-        out = active & ((new_lam <= lam_lo) | (new_lam >= lam_hi) | ~np.isfinite(dlam))
-        b = np.where(active[:, None] & np.isfinite(db), b + db, b)
+        out = active & ~((new_lam > lam_lo) & (new_lam < lam_hi))
         if out.any():
             new_lam = np.where(out, 0.5 * (lam_lo + lam_hi), new_lam)
             b = np.where(out[:, None], _guess_b(P, new_lam), b)
@@ -697,23 +709,91 @@ def _newton(P, L_t, lam, b, lam_lo, lam_hi, max_iter, tol_mm, tol_rad, active=No
             lam_lo = np.where(out & (g > 0), np.maximum(lam_lo, lam), lam_lo)
             lam_hi = np.where(out & (g < 0), np.minimum(lam_hi, lam), lam_hi)
         lam = new_lam
-        b = np.clip(b, 0.0, b_end)
+        b = np.fmin(np.fmax(b, 0.0), b_end)   # fmax also maps a NaN step to 0
     curv = _curvature(P, lam, b, lp, l_aa, held)
     return dict(lam=lam, b=b, length=length, lp=lp, l_aa=l_aa, g=g, stat=stat,
                 held=held, contact=contact, curv=curv, iters=iters)
 
 
-def _kick_b(P, lam):
-    """Branch magnitude of mirror segments just past buckling, from the table or, nearer
-    the pitchfork than the first table node, from its quadratic ``phi = mu_c (1 + beta b^2)``.
+def _newton_single(S, L_t, lam, b, lam_lo, lam_hi, max_iter, tol_mm, tol_rad):
+    """:func:`_newton` for one problem with plain-float control flow.
+
+    Same iteration and safeguards; 1-D arrays over segments and Python floats for the
+    tension, so an iteration is ~40 small numpy calls (the cost of a single solve).
     """
-    guess = _guess_b(P, lam)
+    lam_c, lam_end, b_end = S['lam_c'], S['lam_end'], S['b_end']
+    two_k, inv_two_k = S['two_k'], S['inv_two_k']
+    mirror, has_mirror = S['mirror'], S['has_mirror']
+    lam_end_min, weights, dd2 = S['lam_end_min'], S['weights'], S['dd2']
+    held = contact = None
+    it = 0
+    while True:
+        if has_mirror:
+            kick = mirror & (b <= 0.0) & (lam > lam_c)
+            if kick.any():
+                b = np.where(kick, _kick_b(S['P'], np.array([lam]))[0], b)
+            held = mirror & (b <= 0.0)
+        contact = (b >= b_end) & (lam >= lam_end) if lam >= lam_end_min else None
+        fixed = held if contact is None else (contact if held is None else held | contact)
+        if fixed is not None and not fixed.any():
+            fixed = None
+        q = (_g_functions_series(b) @ weights)[:, :, 0]
+        length = np.sqrt(q[:, 0] + dd2)
+        half_inv = 0.5 / length
+        lp = q[:, 1] * half_inv
+        l_aa = (q[:, 2] - 2.0 * lp * lp) * half_inv
+        g = float(length.sum()) - L_t
+        f = b + lam * inv_two_k * lp
+        if fixed is not None:
+            f[fixed] = 0.0
+        stat = float(np.abs(f).max())
+        if (abs(g) <= tol_mm and stat <= tol_rad) or it == max_iter:
+            break
+        it += 1
+        inv = 1.0 / lp
+        ft = -two_k * b * inv - lam                   # k phi(b) - lambda
+        jac = two_k * (b * l_aa - lp) * inv * inv     # k phi'(b) > 0 on the branch
+        w = lp / jac
+        if fixed is not None:
+            ft[fixed] = 0.0
+            w[fixed] = 0.0
+        dlam = (float(w @ ft) - g) / float(w.sum())
+        db = (dlam - ft) / jac
+        if fixed is not None:
+            db[fixed] = 0.0
+        new_lam = lam + dlam
+        b = b + db
+        if not lam_lo < new_lam < lam_hi:
+            # Outside the exact bracket (or NaN): bisect, angles from the tables.
+            if g > 0:
+                lam_lo = max(lam_lo, lam)
+            elif g < 0:
+                lam_hi = min(lam_hi, lam)
+            new_lam = 0.5 * (lam_lo + lam_hi)
+            b = _guess_b(S['P'], np.array([new_lam]))[0]
+        lam = new_lam
+        b = np.fmin(np.fmax(b, 0.0), b_end)
+    if held is None:
+        held = np.zeros(b.shape, dtype=bool)
+    if contact is None:
+        contact = np.zeros(b.shape, dtype=bool)
+    return dict(lam=lam, b=b, length=length, lp=lp, l_aa=l_aa, g=g, stat=stat,
+                held=held, contact=contact, iters=it)
+
+
+def _kick_b(P, lam):
+    """Branch magnitude of mirror segments past buckling (0 where not past it).
+
+    In the first table cell after the pitchfork (where linear interpolation of
+    ``b ~ sqrt(lambda - lam_c)`` is poor) the quadratic ``phi = mu_c (1 + beta b^2)`` is
+    used; beyond it the per-segment table.
+    """
     mu = lam[:, None] / P['k']
-    with np.errstate(divide='ignore', invalid='ignore'):
-        near = np.sqrt(np.maximum(mu / P['mu_c'] - 1.0, 0.0) / P['beta'])
-    near = np.nan_to_num(near, nan=0.0, posinf=0.0)
-    return np.where(guess < P['table_b'][..., 1], np.minimum(near, P['table_b'][..., 1]),
-                    guess)
+    near = np.sqrt(np.maximum(mu / P['mu_c_safe'] - 1.0, 0.0) / P['beta_safe'])
+    first = mu < P['mu_1']
+    if first.all():
+        return np.minimum(near, P['b_1'])
+    return np.where(first, np.minimum(near, P['b_1']), _guess_b(P, lam))
 
 
 def _curvature(P, lam, b, lp, l_aa, held):
@@ -723,8 +803,7 @@ def _curvature(P, lam, b, lp, l_aa, held):
     (it does not depend on the accuracy of lambda) and, for a mirror segment within
     1e-3 rad of straight where ``l' - b l''`` cancels, its series ``2 beta b^2``.
     """
-    with np.errstate(divide='ignore', invalid='ignore'):
-        eq = (lp - b * l_aa) / lp
+    eq = (lp - b * l_aa) / lp
     near_pitchfork = (P['lam_c'] > 0) & (b < 1e-3)
     eq = np.where(near_pitchfork, 2.0 * P['beta'] * b * b, eq)
     straight = 1.0 + lam[:, None] * l_aa / (2.0 * P['k'])
@@ -752,9 +831,8 @@ def _robust(P, L_t, lam_lo, lam_hi, max_iter=200):
         held = lam[:, None] <= P['lam_c']
         contact = lam[:, None] >= P['lam_end']
         h = 2.0 * k + lam[:, None] * l_aa
-        with np.errstate(divide='ignore', invalid='ignore'):
-            slope = -np.sum(np.where(held | contact, 0.0, lp * lp / h), axis=1)
-            step = lam - g / slope
+        slope = -np.sum(np.where(held | contact, 0.0, lp * lp / h), axis=1)
+        step = lam - g / slope
         ok = np.isfinite(step) & (step > lam_lo) & (step < lam_hi)
         lam = np.where(ok, step, 0.5 * (lam_lo + lam_hi))
     return lam, b, lam_lo, lam_hi
@@ -768,11 +846,22 @@ def _stack(probs, index):
 
     def pad(arr, n):  # repeat the last sample: the path ends there
         return np.concatenate([arr, np.repeat(arr[-1:], n - arr.shape[0], axis=0)])
+    table_mu, table_b = rows('table_mu'), rows('table_b')
+    k, mu_c, beta = rows('k'), rows('mu_c'), rows('beta')
+    mirror = mu_c > 0
+    m = table_mu.shape[-1]
+    d1, d2, direction, s = rows('d1'), rows('d2'), rows('direction'), probs[0].s
+    weights = np.stack([np.full(d1.shape, s * s), s * (d1 + d2) * direction, d1 * d2],
+                       axis=-1)[..., None]
     return dict(
+        weights=weights, dd2=(d1 - d2) ** 2, two_k=2.0 * k, inv_two_k=0.5 / k,
+        has_mirror=bool(mirror.any()), mirror=mirror,
+        mu_c_safe=np.where(mirror, mu_c, 1.0), beta_safe=np.where(mirror, beta, 1.0),
+        mu_1=table_mu[..., 1], lam_1=k * table_mu[..., 1], b_1=table_b[..., 1],
+        row_base=np.arange(table_mu[..., 0].size).reshape(table_mu.shape[:-1]) * m,
         d=rows('d'), d1=rows('d1'), d2=rows('d2'), k=rows('k'), s=probs[0].s,
         direction=rows('direction'), lam_c=rows('lam_c'), lam_end=rows('lam_end'),
-        mu_c=rows('mu_c'), beta=rows('beta'),
-        b_end=rows('b_end'), table_mu=rows('table_mu'), table_b=rows('table_b'),
+        mu_c=mu_c, beta=beta, b_end=rows('b_end'), table_mu=table_mu, table_b=table_b,
         path_lam=np.stack([pad(p.path_lam, pl) for p in probs])[index],
         path_len=np.stack([pad(p.path_len, pl) for p in probs])[index],
         path_b=np.stack([pad(p.path_b, pl) for p in probs])[index],
@@ -782,6 +871,13 @@ def _stack(probs, index):
 def _solve_arrays(P, L_t, lam0=None, b0=None, max_iter=MAX_ITER, tol_mm=_INNER_TOL_MM,
                   tol_rad=_INNER_TOL_RAD):
     """Solve a batch; returns a dict of result arrays (angles, tension, residuals...)."""
+    # One floating-point context for the whole solve: divisions by zero only occur in
+    # masked-out entries (held or contact segments) and are never used.
+    with np.errstate(all='ignore'):
+        return _solve_arrays_inner(P, L_t, lam0, b0, max_iter, tol_mm, tol_rad)
+
+
+def _solve_arrays_inner(P, L_t, lam0, b0, max_iter, tol_mm, tol_rad):
     slack = L_t >= P['straight']
     lam, b, lam_lo, lam_hi = _start_from_table(P, L_t)
     if lam0 is not None:
@@ -790,11 +886,12 @@ def _solve_arrays(P, L_t, lam0=None, b0=None, max_iter=MAX_ITER, tol_mm=_INNER_T
         lam = np.where(inside, lam0, lam)
         b = np.where(inside[:, None], np.clip(b0, 0.0, P['b_end']), b)
     lam = np.where(slack, 0.0, lam)
-    if np.any(P['lam_c'] > 0):
+    if P['has_mirror']:
         # Linear interpolation in lambda badly underestimates b ~ sqrt(lambda - lam_c)
         # just past a pitchfork; start mirror segments from their own branch instead.
-        past = (P['lam_c'] > 0) & (lam[:, None] > P['lam_c'])
-        b = np.where(past, _kick_b(P, lam), b)
+        past = P['mirror'] & (lam[:, None] > P['lam_c']) & (lam[:, None] < P['lam_1'])
+        if past.any():
+            b = np.where(past, _kick_b(P, lam), b)
     st = _newton(P, L_t, lam, b, lam_lo, lam_hi, max_iter, tol_mm, tol_rad, active=~slack)
     ok = _accept(st, slack)
     bad = ~ok
@@ -844,9 +941,74 @@ def _finish(P, L_t, st, slack):
 # ----------------------------------------------------------------------------------------
 @functools.lru_cache(maxsize=256)
 def _single(skeleton: Skeleton, d: tuple):
-    """Problem data stacked as a batch of one (memoised with the problem)."""
+    """Problem data stacked as a batch of one, plus 1-D views for the single-solve path
+    (memoised with the problem)."""
     prob = _problem(skeleton, d)
-    return prob, _stack([prob], np.zeros(1, dtype=int))
+    P = _stack([prob], np.zeros(1, dtype=int))
+    S = {key: (val[0] if isinstance(val, np.ndarray) and val.ndim >= 1 else val)
+         for key, val in P.items()}
+    finite_end = prob.lam_end[np.isfinite(prob.lam_end)]
+    S.update(P=P, lam_end_min=float(prob.lam_end.min()),
+             neg_path_len=-prob.path_len, path_lam=prob.path_lam, path_b=prob.path_b,
+             straight=prob.straight_mm, n_path=prob.path_len.size,
+             ones=np.ones(prob.k.shape), has_finite_end=bool(finite_end.size))
+    return prob, P, S
+
+
+def _solve_single(S, L, lam0=None, b0=None, max_iter=MAX_ITER):
+    """One solve on the plain-float path; falls back to the batch engine (with its
+    robust fallback) when the result is not certified. Returns (out dict, state)."""
+    m = S['n_path']
+    j = int(np.searchsorted(S['neg_path_len'], -L, side='left'))
+    j = min(max(j, 1), m - 1)
+    len_lo, len_hi = -S['neg_path_len'][j - 1], -S['neg_path_len'][j]
+    lam_lo, lam_hi = float(S['path_lam'][j - 1]), float(S['path_lam'][j])
+    w = (len_lo - L) / (len_lo - len_hi) if len_lo > len_hi else 0.5
+    lam = lam_lo + w * (lam_hi - lam_lo)
+    b_lo = S['path_b'][j - 1]
+    b = b_lo + w * (S['path_b'][j] - b_lo)
+    if lam0 is not None and lam_lo < lam0 < lam_hi:
+        lam, b = lam0, np.fmin(np.fmax(b0, 0.0), S['b_end'])
+    if S['has_mirror']:
+        past = S['mirror'] & (lam > S['lam_c']) & (lam < S['lam_1'])
+        if past.any():
+            b = np.where(past, _kick_b(S['P'], np.array([lam]))[0], b)
+    with np.errstate(all='ignore'):
+        st = _newton_single(S, L, lam, b, lam_lo, lam_hi, max_iter, _INNER_TOL_MM,
+                            _INNER_TOL_RAD)
+        curv = _curvature(S['P'], np.array([st['lam']]), st['b'][None], st['lp'][None],
+                          st['l_aa'][None], st['held'][None])[0]
+    curv_min = float(np.min(curv, where=~st['contact'], initial=np.inf))
+    ok = (abs(st['g']) <= CONSTRAINT_TOL_MM and st['stat'] <= STATIONARITY_TOL_RAD
+          and curv_min > 0)
+    if not ok:
+        out = _solve_arrays(S['P'], np.array([L]), max_iter=max_iter)
+        return {key: val[0] for key, val in out.items()}
+    b = st['b']
+    angles = S['direction'] * b
+    g = abs(st['g'])
+    return dict(angles=angles, tension=st['lam'], energy=float(S['k'] @ (angles * angles)),
+                iterations=st['iters'], converged=True, constraint_residual=g,
+                stationarity_residual=st['stat'], residual=max(g, st['stat']),
+                is_minimum=True, min_curvature=curv_min if curv_min < np.inf else 1.0,
+                slack=False, at_contact=st['contact'])
+
+
+def _frames_single(angles, s, d):
+    """Rib centres and hole positions for one shape (few numpy calls)."""
+    n = angles.shape[0]
+    theta = np.zeros(n + 1)
+    np.cumsum(angles, out=theta[1:])
+    half = 0.5 * angles
+    chord = s * half_angle_functions(half)[0]
+    mid = theta[:-1] + half
+    centers = np.zeros((n + 1, 2))
+    np.cumsum(chord * np.cos(mid), out=centers[1:, 0])
+    np.cumsum(chord * np.sin(mid), out=centers[1:, 1])
+    holes = centers.copy()
+    holes[:, 0] += d * np.sin(theta)
+    holes[:, 1] -= d * np.cos(theta)
+    return centers, holes
 
 
 def _as_length(value, name='cable_length_mm') -> float:
@@ -924,44 +1086,63 @@ def solve_forward(skeleton: Skeleton, threading, cable_length_mm, initial=None, 
     (True, (11,), True)
     """
     _check_skeleton(skeleton)
-    d = skeleton.threading_mm(threading)
+    d = _threading_tuple(skeleton, threading)
     L = _as_length(cable_length_mm)
     if isinstance(max_iter, bool) or not isinstance(max_iter, numbers.Integral) \
             or max_iter < 0:
         raise ValueError(f'max_iter must be an integer >= 0, got {max_iter!r}')
-    prob, P = _single(skeleton, tuple(d.tolist()))
-    L_t = np.array([L])
+    prob, P, S = _single(skeleton, d)
     if not (math.isfinite(L) and L > prob.min_mm):
-        _check_length(prob, L_t, skeleton, _describe(skeleton, d))
+        _check_length(prob, np.array([L]), skeleton, _describe(skeleton, prob.d))
     lam0 = b0 = None
     if initial is not None:
-        lam_i, b_i = _initial_state(initial, skeleton.n_segments, prob.direction, prob.d1,
-                                    prob.d2, prob.k, prob.s)
-        lam0, b0 = np.array([lam_i]), b_i[None, :]
-    out = _solve_arrays(P, L_t, lam0, b0, max_iter=int(max_iter))
-    angles = out['angles'][0]
-    centers, theta = _frames(angles, prob.s)
-    holes = centers + prob.d[:, None] * np.stack([np.sin(theta), -np.cos(theta)], axis=-1)
-    slack = bool(out['slack'][0])
-    converged = bool(out['converged'][0])
+        lam0, b0 = _initial_state(initial, skeleton.n_segments, prob.direction, prob.d1,
+                                  prob.d2, prob.k, prob.s)
+    if L >= prob.straight_mm:
+        n = skeleton.n_segments
+        out = dict(angles=np.zeros(n), tension=0.0, energy=0.0, iterations=0,
+                   converged=True, constraint_residual=0.0, stationarity_residual=0.0,
+                   residual=0.0, is_minimum=True, min_curvature=1.0, slack=True,
+                   at_contact=np.zeros(n, dtype=bool))
+    else:
+        out = _solve_single(S, L, lam0, b0, max_iter=int(max_iter))
+    angles = out['angles']
+    centers, holes = _frames_single(angles, prob.s, prob.d)
+    slack = bool(out['slack'])
+    converged = bool(out['converged'])
     if slack:
         message = 'slack cable: length at or above the straight length, straight shape'
     elif converged:
         message = 'converged'
     else:
         message = ('not converged: residuals or the second-order check failed '
-                   f'(constraint {out["constraint_residual"][0]:.3g} mm, stationarity '
-                   f'{out["stationarity_residual"][0]:.3g} rad, min curvature '
-                   f'{out["min_curvature"][0]:.3g})')
+                   f'(constraint {out["constraint_residual"]:.3g} mm, stationarity '
+                   f'{out["stationarity_residual"]:.3g} rad, min curvature '
+                   f'{out["min_curvature"]:.3g})')
     return ForwardResult(
         angles=angles, rib_centers=centers, cable_path=holes,
-        energy=float(out['energy'][0]), tension=float(out['tension'][0]),
-        iterations=int(out['iterations'][0]), converged=converged,
-        residual=float(out['residual'][0]),
-        constraint_residual=float(out['constraint_residual'][0]),
-        stationarity_residual=float(out['stationarity_residual'][0]),
-        is_minimum=bool(out['is_minimum'][0]), min_curvature=float(out['min_curvature'][0]),
-        slack=slack, at_contact=out['at_contact'][0], cable_length_mm=L, message=message)
+        energy=float(out['energy']), tension=float(out['tension']),
+        iterations=int(out['iterations']), converged=converged,
+        residual=float(out['residual']),
+        constraint_residual=float(out['constraint_residual']),
+        stationarity_residual=float(out['stationarity_residual']),
+        is_minimum=bool(out['is_minimum']), min_curvature=float(out['min_curvature']),
+        slack=slack, at_contact=out['at_contact'], cable_length_mm=L, message=message)
+
+
+@functools.lru_cache(maxsize=1024)
+def _threading_cached(skeleton: Skeleton, key: tuple) -> tuple:
+    return tuple(skeleton.threading_mm(list(key)).tolist())
+
+
+def _threading_tuple(skeleton: Skeleton, threading) -> tuple:
+    """Offsets as a tuple via :meth:`Skeleton.threading_mm` (memoised for hashable input)."""
+    if isinstance(threading, (list, tuple)):
+        try:
+            return _threading_cached(skeleton, tuple(threading))
+        except TypeError:   # unhashable items: convert (and fail) the normal way
+            pass
+    return tuple(skeleton.threading_mm(threading).tolist())
 
 
 def _frames(angles, s):
@@ -1087,7 +1268,7 @@ def sweep(skeleton: Skeleton, threading, contractions_mm, *,
     if np.any(c < 0):
         raise ValueError(f'contractions_mm must be >= 0, got {c[c < 0][0]!r}')
     d = skeleton.threading_mm(threading)
-    prob, _ = _single(skeleton, tuple(d.tolist()))
+    prob = _problem(skeleton, tuple(d.tolist()))
     lengths = prob.straight_mm - c
     _check_length(prob, lengths, skeleton, _describe(skeleton, d))
     P = _stack([prob], np.zeros(c.shape[0], dtype=int))

@@ -57,6 +57,70 @@ def half_angle_functions(u):
     return f0, f1, cos_u
 
 
+# Universal functions of the angle behind L^2: with g(a) = (2 sin(a/2)/a)^2,
+#   Q = L^2 = (d1 - d2)^2 + s^2 G0 + s (d1 + d2) G1 + d1 d2 G2,  G0 = g, G1 = a g, G2 = a^2 g,
+# since (s + d1 a)(s + d2 a) = s^2 + s (d1 + d2) a + d1 d2 a^2. g = sum_j (-1)^j 2 a^2j/(2j+2)!.
+# _G_SERIES[k] holds the coefficients of a^k in (G0, G1, G2, G0', G1', G2', G0'', G1'', G2''):
+# one power table and one matrix product give all nine, exact to double precision for
+# |a| <= pi (15 terms of g; the largest term is 8.1 at |a| = pi, the value 4, so no
+# cancellation to speak of).
+_G_POWERS = 32
+_G_SERIES_A_MAX = math.pi
+
+
+def _g_series():
+    coef = np.zeros((_G_POWERS, 3))
+    for j in range(15):
+        gamma = (-1.0) ** j * 2.0 / math.factorial(2 * j + 2)
+        for col, shift in enumerate((0, 1, 2)):
+            coef[2 * j + shift, col] = gamma
+    powers = np.arange(_G_POWERS, dtype=float)
+    first = np.zeros_like(coef)
+    first[:-1] = coef[1:] * powers[1:, None]
+    second = np.zeros_like(coef)
+    second[:-1] = first[1:] * powers[1:, None]
+    # Rows: value, first, second derivative; columns G0, G1, G2 (row-major in the 9).
+    return np.concatenate([coef, first, second], axis=1)
+
+
+_G_SERIES = _g_series()
+_G_EXPONENTS = np.arange(_G_POWERS, dtype=float)
+
+
+def _g_functions_series(a):
+    """(..., 3, 3) array [derivative order, G0/G1/G2] by the power series (|a| <= pi)."""
+    table = (a[..., None] ** _G_EXPONENTS) @ _G_SERIES
+    return table.reshape(a.shape + (3, 3))
+
+
+def _g_functions_closed(a):
+    """Same as :func:`_g_functions_series` in closed form; well conditioned for |a| >= 1."""
+    sin_a, cos_a = np.sin(a), np.cos(a)
+    m = 2.0 * (1.0 - cos_a)
+    m1, m2 = 2.0 * sin_a, 2.0 * cos_a
+    i1 = 1.0 / a
+    i2 = i1 * i1
+    g0 = m * i2
+    g1 = m * i1
+    d_g0 = (m1 - 2.0 * m * i1) * i2
+    d_g1 = (m1 - m * i1) * i1
+    dd_g0 = (m2 - 4.0 * m1 * i1 + 6.0 * m * i2) * i2
+    dd_g1 = (m2 - 2.0 * m1 * i1 + 2.0 * m * i2) * i1
+    rows = [[g0, g1, m], [d_g0, d_g1, m1], [dd_g0, dd_g1, m2]]
+    return np.stack([np.stack(r, axis=-1) for r in rows], axis=-2)
+
+
+def _q_and_derivs(a, weights):
+    """``Q - (d1-d2)^2`` and its two derivatives, (..., 3), for ``weights`` (..., 3) =
+    ``(s^2, s (d1 + d2), d1 d2)``."""
+    funcs = _g_functions_series(a)
+    big = np.abs(a) > _G_SERIES_A_MAX
+    if big.any():
+        funcs = np.where(big[..., None, None], _g_functions_closed(np.where(big, a, 4.0)),
+                         funcs)
+    return (funcs @ weights[..., None])[..., 0]
+
+
 def segment_length_derivatives(angle_rad, d1_mm, d2_mm, spacing_mm):
     """Cable length of one segment and its first two derivatives in the bending angle.
 
@@ -76,12 +140,12 @@ def segment_length_derivatives(angle_rad, d1_mm, d2_mm, spacing_mm):
 
     Notes
     -----
-    With ``u = a/2``, ``c(a) = sin u / u`` and ``P(a) = (s + d1 a)(s + d2 a)``,
-    ``Q = L^2 = (d1 - d2)^2 + c^2 P``. Derivatives of ``c`` come from the spherical
-    Bessel relations ``c' = -(a/4) f1`` and ``c'' = (2 f1 - c)/4`` with
-    ``f1 = (sin u - u cos u)/u^3`` evaluated by series near 0, so every quantity is
-    accurate to a few ulp at and near straight. ``L`` is singular only where the
-    two holes coincide (``L = 0``).
+    ``Q = L^2 = (d1 - d2)^2 + s^2 G0(a) + s (d1 + d2) G1(a) + d1 d2 G2(a)`` with
+    ``G0 = (2 sin(a/2)/a)^2``, ``G1 = a G0``, ``G2 = a^2 G0``. These and their
+    derivatives come from their power series for ``|a| <= pi`` (no division, so nothing
+    cancels at or near ``a = 0``) and from the closed form beyond, where it is well
+    conditioned; the two agree to rounding at the switch. ``L`` is singular only where
+    the two holes coincide (``L = 0``).
 
     Examples
     --------
@@ -93,23 +157,14 @@ def segment_length_derivatives(angle_rad, d1_mm, d2_mm, spacing_mm):
     d1 = np.asarray(d1_mm, dtype=float)
     d2 = np.asarray(d2_mm, dtype=float)
     s = np.asarray(spacing_mm, dtype=float)
-    c, f1, _ = half_angle_functions(0.5 * a)
-    c_a = -0.25 * a * f1
-    c_aa = 0.25 * (2.0 * f1 - c)
-    g = c * c
-    g_a = 2.0 * c * c_a
-    g_aa = 2.0 * (c_a * c_a + c * c_aa)
+    a, d1, d2, s = np.broadcast_arrays(a, d1, d2, s)
+    weights = np.stack([s * s, s * (d1 + d2), d1 * d2], axis=-1)
+    q = _q_and_derivs(a, weights)
     dd = d1 - d2
-    p1 = s + d1 * a
-    p2 = s + d2 * a
-    prod = p1 * p2
-    prod_a = d1 * p2 + d2 * p1
-    q = dd * dd + g * prod
-    q_a = g_a * prod + g * prod_a
-    q_aa = g_aa * prod + 2.0 * g_a * prod_a + 2.0 * g * (d1 * d2)
-    length = np.sqrt(q)
-    l_a = q_a / (2.0 * length)
-    l_aa = (q_aa - 2.0 * l_a * l_a) / (2.0 * length)
+    length = np.sqrt(q[..., 0] + dd * dd)
+    half_inv = 0.5 / length
+    l_a = q[..., 1] * half_inv
+    l_aa = (q[..., 2] - 2.0 * l_a * l_a) * half_inv
     return length, l_a, l_aa
 
 
