@@ -135,7 +135,7 @@ class SceneModule:
         return (rot[0][2], rot[1][2], rot[2][2])
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)   # identity equality/hash: the read-only mappings are unhashable
 class Scene:
     """A validated robot scene (see the module docstring and docs/scenes.md).
 
