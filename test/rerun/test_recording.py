@@ -224,9 +224,9 @@ def test_open_recording_needs_a_sink():
 
 # --- no-ROS writers ---------------------------------------------------------------------
 
-def fake_solve(threading_mm, contraction_mm):
+def fake_solve(threading_mm, contractions_mm):
     """Stand-in forward solve with a known answer: a uniform bend by -contraction/40 rad."""
-    return arc_angles(-contraction_mm / 40.0)
+    return np.array([arc_angles(-c / 40.0) for c in contractions_mm])
 
 
 def test_record_sweep_writes_one_step_per_contraction_and_the_tip_path(tmp_path, read_rrd):
@@ -242,7 +242,7 @@ def test_record_sweep_writes_one_step_per_contraction_and_the_tip_path(tmp_path,
     np.testing.assert_allclose(rrd.scalars('plots/tip_angle_deg/m'),
                                [-math.degrees(c / 40.0) for c in contractions], atol=1e-9)
     tip_path = np.asarray(rrd.static['robot/m/workspace/tip_path']['LineStrips3D:strips'][0])
-    expected = [rec_mod.rib_centres_mm(fake_solve(threading, c))[-1] * 1e-3 for c in contractions]
+    expected = [rec_mod.rib_centres_mm(a)[-1] * 1e-3 for a in fake_solve(threading, contractions)]
     np.testing.assert_allclose(tip_path[:, :2], expected, atol=1e-7)
 
 
@@ -269,3 +269,32 @@ def test_drawn_geometry_agrees_with_the_solver_core():
                                atol=1e-12)
     np.testing.assert_allclose(rec_mod.cable_points_m(frames, threading)[:, :2] * 1e3,
                                geometry.cable_path(angles, threading, 18.0), atol=1e-12)
+
+
+def test_sweep_with_the_forward_solver_draws_a_cable_of_the_target_length(tmp_path, read_rrd):
+    # R3 on every rib: straight cable length 11 * 18 = 198 mm; the solved shape must be
+    # drawn with a cable polyline 198 - contraction long (float32 in the file: 1e-4 mm).
+    pytest.importorskip('softsnap_model.forward')
+    contractions = [0.0, 20.0, 40.0, 80.0]
+    path = rec_mod.record_sweep(tmp_path / 'r3.rrd', [10.0] * 12, contractions, module='r3')
+    rrd = read_rrd(path)
+    cables = rrd.values('robot/r3/predicted/cable', 'LineStrips3D:strips')
+    assert len(cables) == len(contractions)
+    for contraction, strips in zip(contractions, cables):
+        holes_mm = np.asarray(strips[0], dtype=float) * 1e3
+        length = np.linalg.norm(np.diff(holes_mm, axis=0), axis=1).sum()
+        assert length == pytest.approx(198.0 - contraction, abs=1e-3)
+    # Right-side holes bend the module clockwise: the tip turns to negative angles.
+    angles = rrd.scalars('plots/tip_angle_deg/r3')
+    assert angles[0] == pytest.approx(0.0, abs=1e-9) and all(np.diff(angles) < 0)
+
+
+def test_record_command_line_writes_a_threading_comparison(tmp_path, read_rrd):
+    pytest.importorskip('softsnap_model.forward')
+    out = tmp_path / 'cmp.rrd'
+    assert rec_mod.main(['threadings', '--threading', 's=R3x6 L3x6', '--threading', 'w=R3x12',
+                         '--steps', '3', '--max-contraction-mm', '30', '--out', str(out)]) == 0
+    rrd = read_rrd(out)
+    assert rrd.times('robot/s/predicted/spine', 'step') == [0, 1, 2]
+    np.testing.assert_allclose(rrd.scalars('plots/contraction_mm/w'), [0.0, 15.0, 30.0])
+    assert rec_mod.main(['sweep', '--threading', 'R3x11', '--out', str(out)]) == 2

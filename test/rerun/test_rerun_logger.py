@@ -222,3 +222,11 @@ def test_default_output_is_under_runs_with_robot_and_utc_time():
     from softsnap_gaits.rerun_logger import default_output
     when = dt.datetime(2026, 11, 22, 1, 2, 3, tzinfo=dt.timezone.utc)
     assert str(default_output('snake', when)) == 'runs/snake-20261122T010203Z.rrd'
+
+
+def test_unknown_scene_is_refused_with_its_name(tmp_path, start_node):
+    proc = start_node('softsnap_gaits', 'rerun_logger', '--ros-args',
+                      '-p', f'output:={tmp_path / "x.rrd"}', '-p', 'scene:=no_such_robot')
+    assert proc.proc.wait(30) == 2
+    assert 'no_such_robot' in log_of(proc), log_of(proc)
+    assert not (tmp_path / 'x.rrd').exists()

@@ -14,6 +14,9 @@ Parameters (read-only except ``rate``):
   output      .rrd path; '' = runs/<robot>-<UTC time>.rrd under the current directory;
               'none' = no file (stream only)
   viewer_url  rerun gRPC url of a running viewer to stream to, '' = none
+  serve_grpc_port, serve_web_port, serve_bind_ip
+              host a gRPC server (and rerun's bundled web viewer) so viewers can
+              connect to the live recording; 0 = off, bind 127.0.0.1 by default
   rate        largest logging rate per module and data source, Hz (0 = everything)
   scene       scene name or YAML path: restricts logging to its modules and gives the
               threadings for drawing the cable; '' = log every module RobotShape names
@@ -25,11 +28,14 @@ Parameters (read-only except ``rate``):
 from __future__ import annotations
 
 import datetime as dt
+import sys
 from pathlib import Path
 
 import rclpy
-from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParametersResult
+from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
+                                 SetParametersResult)
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.logging import get_logger
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -67,6 +73,17 @@ class RerunLoggerNode(Node):
         self.declare_parameter('viewer_url', '', ParameterDescriptor(
             description='rerun gRPC url of a viewer to stream to, e.g. '
                         "rerun+http://127.0.0.1:9876/proxy; '' = none", read_only=True))
+        port_range = [IntegerRange(from_value=0, to_value=65535)]
+        self.declare_parameter('serve_grpc_port', 0, ParameterDescriptor(
+            description='Host a rerun gRPC server on this port for viewers to connect to '
+                        '(0 = off; 9876 when serve_web_port is set)',
+            integer_range=port_range, read_only=True))
+        self.declare_parameter('serve_web_port', 0, ParameterDescriptor(
+            description="Serve rerun's bundled web viewer on this HTTP port, showing the "
+                        'live recording (0 = off)', integer_range=port_range, read_only=True))
+        self.declare_parameter('serve_bind_ip', '127.0.0.1', ParameterDescriptor(
+            description='Address the gRPC server listens on (0.0.0.0 = every interface; '
+                        'there is no authentication)', read_only=True))
         self.declare_parameter('rate', 30.0, ParameterDescriptor(
             description='Largest logging rate per module and data source, in Hz '
                         '(0 = log every message)',
@@ -95,12 +112,19 @@ class RerunLoggerNode(Node):
         output = self.get_parameter('output').value
         self.output = None if output.lower() == 'none' else Path(output or default_output(robot))
         viewer_url = self.get_parameter('viewer_url').value or None
-        if self.output is None and viewer_url is None:
-            raise ValueError("output is 'none' and viewer_url is empty: nothing to record to")
+        web_port = self.get_parameter('serve_web_port').value
+        grpc_port = self.get_parameter('serve_grpc_port').value or (9876 if web_port else 0)
+        bind_ip = self.get_parameter('serve_bind_ip').value
 
         self.rec = recording.open_recording(self.output, viewer_url,
+                                            serve_grpc_port=grpc_port or None,
+                                            serve_bind_ip=bind_ip,
                                             blueprint=recording.build_blueprint(),
                                             application_id=f'softsnap_{robot}')
+        self.web_url = None
+        if web_port:
+            host = '127.0.0.1' if bind_ip in ('0.0.0.0', '::') else bind_ip
+            self.web_url = recording.serve_web_viewer(web_port, grpc_port, host)
         self.recorder = recording.RobotRecorder(
             self.rec, modules=modules,
             threadings_mm={m.name: m.threading_mm for m in getattr(scene, 'modules', [])},
@@ -123,6 +147,8 @@ class RerunLoggerNode(Node):
         self.get_logger().info(
             f'recording {robot} to {self.output or "(no file)"}'
             + (f' and {viewer_url}' if viewer_url else '')
+            + (f', serving gRPC on {bind_ip}:{grpc_port}' if grpc_port else '')
+            + (f', web viewer at {self.web_url}' if self.web_url else '')
             + (f', at most {rate:g} Hz per stream' if rate else ', every message')
             + '; modules: ' + (', '.join(sorted(modules)) if modules else 'all seen'))
 
@@ -242,6 +268,7 @@ class RerunLoggerNode(Node):
 def main(args=None):
     rclpy.init(args=args)
     node = None
+    status = 0
     try:
         node = RerunLoggerNode()
         # One thread: rerun's current time is per thread and the recorder keeps per-module
@@ -251,6 +278,9 @@ def main(args=None):
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except ValueError as exc:  # bad parameters or scene: say why and exit non-zero
+        get_logger('rerun_logger').fatal(str(exc))
+        status = 2
     finally:
         if node is not None:
             logger = node.get_logger()
@@ -258,7 +288,8 @@ def main(args=None):
             node.destroy_node()
             logger.info(summary)
         rclpy.try_shutdown()
+    return status
 
 
 if __name__ == '__main__':
-    main()
+    sys.exit(main())

@@ -141,18 +141,25 @@ def build_sweep_blueprint() -> rrb.Blueprint:
 # --- recording streams ------------------------------------------------------------------
 
 def open_recording(output: str | Path | None = None, viewer_url: str | None = None, *,
+                   serve_grpc_port: int | None = None, serve_bind_ip: str = '127.0.0.1',
                    blueprint: rrb.Blueprint | None = None,
                    application_id: str = APPLICATION_ID,
                    recording_id: str | None = None) -> rr.RecordingStream:
-    """A recording stream writing to the file ``output`` and/or a viewer at ``viewer_url``.
+    """A recording stream writing to any of: a file, a running viewer, a hosted server.
 
-    The parent directories of ``output`` are created. ``viewer_url`` is a rerun gRPC
-    address such as ``rerun+http://127.0.0.1:9876/proxy``. At least one of the two must be
-    given. Close it with :func:`close_recording` so the file gets its footer.
+    Parameters
+    ----------
+    output:
+        .rrd file; its parent directories are created.
+    viewer_url:
+        rerun gRPC address of a running viewer, e.g. ``rerun+http://127.0.0.1:9876/proxy``.
+    serve_grpc_port, serve_bind_ip:
+        Host a gRPC server on this port that viewers (native, or the web viewer started
+        with :func:`serve_web_viewer`) connect to. It keeps up to 1 GiB for late viewers.
+
+    At least one sink must be given. Close the stream with :func:`close_recording` so the
+    file gets its footer.
     """
-    if output is None and not viewer_url:
-        raise ValueError('open_recording needs an output file, a viewer_url, or both')
-    rec = rr.RecordingStream(application_id, recording_id=recording_id)
     sinks = []
     if output is not None:
         output = Path(output)
@@ -160,8 +167,21 @@ def open_recording(output: str | Path | None = None, viewer_url: str | None = No
         sinks.append(rr.FileSink(str(output)))
     if viewer_url:
         sinks.append(rr.GrpcSink(viewer_url))
+    if serve_grpc_port:
+        sinks.append(rr.GrpcServerSink(bind_ip=serve_bind_ip, port=int(serve_grpc_port)))
+    if not sinks:
+        raise ValueError('open_recording needs an output file, a viewer_url or a '
+                         'serve_grpc_port')
+    rec = rr.RecordingStream(application_id, recording_id=recording_id)
     rec.set_sinks(*sinks, default_blueprint=blueprint)
     return rec
+
+
+def serve_web_viewer(web_port: int, grpc_port: int, host: str = '127.0.0.1') -> str:
+    """Serve rerun's bundled web viewer (offline) pointed at a gRPC server; returns its url."""
+    grpc_url = f'rerun+http://{host}:{int(grpc_port)}/proxy'
+    rr.serve_web_viewer(web_port=int(web_port), open_browser=False, connect_to=grpc_url)
+    return f'http://{host}:{int(web_port)}/?url={quote(grpc_url, safe="")}'
 
 
 def close_recording(rec: rr.RecordingStream, timeout_s: float = 10.0) -> None:
@@ -474,23 +494,17 @@ class RobotRecorder:
 
 # --- no-ROS writers ---------------------------------------------------------------------
 
-Solve = Callable[[Sequence[float], float], Sequence[float]]
-"""``solve(threading_mm, contraction_mm) -> angles_rad``: a forward solve of one module."""
+Solve = Callable[[Sequence[float], Sequence[float]], np.ndarray]
+"""``solve(threading_mm, contractions_mm) -> angles_rad`` of shape (len(contractions), n)."""
 
 
-def _default_solve() -> Solve:
-    """The solver core's forward solve, adapted to :data:`Solve`."""
-    try:
-        from softsnap_model import forward
-    except ImportError as exc:  # the forward solver is not installed
-        raise RuntimeError('softsnap_model.forward is not available; pass solve=') from exc
-    solve_fn = getattr(forward, 'solve_contraction', None) or getattr(forward, 'solve')
+def forward_sweep_angles(threading_mm: Sequence[float], contractions_mm: Sequence[float]
+                         ) -> np.ndarray:
+    """Angles (rad) of the solver core's quasi-static sweep, authors' skeleton."""
+    from softsnap_model.forward import sweep
+    from softsnap_model.skeleton import Skeleton
 
-    def solve(threading_mm: Sequence[float], contraction_mm: float) -> Sequence[float]:
-        result = solve_fn(threading_mm, contraction_mm)
-        return getattr(result, 'angles_rad', getattr(result, 'angles', result))
-
-    return solve
+    return np.asarray(sweep(Skeleton(), list(threading_mm), list(contractions_mm)).angles)
 
 
 def _write_shapes(path: str | Path, shapes: Mapping[str, Sequence[Sequence[float]]],
@@ -534,26 +548,29 @@ def record_sweep(path: str | Path, threading_mm: Sequence[float],
     """Write a recording of one module's shapes over a sweep of cable contractions.
 
     Step ``i`` of the ``step`` timeline shows the shape at ``contractions_mm[i]`` (mm of
-    cable pulled in); the tip path over the whole sweep is logged static.
+    cable pulled in); the tip path over the whole sweep is logged static. ``solve``
+    defaults to the solver core's forward sweep (:func:`forward_sweep_angles`).
+
+    Examples
+    --------
+    >>> record_sweep('sweep.rrd', parse_threading('R3x12'), [0.0, 20.0, 40.0])  # doctest: +SKIP
     """
-    solve = solve or _default_solve()
-    angles = [solve(threading_mm, float(c)) for c in contractions_mm]
+    angles = (solve or forward_sweep_angles)(threading_mm, contractions_mm)
     return _write_shapes(path, {module: angles}, {module: threading_mm}, contractions_mm,
                          spacing_mm, row_spacing_m=0.0)
 
 
 def record_threadings(path: str | Path, threadings_mm: Mapping[str, Sequence[float]],
                       contractions_mm: Sequence[float], *, solve: Solve | None = None,
-                      spacing_mm: float = RIB_SPACING_MM, row_spacing_m: float = 0.08
+                      spacing_mm: float = RIB_SPACING_MM, row_spacing_m: float = 0.25
                       ) -> Path:
     """Write a recording comparing threadings side by side over the same contractions.
 
     Each threading is drawn as a module named by its key, placed ``row_spacing_m`` apart
     along -y, all stepping through ``contractions_mm`` together.
     """
-    solve = solve or _default_solve()
-    shapes = {name: [solve(t, float(c)) for c in contractions_mm]
-              for name, t in threadings_mm.items()}
+    solve = solve or forward_sweep_angles
+    shapes = {name: solve(t, contractions_mm) for name, t in threadings_mm.items()}
     return _write_shapes(path, shapes, threadings_mm, contractions_mm, spacing_mm,
                          row_spacing_m)
 
@@ -629,10 +646,9 @@ def serve_recording(path: str | Path, *, web_port: int = 9090, grpc_port: int = 
     if not path.is_file():
         raise ValueError(f'no recording at {path}')
     rec = rr.RecordingStream(f'{APPLICATION_ID}_view')
-    grpc_url = rec.serve_grpc(grpc_port=grpc_port)
+    rec.serve_grpc(grpc_port=grpc_port)
     rec.log_file_from_path(path)
-    rr.serve_web_viewer(web_port=web_port, open_browser=False, connect_to=grpc_url)
-    return f'http://127.0.0.1:{web_port}/?url={quote(grpc_url, safe="")}', rec
+    return serve_web_viewer(web_port, grpc_port), rec
 
 
 def main(argv: Sequence[str] | None = None) -> int:
