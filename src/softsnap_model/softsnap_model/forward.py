@@ -110,7 +110,7 @@ class SegmentBranch:
     end_angle_rad : ndarray
         Angle magnitude where the branch ends (contact, shortest length or fold).
     end_tension : ndarray
-        Tension at the branch end (inf when it ends at the segment's shortest length).
+        Tension at the branch end; beyond it the segment stays at the end angle.
     end_kind : ndarray of str
         'contact', 'shortest' or 'fold'.
     """
@@ -183,7 +183,10 @@ def _pair_profile_array(d1, d2, s, b_max, n_samples=_BRANCH_SAMPLES):
             _, p, pp = _branch_derivs(mid, direction[i], d1[i], d2[i], s)
             ok = (p < 0.0) if is_short else (mid * pp - p > 0.0 and p < 0.0)
             lo, hi = (mid, hi) if ok else (lo, mid)
-        b_end[i] = lo if not is_short else hi
+        # The end is the last point still on the stable shortening branch; past it the
+        # segment is held there like at contact (at a smooth length minimum the end
+        # tension is huge but finite, at coinciding holes L' jumps and it is moderate).
+        b_end[i] = lo
         kind[i] = 'shortest' if is_short else 'fold'
     # Table over the stable part [0, b_end].
     tt = np.linspace(0.0, 1.0, n_samples)
@@ -192,8 +195,6 @@ def _pair_profile_array(d1, d2, s, b_max, n_samples=_BRANCH_SAMPLES):
     with np.errstate(divide='ignore', invalid='ignore'):
         mu = 2.0 * bt / -lp
     mu[:, 0] = mu_c
-    is_short = kind == 'shortest'
-    mu[is_short, -1] = np.inf
     mu_end = mu[:, -1].copy()
     return dict(direction=direction, mirror=mirror, mu_c=mu_c, beta=beta, b_end=b_end,
                 mu_end=mu_end, kind=kind.astype(str), b=bt, mu=mu, length=length)

@@ -140,11 +140,10 @@ def segment_length_derivatives(angle_rad, d1_mm, d2_mm, spacing_mm):
 
     Notes
     -----
-    ``Q = L^2 = (d1 - d2)^2 + s^2 G0(a) + s (d1 + d2) G1(a) + d1 d2 G2(a)`` with
-    ``G0 = (2 sin(a/2)/a)^2``, ``G1 = a G0``, ``G2 = a^2 G0``. These and their
-    derivatives come from their power series for ``|a| <= pi`` (no division, so nothing
-    cancels at or near ``a = 0``) and from the closed form beyond, where it is well
-    conditioned; the two agree to rounding at the switch. ``L`` is singular only where
+    ``Q = L^2 = (d1 - d2)^2 + g(a) (s + d1 a)(s + d2 a)`` with ``g = (2 sin(a/2)/a)^2``.
+    ``g`` and its derivatives come from its power series for ``|a| <= pi`` (no division,
+    so nothing cancels at or near ``a = 0``) and from the closed form beyond, where it
+    is well conditioned; the two agree to rounding at the switch. ``L`` is singular only where
     the two holes coincide (``L = 0``).
 
     Examples
@@ -157,14 +156,23 @@ def segment_length_derivatives(angle_rad, d1_mm, d2_mm, spacing_mm):
     d1 = np.asarray(d1_mm, dtype=float)
     d2 = np.asarray(d2_mm, dtype=float)
     s = np.asarray(spacing_mm, dtype=float)
-    a, d1, d2, s = np.broadcast_arrays(a, d1, d2, s)
-    weights = np.stack([s * s, s * (d1 + d2), d1 * d2], axis=-1)
-    q = _q_and_derivs(a, weights)
+    funcs = _g_functions_series(a)
+    big = np.abs(a) > _G_SERIES_A_MAX
+    if big.any():
+        funcs = np.where(big[..., None, None], _g_functions_closed(np.where(big, a, 4.0)),
+                         funcs)
+    g, g_a, g_aa = funcs[..., 0, 0], funcs[..., 1, 0], funcs[..., 2, 0]
+    # Product form Q = dd^2 + g p1 p2: no cancellation even where a hole nears the
+    # centre of curvature (s + d a -> 0), unlike the expanded G0/G1/G2 sum.
+    p1 = s + d1 * a
+    p2 = s + d2 * a
+    prod = p1 * p2
+    prod_a = d1 * p2 + d2 * p1
     dd = d1 - d2
-    length = np.sqrt(q[..., 0] + dd * dd)
+    length = np.sqrt(dd * dd + g * prod)
     half_inv = 0.5 / length
-    l_a = q[..., 1] * half_inv
-    l_aa = (q[..., 2] - 2.0 * l_a * l_a) * half_inv
+    l_a = (g_a * prod + g * prod_a) * half_inv
+    l_aa = (g_aa * prod + 2.0 * g_a * prod_a + 2.0 * d1 * d2 * g - 2.0 * l_a * l_a) * half_inv
     return length, l_a, l_aa
 
 
