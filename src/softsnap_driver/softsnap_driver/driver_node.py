@@ -1,0 +1,239 @@
+"""driver_node: bridge one Wi-Fi SoftSnap module to cable-length topics.
+
+For a module named M (parameter ``module``), relative to the node's namespace:
+
+- subscribes ``M/cable_length/command`` (softsnap_interfaces/CableLength, metres);
+- publishes ``M/cable_length/measured`` (CableLength, metres) after every status reply
+  while the module is calibrated, and ``M/state`` (softsnap_interfaces/ModuleState)
+  after every request and at the poll rate while offline;
+- serves ``M/calibrate``, ``M/pause``, ``M/resume`` and ``M/stop`` (std_srvs/Trigger).
+
+The node is thin: it adapts parameters, messages and services to
+:class:`softsnap_driver.link.ModuleLink`, which owns all module I/O in a worker thread,
+and :class:`softsnap_driver.core.CableCalibration`, which converts lengths to encoder
+counts (count 0 = straight; positive counts shorten the cable when ``count_sign`` = +1).
+"""
+from __future__ import annotations
+
+import math
+import re
+import sys
+
+import rclpy
+from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
+                                SetParametersResult)
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from softsnap_interfaces.msg import CableLength, ModuleState
+from std_srvs.srv import Trigger
+
+from softsnap_driver.core import CableCalibration
+from softsnap_driver.link import LinkConfig, LinkReport, ModuleLink
+
+#: Default winch: 2800 counts per output revolution (N20 encoder, 7 PPR x4, 1:100) on a
+#: 10 mm diameter spool. Calibrate it per module (docs/driver.md).
+DEFAULT_COUNTS_PER_MM = 2800.0 / (math.pi * 10.0)
+
+_NAME = re.compile(r'^[A-Za-z][A-Za-z0-9_]*$')
+
+
+def _float(description, low, high, step=0.0):
+    return ParameterDescriptor(description=description, floating_point_range=[
+        FloatingPointRange(from_value=float(low), to_value=float(high), step=float(step))])
+
+
+def _int(description, low, high, step=1, read_only=False):
+    return ParameterDescriptor(description=description, read_only=read_only, integer_range=[
+        IntegerRange(from_value=low, to_value=high, step=step)])
+
+
+# name: (default, descriptor). One declarative table: the README's table mirrors it.
+PARAMETERS = {
+    'module': ('m1', ParameterDescriptor(
+        description='Module name; topics and services live under <module>/', read_only=True)),
+    'host': ('127.0.0.1', ParameterDescriptor(
+        description='Module IP address (or host name without the words status/set/...)', read_only=True)),
+    'port': (80, _int('Module TCP port (80 on the firmware)', 1, 65535, read_only=True)),
+    'counts_per_mm': (DEFAULT_COUNTS_PER_MM, _float(
+        'Encoder counts per millimetre of cable (calibrated per winch), counts/mm', 0.01, 100000.0)),
+    'straight_length_m': (0.198, _float('Cable length of the straight module, m', 0.001, 10.0)),
+    'min_contraction_m': (0.0, _float('Smallest allowed contraction (straight minus cable length), m', 0.0, 10.0)),
+    'max_contraction_m': (0.080, _float('Largest allowed contraction, m', 0.0, 10.0)),
+    'count_sign': (1, _int('+1 if positive encoder counts shorten the cable, -1 otherwise', -1, 1, 2)),
+    'pwm_power': (200, _int('Motor PWM power sent with every target, 0-255', 0, 255)),
+    'poll_rate_hz': (10.0, _float('Status polls per second, Hz', 0.1, 200.0)),
+    'command_timeout_s': (1.0, _float(
+        'Stop the module where it is when no command came for this long, s (0: never)', 0.0, 3600.0)),
+    'request_timeout_s': (0.5, _float('Deadline of one HTTP request to the module, s', 0.01, 30.0)),
+    'offline_after_failures': (3, _int('Consecutive failed requests before the module is offline', 1, 1000)),
+    'max_backoff_s': (5.0, _float('Longest wait between retries of an offline module, s', 0.01, 600.0)),
+    'reboot_zero_band_counts': (60, _int('A count this close to 0 may mean a reboot, counts', 0, 1_000_000)),
+    'reboot_min_jump_counts': (300, _int('Only a fall from at least this far is a reboot, counts', 1, 1_000_000_000)),
+    'max_speed_counts_per_s': (20000.0, _float(
+        'Fastest the winch can move; faster falls to 0 are reboots, counts/s', 1.0, 1e9)),
+    'stop_on_shutdown': (True, ParameterDescriptor(description='Send reach (stop) when the driver exits')),
+}
+
+
+class DriverNode(Node):
+    """One module: parameters and ROS interfaces around a :class:`ModuleLink`."""
+
+    def __init__(self, node_name: str = 'driver_node', **kwargs):
+        super().__init__(node_name, **kwargs)
+        for name, (default, descriptor) in PARAMETERS.items():
+            self.declare_parameter(name, default, descriptor)
+        self.module = self.get_parameter('module').value
+        if not _NAME.match(self.module):
+            raise ValueError(f'parameter module must be a name like "yellow" '
+                             f'([A-Za-z][A-Za-z0-9_]*), got {self.module!r}')
+        config = self._config_from({name: self.get_parameter(name).value for name in PARAMETERS})
+        self.add_on_set_parameters_callback(self.parameters_callback)
+        self.add_post_set_parameters_callback(self.parameters_applied_callback)
+
+        m = self.module
+        self.measured_publisher = self.create_publisher(CableLength, f'{m}/cable_length/measured', 10)
+        self.state_publisher = self.create_publisher(ModuleState, f'{m}/state', 10)
+        self.command_subscription = self.create_subscription(
+            CableLength, f'{m}/cable_length/command', self.command_callback, 10)
+        self.trigger_services = [
+            self.create_service(Trigger, f'{m}/{kind}', self._trigger_callback(kind))
+            for kind in ('calibrate', 'pause', 'resume', 'stop')]
+        self.link = ModuleLink(config, self.report_callback, self.get_logger())
+        self.link.start()
+        low, high = config.calibration.length_range_m
+        self.get_logger().info(
+            f'driving module {m!r} at {config.host}:{config.port}; cable length range '
+            f'[{low:.4f}, {high:.4f}] m, encoder targets {list(config.calibration.count_range)}')
+
+    # -- parameters --------------------------------------------------------------------
+    @staticmethod
+    def _config_from(values: dict) -> LinkConfig:
+        """Build a consistent configuration; raises ValueError naming the bad value."""
+        calibration = CableCalibration(
+            counts_per_mm=values['counts_per_mm'], straight_length_m=values['straight_length_m'],
+            max_contraction_m=values['max_contraction_m'],
+            min_contraction_m=values['min_contraction_m'], count_sign=values['count_sign'])
+        return LinkConfig(
+            host=values['host'], port=values['port'], calibration=calibration,
+            pwm_power=values['pwm_power'], poll_period_s=1.0 / values['poll_rate_hz'],
+            command_timeout_s=values['command_timeout_s'],
+            request_timeout_s=values['request_timeout_s'],
+            offline_after_failures=values['offline_after_failures'],
+            max_backoff_s=values['max_backoff_s'],
+            reboot_zero_band_counts=values['reboot_zero_band_counts'],
+            reboot_min_jump_counts=values['reboot_min_jump_counts'],
+            max_speed_counts_per_s=values['max_speed_counts_per_s'],
+            stop_on_shutdown=values['stop_on_shutdown'])
+
+    def _values_with(self, parameters: list[Parameter]) -> dict:
+        values = {name: self.get_parameter(name).value for name in PARAMETERS}
+        values.update({p.name: p.value for p in parameters if p.name in PARAMETERS})
+        return values
+
+    def parameters_callback(self, parameters: list[Parameter]) -> SetParametersResult:
+        """Refuse values that do not make a consistent configuration, with the reason."""
+        try:
+            self._config_from(self._values_with(parameters))
+        except (ValueError, TypeError, ZeroDivisionError) as exc:
+            return SetParametersResult(successful=False, reason=str(exc))
+        return SetParametersResult(successful=True)
+
+    def parameters_applied_callback(self, parameters: list[Parameter]) -> None:
+        self.link.update_config(self._config_from(self._values_with([])))
+
+    # -- ROS inputs --------------------------------------------------------------------
+    def command_callback(self, msg: CableLength) -> None:
+        try:
+            self.link.command(msg.cable_length)
+        except ValueError:
+            pass  # counted, logged (throttled) and reported in the state by the link
+
+    def _trigger_callback(self, kind: str):
+        def callback(request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+            response.success, response.message = self.link.request(kind)
+            return response
+        callback.__name__ = f'{kind}_callback'
+        return callback
+
+    # -- ROS outputs (called from the link's worker thread) ----------------------------
+    def report_callback(self, report: LinkReport) -> None:
+        if not self.context.ok():
+            return
+        stamp = self.get_clock().now().to_msg()
+        status = report.status
+        if report.fresh and math.isfinite(report.measured_length_m):
+            measured = CableLength()
+            measured.header.stamp = stamp
+            measured.header.frame_id = self.module
+            measured.cable_length = report.measured_length_m
+            self.measured_publisher.publish(measured)
+        state = ModuleState()
+        state.header.stamp = stamp
+        state.header.frame_id = self.module
+        state.module = self.module
+        state.online = report.online
+        state.measured_cable_length = report.measured_length_m
+        state.target_cable_length = report.target_length_m
+        state.encoder_target = report.encoder_target
+        if status is not None:
+            state.paused = status.paused
+            state.encoder_count = status.encoder_count
+            state.motor_power = status.motor_power
+            state.battery_voltage = status.battery_voltage
+            state.power = status.power_w
+            state.encoder_errors = status.encoder_errors
+        else:
+            state.motor_power = report.pwm_power
+        c = report.counters
+        state.request_failures = c.request_failures
+        state.commands_clamped = c.commands_clamped
+        state.commands_refused = c.commands_refused
+        state.reboots_detected = c.reboots_detected
+        state.stale_stops = c.stale_stops
+        state.last_error = report.last_error
+        self.state_publisher.publish(state)
+
+    def destroy_node(self) -> None:
+        self.link.stop()
+        super().destroy_node()
+
+
+def _module_argument(args: list[str]) -> str | None:
+    """The value of ``-p module:=X`` among the ROS arguments, if any (for the node name)."""
+    for i, arg in enumerate(args[:-1]):
+        if arg in ('-p', '--param') and args[i + 1].startswith('module:='):
+            return args[i + 1].split(':=', 1)[1]
+    return None
+
+
+def main(args=None):
+    argv = sys.argv if args is None else args
+    # Name the node after its module so several drivers can share a namespace; a
+    # `-r __node:=...` remap still wins.
+    module = _module_argument(list(argv))
+    node_name = f'{module}_driver' if module and _NAME.match(module) else 'driver_node'
+    # rclpy.init() is a context manager only from Kilted on; this form runs on Jazzy too.
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = DriverNode(node_name)
+        # One thread is enough: callbacks here never do I/O (the link's worker thread
+        # does); a service waits for its own request only, bounded by request_timeout_s.
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except ValueError as exc:
+        print(f'driver_node: {exc}', file=sys.stderr)
+        return 2
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,330 @@
+"""Client for the SoftSnap module firmware's HTTP API (no ROS).
+
+The firmware (ESP32) serves plain HTTP/1.1, one client at a time, and closes the
+connection after every reply. A request is a bare request line such as
+``GET /?status HTTP/1.1``; the firmware looks for a keyword anywhere in the request head
+(``status``, ``set``, ``calibrate``, ``pause``, ``resume``, ``reach``, in that order) and
+answers every request with the same JSON status line. So every call here returns a
+:class:`ModuleStatus`.
+
+Layers:
+
+- pure functions :func:`encode_request`, :func:`encode_set_request` and
+  :func:`parse_reply` (bytes in, bytes or :class:`ModuleStatus` out);
+- :class:`ModuleClient`, which owns the socket work: one TCP connection per request,
+  an explicit deadline per request, and a lock so that only one request at a time goes
+  to the module (the firmware serves one client).
+
+Errors are typed: :class:`ModuleConnectionError` (refused, reset, closed without a
+reply), :class:`ModuleTimeout` (no complete reply within the deadline) and
+:class:`MalformedReply` (a reply that is not the firmware's JSON status); all derive
+from :class:`ModuleError`.
+
+Examples
+--------
+>>> encode_set_request(3000, 80)
+b'GET /?set=00000BB850 HTTP/1.1\\r\\n\\r\\n'
+>>> encode_set_request(-1, 255)
+b'GET /?set=FFFFFFFFFF HTTP/1.1\\r\\n\\r\\n'
+"""
+from __future__ import annotations
+
+import json
+import math
+import socket
+import threading
+import time
+from dataclasses import dataclass, field
+
+#: Commands the firmware understands (keyword searched in the request head).
+COMMANDS = ('status', 'set', 'calibrate', 'pause', 'resume', 'reach')
+
+INT32_MIN = -(2 ** 31)
+INT32_MAX = 2 ** 31 - 1
+PWM_MAX = 255
+
+#: Power history: samples in the reply, hex digits per sample, watts per unit (0.1 mW).
+POWER_SAMPLES = 256
+POWER_DIGITS = 4
+POWER_UNIT_W = 1e-4
+
+#: A reply longer than this is not the firmware's (its JSON line is about 1.2 kB).
+MAX_REPLY_BYTES = 16384
+
+DEFAULT_PORT = 80
+
+
+class ModuleError(Exception):
+    """A request to a module failed; subclasses say how."""
+
+
+class ModuleConnectionError(ModuleError):
+    """The connection was refused, reset, or closed before a reply arrived."""
+
+
+class ModuleTimeout(ModuleError):
+    """The module did not answer completely within the request deadline."""
+
+
+class MalformedReply(ModuleError):
+    """The module answered, but not with the firmware's HTTP 200 + JSON status."""
+
+
+@dataclass(frozen=True)
+class ModuleStatus:
+    """One status reply of the firmware, in the firmware's own units.
+
+    Attributes
+    ----------
+    encoder_count : int
+        ``m_current``: quadrature encoder count (counts, int32).
+    motor_power : int
+        ``m_power``: PWM power of the motor, 0-255.
+    encoder_errors : int
+        ``m_error``: invalid quadrature transitions since the module booted.
+    battery_voltage : float
+        ``battery``: mean of the last 8 battery samples, in volts (V).
+    paused : bool
+        ``pause``: motion disabled.
+    power_history_w : tuple of float
+        ``power``: the last power samples, oldest first, in watts (W).
+    ip, mac : str
+        Network identity the module reports.
+    """
+
+    encoder_count: int
+    motor_power: int
+    encoder_errors: int
+    battery_voltage: float
+    paused: bool
+    power_history_w: tuple[float, ...] = field(repr=False, default=())
+    ip: str = ''
+    mac: str = ''
+
+    @property
+    def power_w(self) -> float:
+        """Latest power sample in watts (W); 0 when the history is empty."""
+        return self.power_history_w[-1] if self.power_history_w else 0.0
+
+
+def encode_request(command: str) -> bytes:
+    """Request bytes for a parameterless command (``status``, ``calibrate``, ...).
+
+    No header lines are sent on purpose: the firmware searches the whole request head for
+    its keywords, so a header such as ``Accept-Charset`` (contains ``set``) or a host name
+    containing ``status`` would change the meaning of the request.
+    """
+    if command not in COMMANDS or command == 'set':
+        raise ValueError(f'command must be one of {[c for c in COMMANDS if c != "set"]}, '
+                         f'got {command!r}')
+    return f'GET /?{command} HTTP/1.1\r\n\r\n'.encode('ascii')
+
+
+def encode_set_request(target_count: int, power: int) -> bytes:
+    """Request bytes for ``set``: encoder target (int32, two's complement) and PWM power.
+
+    Hex digits are upper case: the firmware skips lower-case ``a``-``f``.
+    """
+    if isinstance(target_count, bool) or not isinstance(target_count, int):
+        raise ValueError(f'target_count must be an int, got {target_count!r}')
+    if isinstance(power, bool) or not isinstance(power, int):
+        raise ValueError(f'power must be an int, got {power!r}')
+    if not INT32_MIN <= target_count <= INT32_MAX:
+        raise ValueError(f'target_count {target_count} outside int32 [{INT32_MIN}, {INT32_MAX}]')
+    if not 0 <= power <= PWM_MAX:
+        raise ValueError(f'power {power} outside [0, {PWM_MAX}]')
+    return f'GET /?set={target_count & 0xFFFFFFFF:08X}{power:02X} HTTP/1.1\r\n\r\n'.encode('ascii')
+
+
+def _field(data: dict, key: str, kind):
+    if key not in data:
+        raise MalformedReply(f'reply lacks {key!r}')
+    value = data[key]
+    # bool is an int subclass in Python: refuse it where a number is expected.
+    if kind is int and (isinstance(value, bool) or not isinstance(value, int)):
+        raise MalformedReply(f'{key!r} must be an integer, got {value!r}')
+    if kind is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise MalformedReply(f'{key!r} must be a number, got {value!r}')
+        if not math.isfinite(value):
+            raise MalformedReply(f'{key!r} must be finite, got {value!r}')
+        return float(value)
+    if kind in (bool, str) and not isinstance(value, kind):
+        raise MalformedReply(f'{key!r} must be {kind.__name__}, got {value!r}')
+    return value
+
+
+def parse_power_history(text: str) -> tuple[float, ...]:
+    """Decode the ``power`` field: 4 hex digits per sample in 0.1 mW, to watts (W)."""
+    if len(text) % POWER_DIGITS or len(text) > POWER_SAMPLES * POWER_DIGITS:
+        raise MalformedReply(f'power history must be at most {POWER_SAMPLES} samples of '
+                             f'{POWER_DIGITS} hex digits, got {len(text)} characters')
+    samples = []
+    for i in range(0, len(text), POWER_DIGITS):
+        chunk = text[i:i + POWER_DIGITS]
+        if any(c not in '0123456789abcdefABCDEF' for c in chunk):
+            raise MalformedReply(f'power history sample {i // POWER_DIGITS} is not hex: {chunk!r}')
+        samples.append(int(chunk, 16) * POWER_UNIT_W)
+    return tuple(samples)
+
+
+def parse_reply(raw: bytes) -> ModuleStatus:
+    """Parse a complete firmware reply (status line, headers, JSON line).
+
+    Raises :class:`MalformedReply` for anything that is not an ``HTTP/1.x 200`` reply
+    whose body is the firmware's JSON status with ``"status": "ok"``; never any other
+    exception.
+    """
+    if not isinstance(raw, (bytes, bytearray)):
+        raise MalformedReply(f'reply must be bytes, got {type(raw).__name__}')
+    if not raw:
+        raise MalformedReply('empty reply')
+    if len(raw) > MAX_REPLY_BYTES:
+        raise MalformedReply(f'reply of {len(raw)} bytes exceeds {MAX_REPLY_BYTES}')
+    text = bytes(raw).decode('utf-8', errors='replace')
+    # Head and body are separated by an empty line; tolerate bare LF line ends.
+    normalised = text.replace('\r\n', '\n')
+    head, sep, body = normalised.partition('\n\n')
+    if not sep:
+        raise MalformedReply('reply has no end of head')
+    status_line = head.split('\n', 1)[0].split()
+    if len(status_line) < 2 or not status_line[0].startswith('HTTP/1.'):
+        raise MalformedReply(f'not an HTTP reply: {head[:40]!r}')
+    if status_line[1] != '200':
+        raise MalformedReply(f'HTTP status {status_line[1]!r}, expected 200')
+    line = body.strip()
+    if not line:
+        raise MalformedReply('reply has no JSON body')
+    try:
+        data = json.loads(line)
+    except (ValueError, RecursionError) as exc:
+        raise MalformedReply(f'reply body is not JSON: {line[:40]!r}') from exc
+    if not isinstance(data, dict):
+        raise MalformedReply(f'reply body must be a JSON object, got {type(data).__name__}')
+    if data.get('status') != 'ok':
+        raise MalformedReply(f'reply status {data.get("status")!r}, expected "ok"')
+    count = _field(data, 'm_current', int)
+    if not INT32_MIN <= count <= INT32_MAX:
+        raise MalformedReply(f'm_current {count} outside int32')
+    power = _field(data, 'm_power', int)
+    if not 0 <= power <= PWM_MAX:
+        raise MalformedReply(f'm_power {power} outside [0, {PWM_MAX}]')
+    errors = _field(data, 'm_error', int)
+    if not 0 <= errors <= 2 ** 32 - 1:
+        raise MalformedReply(f'm_error {errors} outside uint32')
+    battery = _field(data, 'battery', float)
+    if not 0.0 <= battery < 100.0:
+        raise MalformedReply(f'battery {battery} V is not a plausible voltage')
+    return ModuleStatus(
+        encoder_count=count,
+        motor_power=power,
+        encoder_errors=errors,
+        battery_voltage=battery,
+        paused=_field(data, 'pause', bool),
+        power_history_w=parse_power_history(_field(data, 'power', str)),
+        ip=str(data.get('ip', '')),
+        mac=str(data.get('mac', '')),
+    )
+
+
+class ModuleClient:
+    """Talks to one module: one request at a time, each on its own TCP connection.
+
+    Parameters
+    ----------
+    host : str
+        Module address (an IP address is best: see :func:`encode_request`).
+    port : int
+        TCP port, 80 on the real firmware.
+    timeout_s : float
+        Deadline of one whole request (connect, send, read the reply until the module
+        closes), in seconds.
+
+    The socket exists only inside a request and is always closed before it returns, so
+    there is nothing to release; :meth:`close` only refuses further requests.
+    """
+
+    def __init__(self, host: str, port: int = DEFAULT_PORT, timeout_s: float = 1.0):
+        if not isinstance(port, int) or not 1 <= port <= 65535:
+            raise ValueError(f'port must be in [1, 65535], got {port!r}')
+        if not (isinstance(timeout_s, (int, float)) and math.isfinite(timeout_s)
+                and timeout_s > 0):
+            raise ValueError(f'timeout_s must be a positive number of seconds, got {timeout_s!r}')
+        self.host = host
+        self.port = port
+        self.timeout_s = float(timeout_s)
+        self._lock = threading.Lock()
+        self._closed = False
+
+    def __repr__(self) -> str:
+        return f'ModuleClient({self.host!r}, {self.port}, timeout_s={self.timeout_s})'
+
+    def close(self) -> None:
+        self._closed = True
+
+    def status(self) -> ModuleStatus:
+        return self.request(encode_request('status'))
+
+    def set_target(self, target_count: int, power: int) -> ModuleStatus:
+        return self.request(encode_set_request(target_count, power))
+
+    def calibrate(self) -> ModuleStatus:
+        return self.request(encode_request('calibrate'))
+
+    def pause(self) -> ModuleStatus:
+        return self.request(encode_request('pause'))
+
+    def resume(self) -> ModuleStatus:
+        return self.request(encode_request('resume'))
+
+    def reach(self) -> ModuleStatus:
+        return self.request(encode_request('reach'))
+
+    def request(self, payload: bytes) -> ModuleStatus:
+        """Send one raw request and parse the reply (serialised with other callers)."""
+        with self._lock:
+            if self._closed:
+                raise ModuleConnectionError(f'{self!r} is closed')
+            return parse_reply(self._exchange(payload))
+
+    def _exchange(self, payload: bytes) -> bytes:
+        deadline = time.monotonic() + self.timeout_s
+        where = f'{self.host}:{self.port}'
+        try:
+            sock = socket.create_connection((self.host, self.port), timeout=self.timeout_s)
+        except ConnectionRefusedError as exc:
+            raise ModuleConnectionError(f'{where} refused the connection') from exc
+        except (socket.timeout, TimeoutError) as exc:
+            raise ModuleTimeout(f'{where}: no connection within {self.timeout_s:.3g} s') from exc
+        except OSError as exc:
+            raise ModuleConnectionError(f'{where}: {exc.strerror or exc}') from exc
+        chunks: list[bytes] = []
+        size = 0
+        try:
+            with sock:
+                sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+                sock.settimeout(max(deadline - time.monotonic(), 1e-3))
+                sock.sendall(payload)
+                # The firmware closes the connection after its reply: read until EOF.
+                while True:
+                    remaining = deadline - time.monotonic()
+                    if remaining <= 0:
+                        raise socket.timeout()
+                    sock.settimeout(remaining)
+                    chunk = sock.recv(4096)
+                    if not chunk:
+                        break
+                    chunks.append(chunk)
+                    size += len(chunk)
+                    if size > MAX_REPLY_BYTES:
+                        raise MalformedReply(f'{where}: reply exceeds {MAX_REPLY_BYTES} bytes')
+        except (socket.timeout, TimeoutError) as exc:
+            raise ModuleTimeout(f'{where}: no complete reply within {self.timeout_s:.3g} s') from exc
+        except OSError as exc:
+            if size:
+                # A reset after a complete reply is still a reply; parse what came.
+                return b''.join(chunks)
+            raise ModuleConnectionError(f'{where}: {exc.strerror or exc}') from exc
+        if not size:
+            raise ModuleConnectionError(f'{where} closed the connection without a reply')
+        return b''.join(chunks)

@@ -1,0 +1,260 @@
+"""Simulated module served over TCP, like the firmware: ``sim_module`` executable.
+
+Runs without ROS (nothing here imports rclpy)::
+
+    python -m softsnap_driver.sim_module --port 8101 --drop-probability 0.05
+
+and as ``ros2 run softsnap_driver sim_module --ros-args -p port:=8101 -p
+drop_probability:=0.05``: ``-p name:=value`` pairs after ``--ros-args`` set the same
+options (dashes or underscores), other ROS arguments (remaps, log levels) are ignored.
+
+:class:`SimServer` serves one :class:`~softsnap_driver.firmware.SimModule` on a loopback
+port from one thread: it accepts one client at a time, reads the request head up to the
+blank line, answers with the firmware's reply (or acts out an injected fault) and closes
+the connection, as the firmware does.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import select
+import signal
+import socket
+import sys
+import threading
+import time
+
+from softsnap_driver.firmware import MAX_HEAD_BYTES, BatteryModel, Faults, MotorModel, SimModule
+
+#: How long the server waits for a client's request head before giving up, in seconds.
+HEAD_TIMEOUT_S = 2.0
+#: Poll interval of the accept loop and of held connections (reaction time to stop()), s.
+_LOOP_S = 0.05
+
+
+class SimServer:
+    """Serve a :class:`SimModule` on ``host:port`` (port 0 picks a free port).
+
+    Use as a context manager, or call :meth:`start` and :meth:`stop`. The module's state
+    is guarded by :attr:`lock`; take it to read or change the module from another thread.
+    """
+
+    def __init__(self, module: SimModule | None = None, host: str = '127.0.0.1', port: int = 0,
+                 clock=time.monotonic):
+        self.clock = clock
+        self.module = module if module is not None else SimModule(start_time=clock())
+        self.lock = threading.Lock()
+        self._listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        self._listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            self._listener.bind((host, port))
+        except OSError:
+            self._listener.close()
+            raise
+        self._listener.listen(8)
+        self._listener.settimeout(_LOOP_S)
+        self.host, self.port = self._listener.getsockname()[:2]
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._serve, name=f'sim_module:{self.port}',
+                                        daemon=True)
+        #: Connections served, and how many got each injected fault.
+        self.connections = 0
+        self.fault_counts: dict[str, int] = {}
+
+    def __enter__(self) -> SimServer:
+        self.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def stop(self, timeout: float = 5.0) -> None:
+        """Stop serving and close the listening socket (idempotent)."""
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout)
+        self._listener.close()
+
+    def serve_forever(self) -> None:
+        """Serve in the calling thread until :meth:`stop` (from another thread or a signal)."""
+        self._serve()
+
+    def _serve(self) -> None:
+        while not self._stop.is_set():
+            try:
+                conn, _ = self._listener.accept()
+            except (socket.timeout, TimeoutError):
+                continue
+            except OSError:
+                if self._stop.is_set():
+                    break
+                raise
+            with conn:
+                try:
+                    self._handle(conn)
+                except OSError:
+                    pass  # the client went away; the firmware just serves the next one
+
+    def _read_head(self, conn: socket.socket) -> bytes:
+        conn.settimeout(HEAD_TIMEOUT_S)
+        data = b''
+        while b'\r\n\r\n' not in data and b'\n\n' not in data and len(data) < MAX_HEAD_BYTES:
+            chunk = conn.recv(1024)
+            if not chunk:
+                break
+            data += chunk
+        return data
+
+    def _handle(self, conn: socket.socket) -> None:
+        self.connections += 1
+        now = self.clock()
+        with self.lock:
+            fault = self.module.fault_for_request(now)
+        if fault is not None:
+            self.fault_counts[fault] = self.fault_counts.get(fault, 0) + 1
+        if fault == 'outage':
+            self._hold(conn)
+            return
+        head = self._read_head(conn)
+        if fault == 'drop' or not head:
+            return
+        if fault == 'delay':
+            self._stop.wait(self.module.faults.delay_s)
+        with self.lock:
+            if fault == 'garbage':
+                reply = self.module.garbage_reply()
+            else:
+                reply = self.module.handle_request(head, self.clock())
+        conn.settimeout(HEAD_TIMEOUT_S)
+        conn.sendall(reply)
+        try:
+            conn.shutdown(socket.SHUT_WR)
+        except OSError:
+            pass
+
+    def _hold(self, conn: socket.socket) -> None:
+        """Outage: keep the connection open, never answer, until the client leaves."""
+        faults = self.module.faults
+        end = self.module.start_time + faults.outage_after_s + faults.outage_duration_s
+        conn.setblocking(False)
+        while not self._stop.is_set() and self.clock() < end:
+            readable, _, _ = select.select([conn], [], [], _LOOP_S)
+            if readable:
+                try:
+                    if not conn.recv(4096):
+                        return  # client gave up
+                except BlockingIOError:
+                    pass
+
+
+# -- command line ---------------------------------------------------------------------
+
+OPTIONS = {
+    # name: (type, default, help)
+    'host': (str, '127.0.0.1', 'address to listen on (keep loopback)'),
+    'port': (int, 8101, 'TCP port (the firmware uses 80)'),
+    'seed': (int, -1, 'random seed for faults, -1 for a random one'),
+    'drop_probability': (float, 0.0, 'chance a reply is dropped (connection closed)'),
+    'delay_probability': (float, 0.0, 'chance a reply is delayed by delay_s'),
+    'delay_s': (float, 0.0, 'delay of delayed replies, s'),
+    'garbage_probability': (float, 0.0, 'chance a reply is garbage'),
+    'reboot_after_s': (float, -1.0, 'reboot once this long after start, s (-1: never)'),
+    'reboot_downtime_s': (float, 0.5, 'connections dropped while rebooting, s'),
+    'stall_after_s': (float, -1.0, 'motor stalls this long after start, s (-1: never)'),
+    'stall_duration_s': (float, -1.0, 'how long the stall lasts, s (-1: for ever)'),
+    'outage_after_s': (float, -1.0, 'stop answering this long after start, s (-1: never)'),
+    'outage_duration_s': (float, 0.0, 'how long the outage lasts, s'),
+    'no_load_rpm': (float, MotorModel.no_load_rpm, 'output shaft speed at 6 V, rpm'),
+    'counts_per_rev': (float, MotorModel.counts_per_rev, 'encoder counts per output revolution'),
+    'load_fraction': (float, MotorModel.load_fraction, 'cable load as a fraction of stall torque'),
+    'battery_full_v': (float, BatteryModel.full_v, 'battery open-circuit voltage when full, V'),
+    'battery_capacity_mah': (float, BatteryModel.capacity_mah, 'battery capacity, mAh'),
+    'power_sample_period_s': (float, 0.05, 'interval of the power history samples, s'),
+}
+
+
+def _ros_params(argv: list[str]) -> list[str]:
+    """Translate ``--ros-args -p name:=value`` pairs to ``--name value``; drop the rest."""
+    out: list[str] = []
+    plain: list[str] = []
+    in_ros = False
+    i = 0
+    while i < len(argv):
+        arg = argv[i]
+        if arg == '--ros-args':
+            in_ros = True
+        elif arg == '--':
+            in_ros = False
+        elif in_ros and arg in ('-p', '--param') and i + 1 < len(argv):
+            name, sep, value = argv[i + 1].partition(':=')
+            if sep:
+                out += [f'--{name.replace("_", "-")}', value]
+            i += 1
+        elif in_ros and arg in ('-r', '--remap', '--params-file', '--log-level', '-e',
+                                '--enclave') and i + 1 < len(argv):
+            i += 1
+        elif not in_ros:
+            plain.append(arg)
+        i += 1
+    return plain + out
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog='sim_module', description='Simulated SoftSnap module speaking the firmware HTTP protocol.')
+    for name, (kind, default, text) in OPTIONS.items():
+        parser.add_argument(f'--{name.replace("_", "-")}', dest=name, type=kind, default=default,
+                            help=f'{text} (default {default})')
+    return parser
+
+
+def module_from_options(opts: argparse.Namespace, start_time: float) -> SimModule:
+    def when(value: float) -> float:
+        return math.inf if value < 0 else value
+
+    faults = Faults(
+        drop_probability=opts.drop_probability, delay_probability=opts.delay_probability,
+        delay_s=opts.delay_s, garbage_probability=opts.garbage_probability,
+        reboot_after_s=when(opts.reboot_after_s), reboot_downtime_s=opts.reboot_downtime_s,
+        stall_after_s=when(opts.stall_after_s), stall_duration_s=when(opts.stall_duration_s),
+        outage_after_s=when(opts.outage_after_s), outage_duration_s=opts.outage_duration_s,
+        seed=None if opts.seed < 0 else opts.seed)
+    motor = MotorModel(no_load_rpm=opts.no_load_rpm, counts_per_rev=opts.counts_per_rev,
+                       load_fraction=opts.load_fraction)
+    battery = BatteryModel(full_v=opts.battery_full_v, capacity_mah=opts.battery_capacity_mah)
+    return SimModule(motor=motor, battery=battery, faults=faults, start_time=start_time,
+                     power_sample_period_s=opts.power_sample_period_s)
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    parser = build_parser()
+    opts = parser.parse_args(_ros_params(argv))
+    try:
+        module = module_from_options(opts, time.monotonic())
+        server = SimServer(module, host=opts.host, port=opts.port)
+    except (ValueError, OSError) as exc:
+        parser.error(str(exc))
+    print(f'[sim_module] serving the firmware protocol on {server.host}:{server.port}', flush=True)
+
+    def stop(signum, frame):
+        server._stop.set()
+
+    # Explicit handlers: a shell starting us in the background may have ignored SIGINT.
+    signal.signal(signal.SIGINT, stop)
+    signal.signal(signal.SIGTERM, stop)
+    try:
+        server.serve_forever()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        server.stop()
+        print(f'[sim_module] stopped after {server.connections} connections', flush=True)
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
