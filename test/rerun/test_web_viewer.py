@@ -114,6 +114,7 @@ def colour_pixels(image: np.ndarray, rgb) -> int:
     return int((np.abs(body - np.asarray(rgb)).sum(axis=2) < COLOR_TOLERANCE).sum())
 
 
+@pytest.mark.timeout(1200)  # the first run may install Chromium (apt-get, ~100 MB)
 def test_web_viewer_shows_the_robot_offline(chromium, served_recording, tmp_path):
     sync_api = pytest.importorskip(
         'playwright.sync_api',
