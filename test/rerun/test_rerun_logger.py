@@ -208,14 +208,30 @@ def test_rate_parameter_limits_logging_per_module_and_source(
     sentinel = 100  # 2 s later: always logged, and the last message of the publisher
     pubs['predicted'].publish(robot_shape('predicted', sentinel, ['yellow', 'blue'], set(), poses))
     wait_for_rows(output, 'robot/yellow/predicted/spine', 5, ros_node)
+
+    # At run time: a negative rate is refused, 0 (log everything) is taken.
+    from rclpy.parameter import Parameter
+    from rclpy.parameter_client import AsyncParameterClient
+    client = AsyncParameterClient(ros_node, f'{NS}/rerun_logger')
+    assert ros_node.spin_until(lambda: client.services_are_ready(), 20.0)
+    results = {}
+    for value in (-1.0, 0.0):
+        future = client.set_parameters([Parameter('rate', value=value)])
+        assert ros_node.spin_until(future.done, 10.0)
+        results[value] = future.result().results[0].successful
+    assert results == {-1.0: False, 0.0: True}
+    for tick in range(sentinel + 1, sentinel + 4):  # 20 ms apart: all logged now
+        pubs['predicted'].publish(robot_shape('predicted', tick, ['yellow'], set(), poses))
+    wait_for_rows(output, 'robot/yellow/predicted/spine', 8, ros_node)
     assert proc.stop() == 0, log_of(proc)
 
     rrd = read_rrd(output)
-    expected = [STAMP0 + k * 100_000_000 for k in range(4)] + [STAMP0 + sentinel * PERIOD]
+    expected = ([STAMP0 + k * 100_000_000 for k in range(4)]
+                + [STAMP0 + tick * PERIOD for tick in range(sentinel, sentinel + 4)])
     assert rrd.times('robot/yellow/predicted/spine') == expected
     assert not any('blue' in e for e in rrd.entities)  # not in the modules parameter
-    # 21 messages with 2 modules each, of which blue is not wanted; 5 kept, 16 dropped.
-    assert '5 messages logged, 16 dropped by rate' in log_of(proc), log_of(proc)
+    # 24 yellow shapes (blue is not wanted): 8 kept, 16 dropped by the 10 Hz limit.
+    assert '8 messages logged, 16 dropped by rate' in log_of(proc), log_of(proc)
 
 
 def test_default_output_is_under_runs_with_robot_and_utc_time():
