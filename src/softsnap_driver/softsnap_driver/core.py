@@ -26,6 +26,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+#: A command counts as clamped only when it lies outside the allowed cable-length range
+#: by more than this (m): 1 nm, far below one encoder count, above float rounding.
+RANGE_TOL_M = 1e-9
+
 
 @dataclass(frozen=True)
 class TargetCommand:
@@ -117,7 +121,7 @@ class CableCalibration:
         low, high = self.count_range
         count = min(max(int(round(raw)), low), high)
         shortest, longest = self.length_range_m
-        clamped = not (shortest <= length_m <= longest)
+        clamped = not (shortest - RANGE_TOL_M <= length_m <= longest + RANGE_TOL_M)
         return TargetCommand(float(length_m), self.length_m(count), count, clamped)
 
 

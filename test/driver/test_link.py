@@ -1,0 +1,232 @@
+"""ModuleLink (the driver's worker) against a simulated module over loopback, no ROS."""
+import math
+import threading
+import time
+
+import pytest
+
+from softsnap_driver.core import CableCalibration
+from softsnap_driver.firmware import DEADBAND_COUNTS, Faults
+from softsnap_driver.link import LinkConfig, ModuleLink, NeedsCalibration
+
+CAL = CableCalibration(counts_per_mm=89.13, straight_length_m=0.198, max_contraction_m=0.080)
+
+
+class Log:
+    def __init__(self):
+        self.lines = []
+
+    def info(self, text):
+        self.lines.append(('info', text))
+
+    def warning(self, text):
+        self.lines.append(('warning', text))
+
+    def error(self, text):
+        self.lines.append(('error', text))
+
+    def text(self):
+        return '\n'.join(line for _, line in self.lines)
+
+
+@pytest.fixture
+def link_to():
+    links = []
+
+    def start(server, **overrides):
+        values = dict(host='127.0.0.1', port=server.port, calibration=CAL, pwm_power=255,
+                      poll_period_s=0.02, command_timeout_s=0.0, request_timeout_s=0.3,
+                      max_backoff_s=0.2)
+        values.update(overrides)
+        reports = []
+        log = Log()
+        link = ModuleLink(LinkConfig(**values), reports.append, log)
+        link.reports, link.log = reports, log
+        link.start()
+        links.append(link)
+        return link
+
+    yield start
+    for link in links:
+        link.stop()
+
+
+def wait_for(predicate, timeout=5.0):
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            if predicate():
+                return True
+        except (IndexError, AttributeError, TypeError):
+            pass  # no report yet
+        if time.monotonic() >= deadline:
+            return False
+        time.sleep(0.01)
+
+
+def last(link):
+    return link.reports[-1]
+
+
+def targets(server):
+    with server.lock:
+        return [r.target for r in server.module.received_targets]
+
+
+def test_tracks_a_changing_command_within_the_deadband(sim_server, link_to):
+    server = sim_server()
+    link = link_to(server)
+    deadband_m = (DEADBAND_COUNTS + 0.5) / CAL.counts_per_mm / 1000   # + rounding to a count
+    for length in (0.19, 0.15, 0.17, 0.125):
+        link.command(length)
+        assert wait_for(lambda: last(link).fresh and abs(last(link).measured_length_m - length) <= deadband_m + 1e-6)
+    assert targets(server)[-1] == CAL.command(0.125).count
+
+
+def test_commands_coalesce_latest_wins(sim_server, link_to):
+    server = sim_server(Faults(delay_probability=1.0, delay_s=0.05))
+    link = link_to(server)
+    for i in range(200):
+        link.command(0.198 - i * 0.0003)
+    final = CAL.command(0.198 - 199 * 0.0003).count
+    assert wait_for(lambda: targets(server) and targets(server)[-1] == final)
+    assert len(targets(server)) < 20        # not 200 requests queued up
+
+
+def test_nothing_beyond_the_range_reaches_the_module(sim_server, link_to):
+    server = sim_server()
+    link = link_to(server)
+    for length in (0.5, -1.0, 0.0, 0.117, 0.199, 1e9, -1e9, 0.15):
+        link.command(length)
+        time.sleep(0.03)
+    for bad in (math.nan, math.inf, -math.inf):
+        with pytest.raises(ValueError):
+            link.command(bad)
+    assert wait_for(lambda: targets(server) and targets(server)[-1] == CAL.command(0.15).count)
+    low, high = CAL.count_range
+    assert all(low <= t <= high for t in targets(server))
+    assert high in targets(server) and low in targets(server)
+    assert wait_for(lambda: last(link).counters.commands_refused == 3)
+    assert last(link).counters.commands_clamped == 7
+
+
+def test_stale_stream_stops_where_it_is(sim_server, link_to):
+    server = sim_server()
+    link = link_to(server, command_timeout_s=0.3, pwm_power=40)   # slow motion
+    link.command(0.118)
+    assert wait_for(lambda: last(link).counters.stale_stops == 1, 3.0)
+    with server.lock:
+        assert server.module.target == server.module.encoder_count   # reach
+        assert 0 < server.module.encoder_count < CAL.command(0.118).count - 100
+    assert 'no command' in last(link).last_error
+    assert any('no command' in text for level, text in link.log.lines if level == 'warning')
+    time.sleep(0.5)
+    assert last(link).counters.stale_stops == 1        # once per stream
+    link.command(0.19)                                 # a new stream moves again
+    assert wait_for(lambda: targets(server)[-1] == CAL.command(0.19).count)
+
+
+def test_offline_backoff_and_recovery(sim_server, link_to):
+    server = sim_server(Faults(outage_after_s=0.5, outage_duration_s=1.5))
+    link = link_to(server, request_timeout_s=0.1)
+    assert wait_for(lambda: not last(link).online, 3.0)
+    assert last(link).counters.request_failures >= 3
+    assert 'offline' in link.log.text()
+    offline_attempts = server.connections
+    link.command(0.17)                                 # queued while offline
+    assert wait_for(lambda: last(link).online and last(link).fresh, 5.0)
+    assert 'answers again' in link.log.text()
+    assert wait_for(lambda: targets(server) and targets(server)[-1] == CAL.command(0.17).count)
+    # Backoff: far fewer attempts than one per poll period during 1.5 s.
+    assert offline_attempts < 1.5 / 0.02 / 2
+
+
+def test_reboot_is_reported_and_the_module_held_until_calibrate(sim_server, link_to):
+    server = sim_server(Faults(reboot_after_s=1.0, reboot_downtime_s=0.2))
+    link = link_to(server)
+    link.command(0.16)
+    count = CAL.command(0.16).count
+    assert wait_for(lambda: last(link).status and abs(last(link).status.encoder_count - count) <= 30, 3)
+    assert wait_for(lambda: last(link).counters.reboots_detected == 1, 4.0)
+    report = last(link)
+    assert not report.calibrated and math.isnan(report.measured_length_m)
+    assert 'reboot' in report.last_error
+    assert any('reboot' in text for level, text in link.log.lines if level == 'warning')
+    sent_before = len(targets(server))
+    with pytest.raises(NeedsCalibration):
+        link.command(0.15)
+    time.sleep(0.3)
+    assert len(targets(server)) == sent_before          # old target not re-sent
+    with server.lock:
+        assert server.module.target == server.module.encoder_count == 0   # held
+    ok, message = link.request('calibrate')
+    assert ok and 'calibrated' in message
+    link.command(0.15)
+    assert wait_for(lambda: targets(server)[-1] == CAL.command(0.15).count)
+    assert last(link).counters.reboots_detected == 1
+
+
+def test_services_pause_resume_stop_calibrate(sim_server, link_to):
+    server = sim_server()
+    link = link_to(server, pwm_power=60)
+    assert link.request('pause') == (True, 'paused: module paused=True')
+    assert server.module.paused
+    ok, _ = link.request('resume')
+    assert ok and not server.module.paused
+    link.command(0.118)
+    assert wait_for(lambda: last(link).status.encoder_count > 500)
+    ok, message = link.request('stop')
+    assert ok and message.startswith('stopped at count')
+    with server.lock:
+        assert server.module.target == server.module.encoder_count
+    with pytest.raises(ValueError):
+        link.request('explode')
+
+
+def test_service_on_a_dead_module_fails_with_reason(free_port, link_to):
+    class Dead:
+        port = free_port
+
+    link = link_to(Dead(), request_timeout_s=0.1)
+    ok, message = link.request('pause')
+    assert not ok and 'refused' in message
+
+
+def test_random_faults_are_survived_and_counted(sim_server, link_to):
+    server = sim_server(Faults(drop_probability=0.15, garbage_probability=0.15,
+                               delay_probability=0.1, delay_s=0.4, seed=11))
+    link = link_to(server, request_timeout_s=0.2, offline_after_failures=20)
+    deadband_m = (DEADBAND_COUNTS + 0.5) / CAL.counts_per_mm / 1000   # + rounding to a count
+    for length in (0.17, 0.13):
+        link.command(length)
+        assert wait_for(lambda: last(link).fresh
+                        and abs(last(link).measured_length_m - length) <= deadband_m + 1e-6, 8.0)
+    assert last(link).counters.request_failures > 0
+    assert set(server.fault_counts) >= {'drop', 'garbage'}
+    assert link._thread.is_alive()
+    assert last(link).counters.reboots_detected == 0
+
+
+def test_stall_is_visible_as_no_progress(sim_server, link_to):
+    server = sim_server(Faults(stall_after_s=0.0, stall_duration_s=math.inf))
+    link = link_to(server)
+    link.command(0.15)
+    time.sleep(0.5)
+    report = last(link)
+    assert report.status.encoder_count == 0 and report.encoder_target == CAL.command(0.15).count
+    assert report.status.power_w > 2.0                  # stall current drawn
+
+
+def test_stop_sends_reach_on_shutdown(sim_server):
+    server = sim_server()
+    config = LinkConfig(host='127.0.0.1', port=server.port, calibration=CAL, pwm_power=40,
+                        poll_period_s=0.02, command_timeout_s=0.0)
+    reports = []
+    link = ModuleLink(config, reports.append, Log())
+    link.start()
+    link.command(0.118)
+    assert wait_for(lambda: len(targets(server)) == 1)
+    time.sleep(0.1)
+    link.stop()
+    with server.lock:
+        assert server.module.target == server.module.encoder_count != CAL.command(0.118).count
