@@ -106,7 +106,7 @@ def _check_name(module: str) -> None:
 def build_blueprint() -> rrb.Blueprint:
     """The layout: the assembled robot in 3D on the left, the time series on the right.
 
-    Built from wildcard paths, so one blueprint fits every robot and module count.
+    Each view takes a quantity subtree, so one blueprint fits every robot and module count.
     """
     def plot(title: str, quantity: str) -> rrb.TimeSeriesView:
         return rrb.TimeSeriesView(name=title, origin=f'{PLOTS_ROOT}/{quantity}')
