@@ -1,0 +1,794 @@
+"""Inverse design: the globally best threading and cable length for a desired module shape.
+
+Problem. A skeleton has ``n`` ribs and ``m`` holes per rib; a threading picks one hole per
+rib and the cable length sets the shape through the quasi-static model (minimum bending
+energy ``sum_i k_i a_i^2`` at the given total cable length). Given target bending angles
+``t`` (one per segment, rad), find the threading ``T`` and cable length ``L`` whose
+forward-solved angles ``a(T, L)`` minimise ``||a(T, L) - t||_2`` over every threading of
+the hole set and every cable length.
+
+Structure used. The cable tension ``lam`` (the Lagrange multiplier of the length
+constraint) is shared by all segments, and at a fixed tension each segment's equilibrium
+angle depends only on its own two holes and stiffness:
+``a_i = forward.segment_angle_at_tension(lam, d_i, d_{i+1}, s, k_i)``. Hence designs are
+parametrised by ``(T, lam)`` instead of ``(T, L)``; at fixed ``lam`` the best threading is
+a min-sum dynamic programme over the rib chain (``O(n m^2)``), and the cable length of a
+design is ``sum_i L(a_i)``, which decreases monotonically with the tension.
+
+Globality over the tension. Along each branch of the per-segment equilibrium, ``|a|``
+grows monotonically with the tension (stationarity ``2 k a = -lam L'(a)`` and stability
+give ``da/dlam`` the sign of ``a``). So on a tension interval ``[lo, hi]`` every angle lies
+between its values at the two ends (or, should its side change inside the interval,
+within ``[-max|a|, max|a|]``). The distance of the target to these angle intervals gives
+a lower bound of the cost of every threading on the interval; a k-best dynamic programme
+over these lower bounds bounds the k-th best cost on the interval. Branch and bound over
+the tension then splits every interval whose bound could still beat the incumbent, and
+each threading the bounds point at is refined by a 1-D search over the tension. On exit
+no threading of the allowed hole set, at any cable length, has an error below the
+returned one minus ``GLOBAL_TOL_RAD`` (``lower_bound`` reports the certified bound).
+
+The forward solver is the truth: every returned design is re-solved with
+``forward.solve_forward`` at its cable length and the reported angles, points and errors
+are those of that solve.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from typing import Mapping, Sequence
+
+import numpy as np
+from scipy import optimize
+
+from . import forward, geometry
+from .inverse_dp import kbest_chain
+
+__all__ = [
+    'DesignResult',
+    'design_threading',
+    'fit_angles_to_points',
+    'GLOBAL_TOL_RAD',
+]
+
+#: Optimality tolerance of the branch and bound: no design has an angle error (L2, rad)
+#: below the returned error minus this.
+GLOBAL_TOL_RAD = 1e-6
+#: Largest difference (rad) accepted between the tension-table angles of a design and
+#: the forward solve at its cable length before the design is flagged as off-branch.
+BRANCH_AGREEMENT_TOL_RAD = 1e-6
+#: Tension grid (per unit stiffness): geometric from MIN to MAX, plus zero (slack cable).
+INITIAL_TENSION_NODES = 64
+MIN_TENSION = 1e-4
+MAX_TENSION = 1e3  # grid top when no hole pair saturates (custom hole sets)
+#: Branch and bound stops after this many rounds of interval splitting (the certified
+#: lower bound is reported either way).
+MAX_BB_ROUNDS = 40
+#: Distance (mm) the first target point may lie from the base rib centre (the origin).
+ORIGIN_TOL_MM = 1e-6
+
+
+@dataclasses.dataclass(frozen=True)
+class DesignResult:
+    """One inverse design and, for the best one, its ranked alternatives.
+
+    Attributes
+    ----------
+    threading : ndarray, shape (n_ribs,)
+        Hole offset per rib, rib 0 first, in mm (positive: right side, -y).
+    holes : tuple of str
+        Hole name per rib.
+    cable_length : float
+        Cable length inside the module that produces the shape, in mm.
+    angles : ndarray, shape (n_segments,)
+        Forward-solved bending angle per segment, rad.
+    rib_centers : ndarray, shape (n_ribs, 2)
+        Forward-solved rib centres in the module base frame, mm.
+    error : float
+        L2 norm of ``angles - target_angles``, rad.
+    position_error : float
+        Largest distance between a rib centre of the design and that of the target
+        shape, mm.
+    alternatives : tuple of DesignResult
+        Next best distinct threadings, best first (empty on the alternatives themselves).
+    tension : float
+        Cable tension of the design per unit stiffness (the forward solve's multiplier).
+    target_angles : ndarray, shape (n_segments,)
+        The target (fitted from the target points when those were given), rad.
+    fit_error : float
+        Largest distance of the fitted target rib centres from the target polyline, mm
+        (0 for angle targets).
+    lower_bound : float
+        Certified lower bound of the error of any design allowed by the constraints, rad.
+    n_forward_solves : int
+        Calls of ``forward.solve_forward`` made by the design.
+    n_tension_nodes : int
+        Tensions at which the per-segment angle table was evaluated.
+    n_candidates : int
+        Threadings refined by the 1-D tension search.
+    converged : bool
+        True when the branch and bound closed the gap to ``GLOBAL_TOL_RAD``.
+    message : str
+        Human-readable summary, including any disagreement with the forward solver.
+    solve_time : float
+        Wall time of the design, s.
+    """
+
+    threading: np.ndarray
+    holes: tuple
+    cable_length: float
+    angles: np.ndarray
+    rib_centers: np.ndarray
+    error: float
+    position_error: float
+    alternatives: tuple = ()
+    tension: float = 0.0
+    target_angles: np.ndarray | None = None
+    fit_error: float = 0.0
+    lower_bound: float = 0.0
+    n_forward_solves: int = 0
+    n_tension_nodes: int = 0
+    n_candidates: int = 0
+    converged: bool = True
+    message: str = ''
+    solve_time: float = 0.0
+
+
+# --------------------------------------------------------------------------- inputs
+
+
+def _as_target_angles(target_angles, n_segments):
+    angles = np.asarray(target_angles, dtype=float)
+    if angles.ndim != 1:
+        raise ValueError(f'target_angles must be a 1-D sequence, got shape {angles.shape}')
+    if angles.size != n_segments:
+        raise ValueError(f'expected {n_segments} target angles (one per segment), '
+                         f'got {angles.size}')
+    if not np.all(np.isfinite(angles)):
+        raise ValueError(f'target_angles must be finite, got {angles.tolist()}')
+    return angles
+
+
+def _as_points(target_points):
+    points = np.asarray(target_points, dtype=float)
+    if points.ndim != 2 or points.shape[1] not in (2, 3) or points.shape[0] < 2:
+        raise ValueError('target_points must be an (N, 2) array of x, y in mm with N >= 2, '
+                         f'got shape {points.shape}')
+    if not np.all(np.isfinite(points)):
+        raise ValueError('target_points must be finite, got non-finite values at rows '
+                         f'{np.where(~np.all(np.isfinite(points), axis=1))[0].tolist()}')
+    if points.shape[1] == 3:
+        if np.any(np.abs(points[:, 2]) > ORIGIN_TOL_MM):
+            raise ValueError('target_points must lie in the bending plane (z = 0), got z up '
+                             f'to {np.max(np.abs(points[:, 2])):g} mm')
+        points = points[:, :2]
+    if np.hypot(*points[0]) > ORIGIN_TOL_MM:
+        raise ValueError('target_points must start at the base rib centre (0, 0), got '
+                         f'{points[0].tolist()} mm')
+    return points
+
+
+def _hole_table(skeleton):
+    names = list(skeleton.holes_mm)
+    if not names:
+        raise ValueError('the skeleton has an empty hole set')
+    offsets = np.array([float(skeleton.holes_mm[h]) for h in names])
+    return names, offsets
+
+
+def _allowed_mask(names, n_ribs, fixed_holes, forbidden_holes, allowed_holes):
+    index = {h: j for j, h in enumerate(names)}
+
+    def check(name, what):
+        if name not in index:
+            raise ValueError(f'{what}: unknown hole {name!r}, the skeleton has {names}')
+        return index[name]
+
+    mask = np.ones((n_ribs, len(names)), dtype=bool)
+    if allowed_holes is not None:
+        allowed_holes = [allowed_holes] if isinstance(allowed_holes, str) else allowed_holes
+        keep = np.zeros(len(names), dtype=bool)
+        for name in allowed_holes:
+            keep[check(name, 'allowed_holes')] = True
+        mask &= keep
+    forbidden_holes = [forbidden_holes] if isinstance(forbidden_holes, str) else forbidden_holes
+    for name in forbidden_holes or ():
+        mask[:, check(name, 'forbidden_holes')] = False
+    if fixed_holes:
+        if isinstance(fixed_holes, Mapping):
+            items = fixed_holes.items()
+        else:
+            if len(fixed_holes) != n_ribs:
+                raise ValueError(f'fixed_holes as a sequence needs one entry per rib: expected '
+                                 f'{n_ribs}, got {len(fixed_holes)}')
+            items = enumerate(fixed_holes)
+        for rib, name in items:
+            if name is None or name == '':
+                continue
+            rib = int(rib)
+            if not 0 <= rib < n_ribs:
+                raise ValueError(f'fixed_holes: rib index {rib} outside 0..{n_ribs - 1}')
+            j = check(name, f'fixed_holes[{rib}]')
+            if not mask[rib, j]:
+                raise ValueError(f'fixed_holes[{rib}] = {name!r} is forbidden or not allowed')
+            row = np.zeros(len(names), dtype=bool)
+            row[j] = True
+            mask[rib] &= row
+    empty = np.where(~mask.any(axis=1))[0]
+    if empty.size:
+        raise ValueError(f'no hole is allowed on rib(s) {empty.tolist()}')
+    return mask
+
+
+def _as_length_range(cable_length_range):
+    if cable_length_range is None:
+        return None
+    lo, hi = (float(v) for v in cable_length_range)
+    if not (np.isfinite(lo) and np.isfinite(hi)) or lo < 0 or hi < lo:
+        raise ValueError('cable_length_range must be (min_mm, max_mm) with '
+                         f'0 <= min <= max, got ({lo}, {hi})')
+    return lo, hi
+
+
+# --------------------------------------------------------------------------- target fitting
+
+
+def _resample(points, arc_mm):
+    """Points of the polyline at the given arc lengths (linear extrapolation past its end)."""
+    seg = np.diff(points, axis=0)
+    seg_len = np.hypot(seg[:, 0], seg[:, 1])
+    keep = seg_len > 0
+    seg, seg_len = seg[keep], seg_len[keep]
+    if seg_len.size == 0:
+        raise ValueError('target_points must not all coincide')
+    start = np.concatenate(([0.0], np.cumsum(seg_len)[:-1]))
+    j = np.clip(np.searchsorted(start, arc_mm, side='right') - 1, 0, seg_len.size - 1)
+    frac = (arc_mm - start[j]) / seg_len[j]
+    return points[:-1][keep][j] + frac[:, None] * seg[j]
+
+
+def _distance_to_polyline(query, points):
+    a, b = points[:-1], points[1:]
+    ab = b - a
+    denom = np.maximum(np.einsum('ij,ij->i', ab, ab), 1e-300)
+    rel = query[:, None, :] - a[None]
+    u = np.clip(np.einsum('kij,ij->ki', rel, ab) / denom, 0.0, 1.0)
+    nearest = a[None] + u[..., None] * ab[None]
+    return np.min(np.linalg.norm(query[:, None, :] - nearest, axis=2), axis=1)
+
+
+def fit_angles_to_points(target_points, n_segments, spacing_mm):
+    """Fit bending angles so that the rib centres lie on a target polyline.
+
+    Rib ``k`` sits at arc length ``k * spacing_mm`` along the spine, so the targets of the
+    rib centres are the polyline's points at those arc lengths (past its end, the last
+    polyline segment is extended). The angles are the least-squares fit of the rib
+    centres (``geometry.rib_centers``) to those points, started from the chord headings.
+
+    Parameters
+    ----------
+    target_points : array_like, shape (N, 2)
+        Polyline in the module base frame, mm, starting at the origin (rib 0 centre);
+        the spine leaves the base along +x.
+    n_segments : int
+        Bending segments (ribs - 1).
+    spacing_mm : float
+        Spine arc length between adjacent ribs, mm.
+
+    Returns
+    -------
+    angles : ndarray, shape (n_segments,)
+        Fitted bending angles, rad.
+    fit_error_mm : float
+        Largest distance of a fitted rib centre from the polyline, mm.
+    """
+    points = _as_points(target_points)
+    goal = _resample(points, spacing_mm * np.arange(n_segments + 1))
+    chord = np.diff(goal, axis=0)
+    heading = np.unwrap(np.arctan2(chord[:, 1], chord[:, 0]))
+    start = np.empty(n_segments)
+    theta = 0.0
+    for i in range(n_segments):  # chord i leaves rib i at heading theta + a_i / 2
+        start[i] = 2.0 * (heading[i] - theta)
+        theta += start[i]
+
+    def residual(angles):
+        return (geometry.rib_centers(angles, spacing_mm)[1:] - goal[1:]).ravel()
+
+    fit = optimize.least_squares(residual, start, xtol=1e-14, ftol=1e-14, gtol=1e-14)
+    angles = fit.x
+    fit_error = float(np.max(_distance_to_polyline(
+        geometry.rib_centers(angles, spacing_mm), points)))
+    return angles, fit_error
+
+
+# --------------------------------------------------------------------------- tension tables
+
+
+class _FastBranch:
+    """The forward solver's own per-segment branch, evaluated on many (tension, pair).
+
+    ``forward.segment_angle_at_tension`` rebuilds the branch profile of every broadcast
+    element; the inverse evaluates thousands of tensions on a handful of hole pairs, so
+    it reuses the forward module's memoised per-pair profile and its branch solve (the
+    same code, hence the same angles: ``test_fast_branch_matches_forward`` checks it).
+    Falls back to the public function if those internals change.
+    """
+
+    def __init__(self, tables, spacing):
+        self.mu, self.b, self.direction, self.d1, self.d2 = tables
+        self.spacing = spacing
+
+    @classmethod
+    def build(cls, d1, d2, spacing, contact_rad):
+        profile = getattr(forward, '_pair_profile', None)
+        solve = getattr(forward, '_branch_solve', None)
+        if profile is None or solve is None:
+            return None
+        try:
+            prof = [profile(float(x), float(y), float(spacing), float(contact_rad))
+                    for x, y in zip(d1, d2)]
+            tables = (np.stack([p['mu'] for p in prof]), np.stack([p['b'] for p in prof]),
+                      np.array([p['direction'] for p in prof], dtype=float),
+                      np.asarray(d1, float), np.asarray(d2, float))
+        except (KeyError, TypeError, ValueError):
+            return None
+        return cls(tables, float(spacing))
+
+    def __call__(self, mu, pair):
+        b = forward._branch_solve(mu, self.mu[pair], self.b[pair], self.direction[pair],
+                                  self.d1[pair], self.d2[pair], self.spacing)
+        return self.direction[pair] * b
+
+
+class _Problem:
+    """Per-design data shared by the table, bound and refinement steps."""
+
+    def __init__(self, skeleton, target, mask, length_range, n_best):
+        self.skeleton = skeleton
+        self.names, self.offsets = _hole_table(skeleton)
+        self.spacing = skeleton.spacing_mm
+        self.stiffness = skeleton.stiffness_array
+        # a(lam; k) depends on lam / k only: tabulate each distinct stiffness once.
+        self.unique_k, self.k_index = np.unique(self.stiffness, return_inverse=True)
+        self.target = target
+        self.mask = mask
+        self.length_range = length_range
+        self.n_best = n_best
+
+        self.contact_rad = skeleton.contact_angle_rad
+        m = self.offsets.size
+        d1, d2 = np.broadcast_arrays(self.offsets[:, None], self.offsets[None, :])
+        self.pair_d1, self.pair_d2 = d1.ravel(), d2.ravel()
+        self._fast = _FastBranch.build(self.pair_d1, self.pair_d2, self.spacing,
+                                       self.contact_rad)
+        self.pair_grid = np.arange(m * m).reshape(m, m)
+        branch = forward.segment_branch(self.pair_d1, self.pair_d2, self.spacing,
+                                        self.contact_rad)
+        #: Tension (per unit stiffness) beyond which no pair's angle changes any more.
+        finite = branch.end_tension[np.isfinite(branch.end_tension)]
+        self.saturation_tension = float(finite.max()) if finite.size else MAX_TENSION
+        self.end_angle = (branch.direction * branch.end_angle_rad).reshape(m, m)
+
+    def angles(self, lam, pair, k):
+        """Branch angles (rad) of hole pairs (flat indices) at tensions, broadcasting."""
+        lam, pair, k = np.broadcast_arrays(np.asarray(lam, float), np.asarray(pair), k)
+        if self._fast is not None:
+            return self._fast(lam / k, pair)
+        return forward.segment_angle_at_tension(lam, self.pair_d1[pair], self.pair_d2[pair],
+                                                self.spacing, k, self.contact_rad)
+
+    def table(self, lam):
+        """Angles and segment lengths (N, n_seg, m, m) at tensions lam (N,)."""
+        lam = np.asarray(lam, dtype=float)
+        finite = np.isfinite(lam)
+        a_u = self.angles(np.where(finite, lam, 0.0)[:, None, None, None],
+                          self.pair_grid[None, None],
+                          self.unique_k[None, :, None, None])
+        a_u = np.where(finite[:, None, None, None], a_u, self.end_angle)
+        a = a_u[:, self.k_index]
+        d1 = self.offsets[:, None]
+        d2 = self.offsets[None, :]
+        return a, geometry.segment_length(a, d1, d2, self.spacing)
+
+    def path_angles(self, paths, lam):
+        """Angles (..., n_seg) of threadings paths (..., n_ribs) at tensions lam (...)."""
+        m = self.offsets.size
+        pair = paths[..., :-1] * m + paths[..., 1:]
+        return self.angles(np.asarray(lam)[..., None], pair, self.stiffness)
+
+    def path_length(self, paths, angles):
+        d = self.offsets[paths]
+        return np.sum(geometry.segment_length(angles, d[..., :-1], d[..., 1:], self.spacing),
+                      axis=-1)
+
+    def feasible(self, length):
+        if self.length_range is None:
+            return np.ones(np.shape(length), dtype=bool)
+        lo, hi = self.length_range
+        return (length >= lo) & (length <= hi)
+
+
+def _angle_hull(a_lo, a_hi):
+    """Range of a monotone-in-|a| branch between its values at the interval ends."""
+    lo = np.minimum(a_lo, a_hi)
+    hi = np.maximum(a_lo, a_hi)
+    flip = (a_lo * a_hi) < 0.0
+    if np.any(flip):
+        big = np.maximum(np.abs(a_lo), np.abs(a_hi))
+        lo = np.where(flip, -big, lo)
+        hi = np.where(flip, big, hi)
+    return lo, hi
+
+
+# Lagrange multipliers (rad^2 per mm) tried for the cable-length bounds.
+_LENGTH_MULTIPLIERS = np.array([1e-4, 1e-3, 1e-2, 1e-1, 1.0, 10.0])
+
+
+# --------------------------------------------------------------------------- 1-D refinement
+
+
+_REFINE_SAMPLES = 9
+_REFINE_ROUNDS = 6
+_GAUSS_NEWTON_STEPS = 8
+
+
+def _refine(prob, paths, lam_lo, lam_hi, rounds=_REFINE_ROUNDS):
+    """Best tension of each threading on its bracket: sampling, then Gauss-Newton.
+
+    Returns (cost, lam) per threading; cost is inf where no tension in the bracket
+    meets the cable-length range.
+    """
+    n_c = paths.shape[0]
+    lo = np.asarray(lam_lo, dtype=float).copy()
+    hi = np.asarray(lam_hi, dtype=float).copy()
+    best_cost = np.full(n_c, np.inf)
+    best_lam = lo.copy()
+    u = np.linspace(0.0, 1.0, _REFINE_SAMPLES)
+
+    def evaluate(lam):
+        a = prob.path_angles(paths[:, None, :] if lam.ndim == 2 else paths, lam)
+        cost = np.sum((a - prob.target) ** 2, axis=-1)
+        if prob.length_range is not None:
+            length = prob.path_length(paths[:, None, :] if lam.ndim == 2 else paths, a)
+            cost = np.where(prob.feasible(length), cost, np.inf)
+        return cost, a
+
+    for _ in range(rounds):
+        geometric = lo > 0.0
+        lam = np.where(geometric[:, None],
+                       np.exp(np.log(np.where(geometric, lo, 1.0))[:, None]
+                              + u * np.log(np.where(geometric, hi / np.where(geometric, lo, 1.0),
+                                                    1.0))[:, None]),
+                       lo[:, None] + u * (hi - lo)[:, None])
+        cost, _ = evaluate(lam)
+        j = np.argmin(cost, axis=1)
+        rows = np.arange(n_c)
+        better = cost[rows, j] < best_cost
+        best_cost = np.where(better, cost[rows, j], best_cost)
+        best_lam = np.where(better, lam[rows, j], best_lam)
+        lo = lam[rows, np.maximum(j - 1, 0)]
+        hi = lam[rows, np.minimum(j + 1, _REFINE_SAMPLES - 1)]
+
+    # Gauss-Newton on the tension with da/dlam = -L'(a) / (2 k + lam L''(a)), kept
+    # inside the last bracket and accepted only where it lowers the cost.
+    d = prob.offsets[paths]
+    lam = best_lam.copy()
+    for _ in range(_GAUSS_NEWTON_STEPS):
+        a = prob.path_angles(paths, lam)
+        _, dl, d2l = geometry.segment_length_derivatives(a, d[:, :-1], d[:, 1:], prob.spacing)
+        denom = 2.0 * prob.stiffness + lam[:, None] * d2l
+        slope = np.where(denom > 0.0, -dl / np.where(denom > 0.0, denom, 1.0), 0.0)
+        res = a - prob.target
+        num = np.sum(res * slope, axis=1)
+        den = np.sum(slope * slope, axis=1)
+        step = np.where(den > 0.0, -num / np.where(den > 0.0, den, 1.0), 0.0)
+        trial = np.clip(lam + step, lo, hi)
+        cost, _ = evaluate(trial)
+        better = cost < best_cost
+        if not np.any(better):
+            break
+        best_cost = np.where(better, cost, best_cost)
+        best_lam = np.where(better, trial, best_lam)
+        lam = best_lam.copy()
+    return best_cost, best_lam
+
+
+# --------------------------------------------------------------------------- branch and bound
+
+
+class _Candidates:
+    """Threadings refined so far: best cost (rad^2) and tension per threading."""
+
+    def __init__(self, prob):
+        self.prob = prob
+        self.best = {}
+        self.polished = set()
+
+    def refine(self, paths, lam_lo, lam_hi, rounds=_REFINE_ROUNDS):
+        if len(paths) == 0:
+            return
+        paths = np.asarray(paths, dtype=np.int64)
+        cost, lam = _refine(self.prob, paths, np.asarray(lam_lo), np.asarray(lam_hi),
+                            rounds)
+        for path, c, x in zip(map(tuple, paths.tolist()), cost, lam):
+            if np.isfinite(c) and (path not in self.best or c < self.best[path][0]):
+                self.best[path] = (float(c), float(x))
+
+    def ranked(self):
+        return sorted(self.best.items(), key=lambda item: item[1][0])
+
+    def record_nodes(self, lam, a, seg_len):
+        """Exact k-best threadings at each tension node (length-feasible ones kept)."""
+        prob = self.prob
+        finite = np.isfinite(lam)
+        cost = (a - prob.target[None, :, None, None]) ** 2
+        if prob.length_range is not None:
+            # Steer the list towards feasible lengths: penalise the excess outside range.
+            lo, hi = prob.length_range
+            n_seg = prob.target.size
+            excess = (np.maximum(seg_len - hi / n_seg, 0.0)
+                      + np.maximum(lo / n_seg - seg_len, 0.0))
+            cost = cost + 1e-3 * excess
+        values, paths = kbest_chain(cost, prob.mask, prob.n_best)
+        seg = np.arange(prob.target.size)
+        for j in np.nonzero(finite)[0]:
+            for r in range(prob.n_best):
+                if not np.isfinite(values[j, r]):
+                    break
+                path = paths[j, r]
+                angles = a[j, seg, path[:-1], path[1:]]
+                length = seg_len[j, seg, path[:-1], path[1:]].sum()
+                if not prob.feasible(length):
+                    continue
+                c = float(np.sum((angles - prob.target) ** 2))
+                key = tuple(path.tolist())
+                if key not in self.best or c < self.best[key][0]:
+                    self.best[key] = (c, float(lam[j]))
+                    self.polished.discard(key)
+
+    def polish(self, n, final=False):
+        """Refine the tension of the n best threadings not refined since they changed."""
+        todo = [(p, x) for p, (_, x) in self.ranked()[:n] if final or p not in self.polished]
+        if not todo:
+            return
+        paths = [p for p, _ in todo]
+        lam = np.array([x for _, x in todo])
+        self.refine(paths, np.where(lam > 0, lam / 1.5, 0.0),
+                    np.where(lam > 0, lam * 1.5, 10 * MIN_TENSION),
+                    rounds=_REFINE_ROUNDS if final else 2)
+        self.polished.update(paths)
+
+    def thresholds(self, n, tol_rad):
+        """Squared (r-th best error - tol) for r = 1..n (inf while fewer are known)."""
+        errors = np.sqrt(sorted(c for c, _ in self.best.values())[:n])
+        out = np.full(n, np.inf)
+        out[:errors.size] = np.maximum(errors - tol_rad, 0.0) ** 2
+        return out
+
+    def kth_error(self, n):
+        costs = sorted(c for c, _ in self.best.values())
+        return math.sqrt(costs[n - 1]) if len(costs) >= n else math.inf
+
+
+def _tension_nodes(prob):
+    """Zero (slack), a geometric grid up to saturation, and infinity (every segment at
+    its branch end: rib contact for the authors' module)."""
+    k = prob.stiffness
+    top = prob.saturation_tension * k.max() * (1.0 + 1e-9)
+    inner = np.geomspace(MIN_TENSION * k.min(), top, INITIAL_TENSION_NODES)
+    return np.concatenate(([0.0], inner, [np.inf]))
+
+
+def _split(lam_lo, lam_hi):
+    """Midpoints in log-tension (towards zero and infinity for the end intervals)."""
+    safe_lo = np.where(lam_lo > 0.0, lam_lo, 1.0)
+    safe_hi = np.where(np.isfinite(lam_hi), lam_hi, 1.0)
+    mid = np.sqrt(safe_lo * safe_hi)
+    mid = np.where(lam_lo > 0.0, mid, 1e-3 * lam_hi)
+    return np.where(np.isfinite(lam_hi), mid, 10.0 * lam_lo)
+
+
+def _finite_bracket(lam_lo, lam_hi):
+    return lam_lo, np.where(np.isfinite(lam_hi), lam_hi, 10.0 * lam_lo)
+
+
+def _branch_and_bound(prob, tol_rad):
+    n_best = prob.n_best
+    cands = _Candidates(prob)
+    lam = _tension_nodes(prob)
+    a, seg_len = prob.table(lam)
+    n_nodes = lam.size
+    cands.record_nodes(lam, a, seg_len)
+    cands.polish(n_best)
+
+    iv = dict(lo=lam[:-1], hi=lam[1:], a_lo=a[:-1], a_hi=a[1:],
+              len_lo=seg_len[:-1], len_hi=seg_len[1:])
+    lower_bound_cost = math.inf
+    converged = True
+    rounds = 0
+    while iv['lo'].size:
+        rounds += 1
+        bounds = _interval_bounds(prob, iv)
+        thresholds = cands.thresholds(n_best, tol_rad)
+        # Prune an interval once, for every rank r, its r-th bound reaches the r-th best
+        # error found minus the tolerance: then at most r - 1 threadings can beat that
+        # error there, so every reported rank is within the tolerance of the true one.
+        keep = np.any(bounds < thresholds[None, :], axis=1)
+        done = ~keep
+        if np.any(done):
+            lower_bound_cost = min(lower_bound_cost, float(np.min(bounds[done, 0])))
+        if not np.any(keep):
+            break
+        if rounds >= MAX_BB_ROUNDS:
+            lower_bound_cost = min(lower_bound_cost, float(np.min(bounds[keep, 0])))
+            converged = False
+            break
+        iv = {key: value[keep] for key, value in iv.items()}
+        mid = _split(iv['lo'], iv['hi'])
+        a_mid, len_mid = prob.table(mid)
+        n_nodes += mid.size
+        cands.record_nodes(mid, a_mid, len_mid)
+        cands.polish(n_best)
+        iv = dict(lo=np.concatenate((iv['lo'], mid)), hi=np.concatenate((mid, iv['hi'])),
+                  a_lo=np.concatenate((iv['a_lo'], a_mid)),
+                  a_hi=np.concatenate((a_mid, iv['a_hi'])),
+                  len_lo=np.concatenate((iv['len_lo'], len_mid)),
+                  len_hi=np.concatenate((len_mid, iv['len_hi'])))
+    best = cands.kth_error(1)
+    lower = math.sqrt(max(lower_bound_cost, 0.0)) if math.isfinite(lower_bound_cost) else best
+    return cands, dict(lower_bound=min(lower, best), converged=converged, rounds=rounds,
+                       n_nodes=n_nodes, n_candidates=len(cands.best))
+
+
+def _interval_bounds(prob, iv):
+    """Lower bounds (B, K) of the k-best costs on each tension interval."""
+    lo, hi = _angle_hull(iv['a_lo'], iv['a_hi'])
+    t = prob.target[None, :, None, None]
+    gap = np.maximum(lo - t, 0.0) + np.maximum(t - hi, 0.0)
+    cost = gap * gap
+    bounds, _ = kbest_chain(cost, prob.mask, prob.n_best)
+    if prob.length_range is None:
+        return bounds
+    # Lagrangian relaxation of  sum len_hi <= L_max  and  sum len_lo >= L_min (segment
+    # lengths fall with tension): for any multiplier mu >= 0 the penalised k-best value
+    # minus the constant is a valid lower bound of the length-feasible k-best value.
+    l_min, l_max = prob.length_range
+    for mu in _LENGTH_MULTIPLIERS:
+        up, _ = kbest_chain(cost + mu * iv['len_hi'], prob.mask, prob.n_best)
+        bounds = np.maximum(bounds, up - mu * l_max)
+        down, _ = kbest_chain(cost - mu * iv['len_lo'], prob.mask, prob.n_best)
+        bounds = np.maximum(bounds, down + mu * l_min)
+    return bounds
+
+
+# --------------------------------------------------------------------------- public entry
+
+
+def design_threading(skeleton, target_angles=None, target_points=None, *, k=3,
+                     fixed_holes=None, forbidden_holes=(), allowed_holes=None,
+                     cable_length_range=None, tol_rad=GLOBAL_TOL_RAD):
+    """Globally best threading and cable length for a desired module shape.
+
+    Parameters
+    ----------
+    skeleton : Skeleton
+        Hole set, geometry and stiffness of the module.
+    target_angles : array_like, shape (n_segments,), optional
+        Target bending angle per segment, rad (counter-clockwise positive).
+    target_points : array_like, shape (N, 2), optional
+        Target curve in the module base frame, mm, starting at the origin (rib 0 centre),
+        spine leaving along +x. It is first fitted to angles (:func:`fit_angles_to_points`)
+        and the fit error is reported. Give exactly one of the two targets.
+    k : int
+        Number of ranked alternatives (distinct threadings) returned besides the best.
+    fixed_holes : mapping rib -> hole name, or sequence of names (None/'' = free), optional
+        Holes imposed on some ribs.
+    forbidden_holes : iterable of str
+        Holes no rib may use.
+    allowed_holes : iterable of str, optional
+        Restrict every rib to these holes (default: all holes of the skeleton).
+    cable_length_range : (float, float), optional
+        Allowed cable lengths ``(min_mm, max_mm)``.
+    tol_rad : float
+        Global optimality tolerance on the L2 angle error, rad.
+
+    Returns
+    -------
+    DesignResult
+        The best design with ``alternatives`` (up to ``k`` results, best first).
+
+    Raises
+    ------
+    ValueError
+        Bad target (NaN, wrong length, not starting at the origin), unknown or
+        over-constrained holes, bad length range, or no threading meets the constraints.
+
+    Examples
+    --------
+    >>> from softsnap_model import Skeleton
+    >>> sk = Skeleton(n_ribs=4, holes_mm={'L1': -3.0, 'R1': 3.0})
+    >>> res = design_threading(sk, target_angles=[-0.1, -0.1, -0.1], k=1)
+    >>> res.holes, len(res.alternatives), bool(res.error < 1e-9)
+    (('R1', 'R1', 'R1', 'R1'), 1, True)
+    """
+    started = time.perf_counter()
+    if not hasattr(skeleton, 'holes_mm') or not hasattr(skeleton, 'n_segments'):
+        raise ValueError(f'skeleton must be a Skeleton, got {type(skeleton).__name__}')
+    n_seg = skeleton.n_segments
+    if (target_angles is None) == (target_points is None):
+        raise ValueError('give exactly one of target_angles and target_points')
+    if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 0:
+        raise ValueError(f'k must be an integer >= 0, got {k!r}')
+    if isinstance(tol_rad, bool) or not isinstance(tol_rad, (int, float)) \
+            or not math.isfinite(tol_rad) or tol_rad < 0:
+        raise ValueError(f'tol_rad must be finite and >= 0, got {tol_rad!r}')
+    fit_error = 0.0
+    if target_points is not None:
+        target, fit_error = fit_angles_to_points(target_points, n_seg, skeleton.spacing_mm)
+    else:
+        target = _as_target_angles(target_angles, n_seg)
+    names, _ = _hole_table(skeleton)
+    mask = _allowed_mask(names, skeleton.n_ribs, fixed_holes, forbidden_holes, allowed_holes)
+    length_range = _as_length_range(cable_length_range)
+    prob = _Problem(skeleton, target, mask, length_range, int(k) + 1)
+
+    cands, stats = _branch_and_bound(prob, float(tol_rad))
+    if not cands.best:
+        raise ValueError('no threading allowed by the constraints reaches a cable length in '
+                         f'[{length_range[0]}, {length_range[1]}] mm')
+    cands.polish(prob.n_best, final=True)
+    designs, n_solves, off_branch = _verify(prob, cands.ranked(), prob.n_best, fit_error)
+    notes = [f'global to {tol_rad:g} rad: no allowed design has an angle error below '
+             f'{stats["lower_bound"]:.9g} rad' if stats['converged'] else
+             f'branch and bound stopped after {stats["rounds"]} rounds; certified lower '
+             f'bound {stats["lower_bound"]:.9g} rad']
+    if off_branch:
+        notes.append(f'{off_branch} design(s) forward-solved away from the tension-table '
+                     'branch; their forward-solved error is reported')
+    if target_points is not None:
+        notes.append(f'target curve fitted to angles within {fit_error:.3g} mm')
+    return dataclasses.replace(
+        designs[0], alternatives=tuple(designs[1:]), lower_bound=stats['lower_bound'],
+        n_forward_solves=n_solves, n_tension_nodes=stats['n_nodes'],
+        n_candidates=stats['n_candidates'], converged=stats['converged'],
+        message='; '.join(notes), solve_time=time.perf_counter() - started)
+
+
+def _verify(prob, ranked, n_wanted, fit_error):
+    """Forward-solve the best candidates and rank them by their forward-solved error."""
+    sk = prob.skeleton
+    target_points = geometry.rib_centers(prob.target, prob.spacing)
+    designs = []
+    n_solves = 0
+    off_branch = 0
+    for path, (_, lam) in ranked[:3 * n_wanted]:
+        path = np.asarray(path)
+        offsets = prob.offsets[path]
+        a_table = prob.path_angles(path, lam)
+        length = float(prob.path_length(path, a_table))
+        try:
+            solved = forward.solve_forward(sk, offsets, length)
+        except forward.InfeasibleLengthError as exc:
+            # At infinite tension (every segment at contact) the length is the reachable
+            # infimum; solve just above it.
+            low = exc.reachable_range_mm[0] if hasattr(exc, 'reachable_range_mm') else length
+            length = float(low) + 1e-7
+            solved = forward.solve_forward(sk, offsets, length)
+        n_solves += 1
+        angles = np.asarray(solved.angles, dtype=float)
+        agrees = np.max(np.abs(angles - a_table)) <= BRANCH_AGREEMENT_TOL_RAD
+        off_branch += not agrees
+        points = np.asarray(solved.rib_centers, dtype=float)
+        designs.append(DesignResult(
+            threading=offsets, holes=tuple(prob.names[j] for j in path),
+            cable_length=length, angles=angles, rib_centers=points,
+            error=float(np.linalg.norm(angles - prob.target)),
+            position_error=float(np.max(np.linalg.norm(points - target_points, axis=1))),
+            tension=float(solved.tension), target_angles=prob.target.copy(),
+            fit_error=fit_error, converged=bool(solved.converged),
+            message='' if solved.converged else f'forward solve: {solved.message}'))
+        if len(designs) >= n_wanted and off_branch == 0:
+            break
+    designs.sort(key=lambda d: d.error)
+    return designs[:n_wanted], n_solves, off_branch
