@@ -19,7 +19,10 @@ def test_length_to_count_known_answers(length_m, count):
     assert CAL.length_m(cmd.count) == pytest.approx(length_m, abs=1 / 89.13 / 1000)
 
 
-@pytest.mark.parametrize('length_m, count', [(0.30, 0), (0.0, 7130), (-5.0, 7130), (1e300, 0)])
+@pytest.mark.parametrize('length_m, count', [
+    (0.30, 0), (0.0, 7130), (-5.0, 7130), (1e300, 0),
+    (1.7e308, 0), (-1.7e308, 7130),     # regression: huge lengths overflowed the count
+])
 def test_out_of_range_commands_are_clamped_inside(length_m, count):
     cmd = CAL.command(length_m)
     assert cmd.clamped and cmd.count == count

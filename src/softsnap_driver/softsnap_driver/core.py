@@ -116,12 +116,13 @@ class CableCalibration:
             raise ValueError(f'cable length must be a number in metres, got {length_m!r}')
         if not math.isfinite(length_m):
             raise ValueError(f'cable length must be finite, got {length_m!r}')
-        contraction_mm = (self.straight_length_m - length_m) * 1000.0
-        raw = self.count_sign * contraction_mm * self.counts_per_mm
-        low, high = self.count_range
-        count = min(max(int(round(raw)), low), high)
         shortest, longest = self.length_range_m
         clamped = not (shortest - RANGE_TOL_M <= length_m <= longest + RANGE_TOL_M)
+        # Clamp the length first (huge values would overflow the count), then the count.
+        bounded_m = min(max(float(length_m), shortest), longest)
+        raw = self.count_sign * (self.straight_length_m - bounded_m) * 1000.0 * self.counts_per_mm
+        low, high = self.count_range
+        count = min(max(int(round(raw)), low), high)
         return TargetCommand(float(length_m), self.length_m(count), count, clamped)
 
 

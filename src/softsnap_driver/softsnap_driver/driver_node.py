@@ -148,6 +148,8 @@ class DriverNode(Node):
             self.link.command(msg.cable_length)
         except ValueError:
             pass  # counted, logged (throttled) and reported in the state by the link
+        except Exception as exc:  # noqa: BLE001 - no input may take the driver down
+            self.get_logger().error(f'command {msg.cable_length!r} not handled: {exc!r}')
 
     def _trigger_callback(self, kind: str):
         def callback(request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:

@@ -1,0 +1,206 @@
+"""driver_node across processes: tracking, services, bad inputs, faults, parameters."""
+import math
+import time
+
+import pytest
+
+from softsnap_driver.firmware import DEADBAND_COUNTS, Faults
+
+pytestmark = pytest.mark.ros
+
+COUNTS_PER_MM = 89.13
+STRAIGHT_M = 0.198
+MAX_CONTRACTION_M = 0.080
+NS = '/robot'
+
+
+def driver_args(port, module='m1', **params):
+    values = dict(module=module, port=port, counts_per_mm=COUNTS_PER_MM,
+                  straight_length_m=STRAIGHT_M, max_contraction_m=MAX_CONTRACTION_M,
+                  pwm_power=255, poll_rate_hz=20.0, command_timeout_s=0.0, request_timeout_s=0.3)
+    values.update(params)
+    args = ['--ros-args', '-r', f'__ns:={NS}']
+    for name, value in values.items():
+        args += ['-p', f'{name}:={value}']
+    return args
+
+
+class ModuleProbe:
+    """In-test view of one driven module: its topics and services."""
+
+    def __init__(self, node, module='m1'):
+        from softsnap_interfaces.msg import CableLength, ModuleState
+        from std_srvs.srv import Trigger
+        self.node = node
+        self.states = []
+        self.measured = []
+        base = f'{NS}/{module}'
+        node.create_subscription(ModuleState, f'{base}/state', self.states.append, 50)
+        node.create_subscription(CableLength, f'{base}/cable_length/measured', self.measured.append, 50)
+        self.publisher = node.create_publisher(CableLength, f'{base}/cable_length/command', 10)
+        self.clients = {kind: node.create_client(Trigger, f'{base}/{kind}')
+                        for kind in ('calibrate', 'pause', 'resume', 'stop')}
+        self.CableLength = CableLength
+        self.Trigger = Trigger
+
+    def wait_ready(self, timeout=20.0):
+        assert self.node.spin_until(
+            lambda: self.states and self.publisher.get_subscription_count() > 0, timeout), \
+            'driver not up: no state or command subscription'
+
+    def command(self, length_m):
+        msg = self.CableLength()
+        msg.header.stamp = self.node.get_clock().now().to_msg()
+        msg.cable_length = float(length_m)
+        self.publisher.publish(msg)
+
+    def call(self, kind):
+        return self.node.call(self.clients[kind], self.Trigger.Request(), 15.0)
+
+    def last(self):
+        return self.states[-1]
+
+    def wait_state(self, predicate, timeout=10.0):
+        return self.node.spin_until(lambda: bool(self.states) and predicate(self.states[-1]), timeout)
+
+
+def within_deadband(measured_m, commanded_m):
+    return abs(measured_m - commanded_m) <= (DEADBAND_COUNTS + 0.5) / COUNTS_PER_MM / 1000
+
+
+def test_tracks_commands_and_serves_services_with_sim_module_process(start_node, ros_node, free_port):
+    sim = start_node('softsnap_driver', 'sim_module', '--ros-args', '-p', f'port:={free_port}')
+    driver = start_node('softsnap_driver', 'driver_node', *driver_args(free_port))
+    probe = ModuleProbe(ros_node)
+    probe.wait_ready()
+    assert probe.last().online and probe.last().module == 'm1'
+    for length in (0.19, 0.14, 0.16, 0.125):          # a changing command
+        probe.command(length)
+        assert ros_node.spin_until(lambda: probe.measured and within_deadband(
+            probe.measured[-1].cable_length, length), 10.0), f'did not reach {length} m'
+    state = probe.last()
+    assert state.encoder_target == round((STRAIGHT_M - 0.125) * 1000 * COUNTS_PER_MM)
+    assert 3.0 < state.battery_voltage < 4.3 and state.motor_power == 255
+    assert probe.measured[-1].header.frame_id == 'm1'
+
+    response = probe.call('pause')
+    assert response.success, response.message
+    assert probe.wait_state(lambda s: s.paused)
+    assert probe.call('resume').success
+    probe.command(0.19)
+    assert probe.call('stop').success
+    assert probe.call('calibrate').success
+    assert probe.wait_state(lambda s: s.encoder_count == 0 and s.measured_cable_length == pytest.approx(STRAIGHT_M))
+
+    assert driver.alive() and sim.alive()
+    assert driver.stop() == 0          # SIGINT: clean exit
+    assert sim.stop() == 0
+
+
+def test_bad_inputs_never_reach_the_module_nor_crash_the_node(start_node, ros_node, sim_server):
+    server = sim_server()
+    driver = start_node('softsnap_driver', 'driver_node', *driver_args(server.port))
+    probe = ModuleProbe(ros_node)
+    probe.wait_ready()
+    for length in (math.nan, math.inf, -math.inf, 5.0, -1.0, 0.0, 0.117, 1e308, -1e308, 0.15):
+        probe.command(length)
+    assert probe.wait_state(lambda s: s.commands_refused == 3 and s.commands_clamped == 6), \
+        probe.last()
+    assert ros_node.spin_until(lambda: probe.measured and within_deadband(probe.measured[-1].cable_length, 0.15), 10)
+    with server.lock:
+        sent = [r.target for r in server.module.received_targets]
+    high = math.floor(MAX_CONTRACTION_M * 1000 * COUNTS_PER_MM + 1e-9)
+    assert sent and all(0 <= t <= high for t in sent), sent
+    assert 'clamped' in probe.last().last_error or 'refused' in probe.last().last_error
+    assert driver.alive()
+    assert 'refused' in driver.output()
+
+
+def test_faults_are_survived_and_reported(start_node, ros_node, sim_server):
+    server = sim_server(Faults(drop_probability=0.1, garbage_probability=0.1,
+                               delay_probability=0.05, delay_s=0.5, seed=5))
+    driver = start_node('softsnap_driver', 'driver_node',
+                        *driver_args(server.port, offline_after_failures=3, max_backoff_s=0.5))
+    probe = ModuleProbe(ros_node)
+    probe.wait_ready()
+    probe.command(0.15)
+    assert ros_node.spin_until(lambda: probe.measured and within_deadband(probe.measured[-1].cable_length, 0.15), 10)
+    assert probe.wait_state(lambda s: s.request_failures > 0)
+
+    # Reboot: the count falls back to 0 far from the target.
+    with server.lock:
+        server.module.faults.drop_probability = server.module.faults.garbage_probability = 0.0
+        server.module.faults.delay_probability = 0.0
+        server.module.reboot(server.clock())
+        sent_before = len(server.module.received_targets)
+    assert probe.wait_state(lambda s: s.reboots_detected == 1)
+    assert 'reboot' in probe.last().last_error
+    assert math.isnan(probe.last().measured_cable_length)
+    probe.command(0.14)                                 # refused until calibrated
+    assert probe.wait_state(lambda s: s.commands_refused >= 1)
+    with server.lock:
+        assert len(server.module.received_targets) == sent_before    # nothing re-sent
+        assert server.module.target == server.module.encoder_count == 0
+    assert 'reboot detected' in driver.output()
+    assert probe.call('calibrate').success
+    probe.command(0.14)
+    assert ros_node.spin_until(lambda: within_deadband(probe.measured[-1].cable_length, 0.14), 10)
+
+    # Outage: offline with backoff, then back.
+    with server.lock:
+        server.module.faults.outage_after_s = server.module.since_start(server.clock())
+        server.module.faults.outage_duration_s = 2.0
+    assert probe.wait_state(lambda s: not s.online, 10)
+    assert probe.wait_state(lambda s: s.online, 10)
+
+    # Stall: target set, no motion, power drawn.
+    with server.lock:
+        server.module.faults.stall_after_s = 0.0
+    probe.command(0.19)
+    assert probe.wait_state(lambda s: s.encoder_target == round((STRAIGHT_M - 0.19) * 1000 * COUNTS_PER_MM)
+                            and s.power > 2.0, 5)
+    assert driver.alive()
+
+
+def test_stale_command_stream_stops_the_module(start_node, ros_node, sim_server):
+    server = sim_server()
+    start_node('softsnap_driver', 'driver_node',
+               *driver_args(server.port, command_timeout_s=0.5, pwm_power=40))
+    probe = ModuleProbe(ros_node)
+    probe.wait_ready()
+    probe.command(0.118)
+    assert probe.wait_state(lambda s: s.stale_stops == 1, 10)
+    with server.lock:
+        assert server.module.target == server.module.encoder_count
+    assert 'no command' in probe.last().last_error
+
+
+def test_parameters_are_validated(start_node, ros_node, sim_server, tmp_path):
+    from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+    from rcl_interfaces.srv import SetParameters
+    server = sim_server()
+    start_node('softsnap_driver', 'driver_node', *driver_args(server.port, module='yellow'))
+    probe = ModuleProbe(ros_node, 'yellow')
+    probe.wait_ready()
+    client = ros_node.create_client(SetParameters, f'{NS}/yellow_driver/set_parameters')
+
+    def set_param(name, kind, **value):
+        request = SetParameters.Request(parameters=[
+            Parameter(name=name, value=ParameterValue(type=kind, **value))])
+        return ros_node.call(client, request, 15.0).results[0]
+
+    assert not set_param('pwm_power', ParameterType.PARAMETER_INTEGER, integer_value=300).successful
+    result = set_param('max_contraction_m', ParameterType.PARAMETER_DOUBLE, double_value=0.5)
+    assert not result.successful and 'max_contraction_m' in result.reason
+    assert not set_param('port', ParameterType.PARAMETER_INTEGER, integer_value=81).successful
+    assert set_param('max_contraction_m', ParameterType.PARAMETER_DOUBLE, double_value=0.01).successful
+    probe.command(0.1)                                  # now clamped to 10 mm contraction
+    assert ros_node.spin_until(lambda: probe.measured and within_deadband(probe.measured[-1].cable_length, 0.188), 10)
+
+    bad = start_node('softsnap_driver', 'driver_node', *driver_args(server.port, module='bad',
+                                                                    max_contraction_m=0.5))
+    deadline = time.monotonic() + 20
+    while bad.alive() and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not bad.alive() and bad.proc.returncode == 2
+    assert 'max_contraction_m' in bad.output()
