@@ -24,6 +24,7 @@ setup(
         'console_scripts': [
             'gait_node = softsnap_gaits.gait_node:main',
             'rerun_logger = softsnap_gaits.rerun_logger:main',
+            'demo = softsnap_gaits.demo:main',
         ],
     },
 )

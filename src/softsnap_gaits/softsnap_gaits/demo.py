@@ -1,0 +1,345 @@
+"""End-to-end demo: run a whole robot as separate ROS 2 processes, then summarise.
+
+``make demo`` (or ``.venv/bin/python -m softsnap_gaits.demo --scene snake --seconds 20``,
+or ``ros2 run softsnap_gaits demo``) starts the graph of :func:`softsnap_gaits.graph.robot_graph`:
+one simulated module and one driver per module, the model node, the gait node and the
+rerun logger, each its own OS process talking over ROS 2. It runs the scene's gait for a
+fixed time, stops every process (also on Ctrl-C or when a node crashes; no orphans:
+each child runs in its own process group, which is signalled and reaped), and prints a
+summary: commands sent, shapes predicted, tracking error between the commanded and the
+predicted shape, solver time, messages dropped, and the path of the ``.rrd`` recording.
+
+The runner observes the robot with its own rclpy node; it holds no science itself (tip
+positions come from :func:`softsnap_model.geometry.rib_centers`).
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import datetime as dt
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from softsnap_model.geometry import rib_centers
+from softsnap_model.scene import SceneError, load_scene
+
+from .graph import NodeSpec, robot_graph
+
+STOP_TIMEOUT_S = 10.0  # per process, after SIGINT, before SIGKILL
+READY_TIMEOUT_S = 60.0  # the whole graph up: discovery + first predicted shapes
+
+
+@dataclasses.dataclass
+class ModuleStats:
+    """What the observer saw of one module (counts; errors in mm; times in s)."""
+
+    commands: int = 0
+    lost: int = 0
+    first_command_s: float = math.nan
+    last_command_s: float = math.nan
+    measured: int = 0
+    commanded_shapes: int = 0
+    predicted_shapes: int = 0
+    tip_errors_mm: list = dataclasses.field(default_factory=list)
+    solve_times_s: list = dataclasses.field(default_factory=list)
+    last_commanded_angles: np.ndarray | None = None
+    state: object = None
+
+
+class Process:
+    """A node in its own process group, with its output in a log file."""
+
+    def __init__(self, spec: NodeSpec, log_dir: Path, env: dict[str, str]):
+        from ament_index_python.packages import get_package_prefix
+        self.spec = spec
+        exe = Path(get_package_prefix(spec.package)) / 'lib' / spec.package / spec.executable
+        self.log_path = log_dir / f'{spec.name}.log'
+        self._log = open(self.log_path, 'wb')
+        self.popen = subprocess.Popen([str(exe), *spec.ros_args()], stdout=self._log,
+                                      stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                                      env=env, start_new_session=True)
+
+    def signal(self, sig: int) -> None:
+        if self.popen.poll() is None:
+            try:
+                os.killpg(self.popen.pid, sig)
+            except ProcessLookupError:
+                pass
+
+    def tail(self, lines: int = 15) -> str:
+        if not self._log.closed:
+            self._log.flush()
+        text = self.log_path.read_text(errors='replace').splitlines()
+        return '\n'.join(text[-lines:])
+
+    def close(self) -> None:
+        self._log.close()
+
+
+class Observer:
+    """An rclpy node that counts and measures what flows through the robot's topics."""
+
+    def __init__(self, scene, namespace: str):
+        import rclpy
+        from softsnap_interfaces.msg import CableLength, ModelDiagnostics, ModuleShape, ModuleState
+
+        self.scene = scene
+        self.stats = {m.name: ModuleStats() for m in scene.modules}
+        self.diagnostics = None
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context)
+        self.node = rclpy.create_node('demo_observer', namespace=namespace, context=self.context)
+        from rclpy.executors import SingleThreadedExecutor
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.spacing_mm = scene.skeleton.spacing_mm
+        from rclpy.event_handler import SubscriptionEventCallbacks
+
+        def subscribe(msg_type, topic, callback, s):
+            # DDS reports messages it lost on the way (message_lost event): "dropped".
+            events = SubscriptionEventCallbacks(
+                message_lost=lambda status, s=s: setattr(s, 'lost', s.lost + status.total_count_change))
+            self.node.create_subscription(msg_type, topic, callback, 100, event_callbacks=events)
+
+        for m in scene.modules:
+            s = self.stats[m.name]
+            subscribe(CableLength, f'{m.name}/cable_length/command',
+                      lambda msg, s=s: self._command(s), s)
+            subscribe(CableLength, f'{m.name}/cable_length/measured',
+                      lambda msg, s=s: setattr(s, 'measured', s.measured + 1), s)
+            subscribe(ModuleShape, f'{m.name}/shape/commanded',
+                      lambda msg, s=s: self._commanded(s, msg), s)
+            subscribe(ModuleShape, f'{m.name}/shape/predicted',
+                      lambda msg, s=s: self._predicted(s, msg), s)
+            self.node.create_subscription(ModuleState, f'{m.name}/state',
+                                          lambda msg, s=s: setattr(s, 'state', msg), 10)
+        self.node.create_subscription(ModelDiagnostics, 'model/diagnostics',
+                                      lambda msg: setattr(self, 'diagnostics', msg), 10)
+
+    def _command(self, s: ModuleStats) -> None:
+        now = time.monotonic()
+        s.commands += 1
+        if math.isnan(s.first_command_s):
+            s.first_command_s = now
+        s.last_command_s = now
+
+    def _tip_mm(self, angles) -> np.ndarray:
+        return rib_centers(np.asarray(angles, dtype=float), self.spacing_mm)[-1]
+
+    def _commanded(self, s: ModuleStats, msg) -> None:
+        s.commanded_shapes += 1
+        s.last_commanded_angles = np.asarray(msg.angles, dtype=float)
+        if msg.solve_time > 0.0:
+            s.solve_times_s.append(msg.solve_time)
+
+    def _predicted(self, s: ModuleStats, msg) -> None:
+        s.predicted_shapes += 1
+        if msg.solve_time > 0.0:
+            s.solve_times_s.append(msg.solve_time)
+        if s.last_commanded_angles is not None and len(msg.angles):
+            error = np.linalg.norm(self._tip_mm(msg.angles) - self._tip_mm(s.last_commanded_angles))
+            s.tip_errors_mm.append(float(error))
+
+    def spin_for(self, seconds: float) -> None:
+        deadline = time.monotonic() + seconds
+        while time.monotonic() < deadline:
+            self.executor.spin_once(timeout_sec=min(0.05, max(0.0, deadline - time.monotonic())))
+
+    def ready(self) -> bool:
+        return all(s.predicted_shapes > 0 for s in self.stats.values())
+
+    def reset(self) -> None:
+        """Start counting afresh (after the start-up phase)."""
+        # In place: the subscription callbacks hold these very objects.
+        for stats in self.stats.values():
+            kept = stats.last_commanded_angles, stats.state
+            stats.__init__()
+            stats.last_commanded_angles, stats.state = kept
+
+    def close(self) -> None:
+        import rclpy
+        self.executor.shutdown()
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+
+
+def summarise(scene, observer: Observer, seconds: float, recording: Path | None, exit_codes: dict[str, int | None]) -> dict:
+    """The demo's summary as a plain dict (printed as a table, or JSON with --json)."""
+    modules = {}
+    for name, s in observer.stats.items():
+        span = s.last_command_s - s.first_command_s if s.commands > 1 else 0.0
+        errors = np.asarray(s.tip_errors_mm) if s.tip_errors_mm else np.array([math.nan])
+        state = s.state
+        modules[name] = {
+            'commands_received': s.commands,
+            'command_rate_hz': (s.commands - 1) / span if span > 0 else 0.0,
+            'messages_lost': s.lost,
+            'measured_lengths': s.measured,
+            'commanded_shapes': s.commanded_shapes,
+            'predicted_shapes': s.predicted_shapes,
+            'tip_error_mm_mean': float(np.mean(errors)),
+            'tip_error_mm_max': float(np.max(errors)),
+            'solve_time_us_mean': float(np.mean(s.solve_times_s) * 1e6) if s.solve_times_s else math.nan,
+            'online': bool(state.online) if state is not None else False,
+            'battery_v': float(state.battery_voltage) if state is not None else math.nan,
+            'request_failures': int(state.request_failures) if state is not None else 0,
+        }
+    diag = observer.diagnostics
+    return {
+        'scene': scene.name, 'seconds': seconds, 'modules': modules,
+        'model': None if diag is None else {
+            'solves': diag.solves, 'skipped_unchanged': diag.skipped_unchanged,
+            'skipped_duplicate': diag.skipped_duplicate, 'refused': diag.refused},
+        'recording': None if recording is None else str(recording),
+        'recording_bytes': recording.stat().st_size if recording and recording.exists() else 0,
+        'exit_codes': exit_codes,
+    }
+
+
+def print_summary(summary: dict) -> None:
+    print(f"\nSoftSnap demo: {summary['scene']}, {summary['seconds']:g} s of gait "
+          "(tip error: commanded shape versus the shape predicted from the measured length; "
+          "lost: messages DDS reported lost to the observer)")
+    header = (f"{'module':10s} {'cmds':>6s} {'Hz':>5s} {'lost':>4s} {'measured':>8s} {'shapes c/p':>11s} "
+              f"{'tip err mean/max mm':>20s} {'solve µs':>9s} {'online':>6s} {'batt V':>6s}")
+    print(header)
+    print('-' * len(header))
+    for name, m in summary['modules'].items():
+        print(f"{name:10s} {m['commands_received']:6d} {m['command_rate_hz']:5.1f} {m['messages_lost']:4d} "
+              f"{m['measured_lengths']:8d} {m['commanded_shapes']:5d}/{m['predicted_shapes']:<5d} "
+              f"{m['tip_error_mm_mean']:9.2f}/{m['tip_error_mm_max']:<9.2f} "
+              f"{m['solve_time_us_mean']:10.0f} {str(m['online']):>6s} {m['battery_v']:6.2f}")
+    if summary['model']:
+        d = summary['model']
+        print(f"model node: {d['solves']} solves, {d['skipped_unchanged']} unchanged lengths and "
+              f"{d['skipped_duplicate']} duplicate modules skipped, {d['refused']} refused")
+    crashed = {k: v for k, v in summary['exit_codes'].items() if v not in (0, None, -2, 130)}
+    print('processes: all stopped cleanly' if not crashed else f'processes with errors: {crashed}')
+    if summary['recording']:
+        print(f"recording: {summary['recording']} ({summary['recording_bytes'] / 1024:.0f} KiB); "
+              f"open it with: .venv/bin/rerun {summary['recording']}")
+
+
+def run(args: argparse.Namespace) -> int:
+    scene = load_scene(args.scene)
+    stamp = dt.datetime.now(dt.timezone.utc).strftime('%Y%m%dT%H%M%SZ')
+    run_dir = Path(args.run_dir or Path('runs') / f'{scene.name}-{stamp}')
+    run_dir.mkdir(parents=True, exist_ok=True)
+    recording = None if args.no_rerun else (Path(args.output) if args.output
+                                            else run_dir / f'{scene.name}.rrd').resolve()
+    specs = robot_graph(scene, simulate=not args.real, gait=args.gait,
+                        gait_rate_hz=args.gait_rate, model_rate_hz=args.model_rate,
+                        recording=recording, rerun=not args.no_rerun)
+    env = dict(os.environ, PYTHONUNBUFFERED='1')
+    env.setdefault('ROS_HOME', str(run_dir / 'ros_home'))
+    if not args.real:  # a simulated robot needs no traffic beyond this machine
+        env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+        os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+
+    stop_requested = []
+
+    def request_stop(signum, _frame):
+        stop_requested.append(signum)
+
+    old_handlers = {sig: signal.signal(sig, request_stop) for sig in (signal.SIGINT, signal.SIGTERM)}
+    processes: list[Process] = []
+    observer = None
+    crashed: list[Process] = []
+    try:
+        print(f'starting {len(specs)} processes for {scene.name} '
+              f'({len(scene.modules)} modules; logs in {run_dir})', flush=True)
+        observer = Observer(scene, f'/{scene.name}')
+        for spec in specs:
+            processes.append(Process(spec, run_dir, env))
+
+        def check_children() -> bool:
+            for p in processes:
+                if p.popen.poll() is not None and p not in crashed:
+                    crashed.append(p)
+            return not crashed and not stop_requested
+
+        deadline = time.monotonic() + READY_TIMEOUT_S
+        while check_children() and not observer.ready() and time.monotonic() < deadline:
+            observer.spin_for(0.1)
+        if check_children() and not observer.ready():
+            print(f'not every module produced a predicted shape within {READY_TIMEOUT_S:g} s',
+                  file=sys.stderr)
+        observer.reset()
+        start = time.monotonic()
+        while check_children() and time.monotonic() - start < args.seconds:
+            observer.spin_for(0.1)
+        elapsed = time.monotonic() - start
+        observer.spin_for(0.2)
+    finally:
+        # Stop the producers first (gait), the recorder last so it sees everything.
+        order = sorted(processes, key=lambda p: {'gait_node': 0, 'rerun_logger': 2}.get(p.spec.name, 1))
+        for p in order:
+            p.signal(signal.SIGINT)
+            if p.spec.name in ('gait_node',):
+                try:
+                    p.popen.wait(STOP_TIMEOUT_S)
+                except subprocess.TimeoutExpired:
+                    pass
+        for p in order:
+            try:
+                p.popen.wait(STOP_TIMEOUT_S)
+            except subprocess.TimeoutExpired:
+                print(f'{p.spec.name} ignored SIGINT for {STOP_TIMEOUT_S:g} s: killing it', file=sys.stderr)
+                p.signal(signal.SIGKILL)
+                p.popen.wait()
+            p.close()
+        for sig, handler in old_handlers.items():
+            signal.signal(sig, handler)
+    exit_codes = {p.spec.name: p.popen.returncode for p in processes}
+    for p in crashed:
+        print(f'\n{p.spec.name} exited early with code {p.popen.returncode}; its last output:\n'
+              f'{p.tail()}', file=sys.stderr)
+    summary = summarise(scene, observer, round(elapsed, 2), recording, exit_codes)
+    observer.close()
+    if args.json:
+        print(json.dumps(summary, indent=2, default=float))
+    else:
+        print_summary(summary)
+    if crashed:
+        return 1
+    return 130 if stop_requested else 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog='demo', description=__doc__.splitlines()[0])
+    parser.add_argument('--scene', default='brittle_star',
+                        help='brittle_star, starfish, snake, gripper, ring, or a scene YAML path')
+    parser.add_argument('--seconds', type=float, default=10.0, help='gait run time, s (default 10)')
+    parser.add_argument('--gait', default=None, help="gait name (default: the scene's default gait)")
+    parser.add_argument('--gait-rate', type=float, default=50.0, help='command rate, Hz (default 50)')
+    parser.add_argument('--model-rate', type=float, default=100.0, help='prediction rate, Hz (default 100)')
+    parser.add_argument('--real', action='store_true',
+                        help="drive real modules at the scene's addresses instead of simulated ones")
+    parser.add_argument('--output', default=None, help='.rrd path (default runs/<scene>-<time>/<scene>.rrd)')
+    parser.add_argument('--run-dir', default=None, help='folder for logs and the recording')
+    parser.add_argument('--no-rerun', action='store_true', help='do not record')
+    parser.add_argument('--json', action='store_true', help='print the summary as JSON')
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    if not (args.seconds > 0 and math.isfinite(args.seconds)):
+        build_parser().error(f'--seconds must be positive, got {args.seconds}')
+    try:
+        return run(args)
+    except SceneError as error:
+        print(f'demo: {error}', file=sys.stderr)
+        return 2
+
+
+if __name__ == '__main__':
+    sys.exit(main())

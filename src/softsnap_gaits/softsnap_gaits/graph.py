@@ -1,0 +1,106 @@
+"""The process graph of a robot: which nodes run, with which parameters (pure, no ROS).
+
+One description serves both the demo runner (:mod:`softsnap_gaits.demo`, separate OS
+processes) and the ROS 2 launch files (``launch/<scene>.launch.py``), so the graph exists
+once. For a scene with modules ``m1..mN`` in namespace ``/<scene>``:
+
+- ``sim_<m>``: a simulated module serving the firmware protocol on the module's port
+  (only with ``simulate=True``; real modules are reached at the scene's host/port);
+- ``driver_<m>``: one driver per module, bridging it to ``<m>/cable_length/*`` topics;
+- ``model_node``: forward/inverse services and the commanded/predicted shapes;
+- ``gait_node``: the scene's gait, publishing ``<m>/cable_length/command``;
+- ``rerun_logger``: records predicted versus commanded shapes to an ``.rrd`` file.
+"""
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Any
+
+from softsnap_model.forward import reachable_range
+from softsnap_model.scene import Scene
+
+__all__ = ['NodeSpec', 'robot_graph']
+
+
+@dataclasses.dataclass(frozen=True)
+class NodeSpec:
+    """One node of the graph: what ``ros2 run`` starts and its ROS parameters."""
+
+    package: str
+    executable: str
+    name: str
+    namespace: str
+    parameters: dict[str, Any]
+
+    def ros_args(self) -> list[str]:
+        """Command-line arguments: ``--ros-args -r __node:=... -r __ns:=... -p k:=v ...``."""
+        args = ['--ros-args', '-r', f'__node:={self.name}', '-r', f'__ns:={self.namespace}']
+        for key, value in self.parameters.items():
+            args += ['-p', f'{key}:={_param_text(value)}']
+        return args
+
+
+def _param_text(value: Any) -> str:
+    if isinstance(value, bool):
+        return 'true' if value else 'false'
+    if isinstance(value, (list, tuple)):
+        return '[' + ','.join(_param_text(v) for v in value) + ']'
+    if isinstance(value, str):
+        # Quote strings that YAML would read as another type.
+        return value if value and not value.replace('.', '', 1).isdigit() else f"'{value}'"
+    return repr(value)
+
+
+def robot_graph(scene: Scene, *, simulate: bool = True, gait: str | None = None,
+                gait_rate_hz: float = 50.0, model_rate_hz: float = 100.0,
+                poll_rate_hz: float = 20.0, recording: str | Path | None = None,
+                rerun_rate_hz: float = 30.0, rerun: bool = True,
+                autostart: bool = True) -> list[NodeSpec]:
+    """Nodes that run a scene's robot, in start order (modules and drivers first).
+
+    Parameters
+    ----------
+    scene : Scene
+        The robot (modules, threadings, driver addresses, gaits).
+    simulate : bool
+        Start one simulated module per module on its scene port (loopback).
+    gait : str, optional
+        Gait name; the scene's default gait if None.
+    gait_rate_hz, model_rate_hz, poll_rate_hz, rerun_rate_hz : float
+        Command, prediction, status-poll and logging rates, Hz.
+    recording : path, optional
+        Where the rerun logger writes its ``.rrd`` (its default under runs/ if None).
+    rerun : bool
+        Include the rerun logger.
+    autostart : bool
+        Start the gait as soon as the gait node is up.
+    """
+    ns = f'/{scene.name}'
+    scene_ref = str(scene.path)
+    nodes: list[NodeSpec] = []
+    for module in scene.modules:
+        host = '127.0.0.1' if simulate else module.host
+        if simulate:
+            nodes.append(NodeSpec('softsnap_driver', 'sim_module', f'sim_{module.name}', ns,
+                                  {'host': host, 'port': module.port}))
+        low_mm, straight_mm = reachable_range(scene.skeleton, module.threading_mm)
+        # The driver never commands beyond what the model can reach or the scene allows.
+        max_contraction_mm = min(module.max_contraction_mm, straight_mm - low_mm)
+        nodes.append(NodeSpec('softsnap_driver', 'driver_node', f'driver_{module.name}', ns, {
+            'module': module.name, 'host': host, 'port': module.port,
+            'counts_per_mm': float(module.counts_per_mm),
+            'straight_length_m': straight_mm / 1000.0,
+            'max_contraction_m': max_contraction_mm / 1000.0,
+            'poll_rate_hz': float(poll_rate_hz)}))
+    nodes.append(NodeSpec('softsnap_model', 'model_node', 'model_node', ns,
+                          {'scene': scene_ref, 'rate': float(model_rate_hz)}))
+    nodes.append(NodeSpec('softsnap_gaits', 'gait_node', 'gait_node', ns, {
+        'scene': scene_ref, 'gait': gait or scene.default_gait, 'rate': float(gait_rate_hz),
+        'autostart': bool(autostart)}))
+    if rerun:
+        params: dict[str, Any] = {'scene': scene_ref, 'rate': float(rerun_rate_hz)}
+        if recording is not None:
+            params['output'] = str(recording)
+        nodes.append(NodeSpec('softsnap_gaits', 'rerun_logger', 'rerun_logger', ns, params))
+    return nodes
