@@ -188,7 +188,12 @@ class ModelNode(Node):
 
     def _shape_msg(self, shape, stamp) -> ModuleShape:
         msg = ModuleShape()
-        msg.header.stamp = stamp
+        # A shape is the state at the time its length was commanded or measured: keep
+        # that stamp (end-to-end latency is then arrival time minus stamp).
+        if shape.stamp_ns > 0:
+            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(shape.stamp_ns, 1_000_000_000)
+        else:
+            msg.header.stamp = stamp
         msg.header.frame_id = f'{self.scene.name}/{shape.module}'
         msg.module = shape.module
         msg.source = shape.source

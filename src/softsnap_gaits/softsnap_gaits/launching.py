@@ -1,0 +1,63 @@
+"""ROS 2 launch support: the launch files turn :func:`robot_graph` into launch actions.
+
+``ros2 launch softsnap_gaits <scene>.launch.py [simulate:=true] [gait:=...] [recording:=...]``
+starts the same graph as the demo runner (:mod:`softsnap_gaits.demo`): there is one
+description of the graph, in :mod:`softsnap_gaits.graph`. The ``launch`` packages are
+imported only when a launch file runs (they are not on PyPI; a ROS 2 install has them).
+"""
+from __future__ import annotations
+
+from typing import Any
+
+from softsnap_model.scene import load_scene
+
+from .graph import NodeSpec, robot_graph
+
+#: Launch arguments and their defaults (strings, as ros2 launch passes them).
+LAUNCH_ARGUMENTS = {
+    'simulate': ('true', 'start one simulated module per module (false: real modules)'),
+    'gait': ('', "gait name ('' = the scene's default)"),
+    'gait_rate': ('50.0', 'command rate, Hz'),
+    'model_rate': ('100.0', 'prediction rate, Hz'),
+    'recording': ('', ".rrd path ('' = runs/<robot>-<UTC time>.rrd)"),
+    'rerun': ('true', 'start the rerun logger'),
+}
+
+
+def _flag(text: str) -> bool:
+    if text.lower() not in ('true', 'false', '1', '0'):
+        raise ValueError(f'expected true or false, got {text!r}')
+    return text.lower() in ('true', '1')
+
+
+def graph_from_arguments(scene_name: str, arguments: dict[str, str]) -> list[NodeSpec]:
+    """The robot graph for launch-argument strings (defaults from LAUNCH_ARGUMENTS)."""
+    args = {key: arguments.get(key, default) for key, (default, _) in LAUNCH_ARGUMENTS.items()}
+    return robot_graph(load_scene(scene_name), simulate=_flag(args['simulate']),
+                       gait=args['gait'] or None, gait_rate_hz=float(args['gait_rate']),
+                       model_rate_hz=float(args['model_rate']),
+                       recording=args['recording'] or None, rerun=_flag(args['rerun']))
+
+
+def node_action_kwargs(spec: NodeSpec) -> dict[str, Any]:
+    """Keyword arguments of ``launch_ros.actions.Node`` for one node of the graph."""
+    return {'package': spec.package, 'executable': spec.executable, 'name': spec.name,
+            'namespace': spec.namespace, 'parameters': [dict(spec.parameters)],
+            'output': 'screen', 'emulate_tty': True}
+
+
+def generate_robot_launch_description(scene_name: str):
+    """A LaunchDescription starting the scene's graph (used by launch/<scene>.launch.py)."""
+    from launch import LaunchDescription
+    from launch.actions import DeclareLaunchArgument, OpaqueFunction
+    from launch_ros.actions import Node
+
+    def nodes(context):
+        arguments = {key: context.launch_configurations.get(key, default)
+                     for key, (default, _) in LAUNCH_ARGUMENTS.items()}
+        return [Node(**node_action_kwargs(spec))
+                for spec in graph_from_arguments(scene_name, arguments)]
+
+    declared = [DeclareLaunchArgument(key, default_value=default, description=text)
+                for key, (default, text) in LAUNCH_ARGUMENTS.items()]
+    return LaunchDescription([*declared, OpaqueFunction(function=nodes)])

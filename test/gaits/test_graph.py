@@ -1,0 +1,74 @@
+"""The robot graph shared by the demo runner and the launch files."""
+import py_compile
+from pathlib import Path
+
+import pytest
+
+from softsnap_gaits.graph import robot_graph
+from softsnap_gaits.launching import graph_from_arguments, node_action_kwargs
+from softsnap_model.forward import reachable_range
+from softsnap_model.scene import list_scenes, load_scene
+
+LAUNCH_DIR = Path(__file__).resolve().parents[2] / 'src' / 'softsnap_gaits' / 'launch'
+SCENES = ['brittle_star', 'starfish', 'snake', 'gripper', 'ring']
+
+
+@pytest.mark.parametrize('name', SCENES)
+def test_graph_has_a_sim_and_driver_per_module_and_the_three_nodes(name):
+    scene = load_scene(name)
+    specs = robot_graph(scene)
+    names = [s.name for s in specs]
+    assert len(names) == len(set(names))
+    for m in scene.modules:
+        sim = specs[names.index(f'sim_{m.name}')]
+        driver = specs[names.index(f'driver_{m.name}')]
+        assert sim.parameters['port'] == driver.parameters['port'] == m.port
+        assert driver.parameters['module'] == m.name
+        low, straight = reachable_range(scene.skeleton, m.threading_mm)
+        assert driver.parameters['straight_length_m'] == pytest.approx(straight / 1000.0)
+        # The driver's range never exceeds what the model can reach.
+        assert driver.parameters['max_contraction_m'] <= (straight - low) / 1000.0 + 1e-12
+        assert driver.parameters['max_contraction_m'] <= m.max_contraction_mm / 1000.0 + 1e-12
+    assert {'model_node', 'gait_node', 'rerun_logger'} <= set(names)
+    assert all(s.namespace == f'/{scene.name}' for s in specs)
+    gait = specs[names.index('gait_node')]
+    assert gait.parameters['gait'] == scene.default_gait
+
+
+def test_real_modules_use_scene_addresses_and_no_simulator():
+    scene = load_scene('gripper')
+    specs = robot_graph(scene, simulate=False, rerun=False)
+    assert not [s for s in specs if s.executable in ('sim_module', 'rerun_logger')]
+    drivers = [s for s in specs if s.executable == 'driver_node']
+    assert [d.parameters['host'] for d in drivers] == [m.host for m in scene.modules]
+
+
+def test_ros_args_encode_names_namespaces_and_parameters():
+    spec = robot_graph(load_scene('snake'), recording='/tmp/x.rrd')[-1]
+    args = spec.ros_args()
+    assert args[:5] == ['--ros-args', '-r', '__node:=rerun_logger', '-r', '__ns:=/snake']
+    assert '-p' in args and 'output:=/tmp/x.rrd' in args
+    gait_args = [s for s in robot_graph(load_scene('snake')) if s.name == 'gait_node'][0].ros_args()
+    assert 'autostart:=true' in gait_args
+
+
+def test_launch_files_exist_for_every_scene_and_use_the_shared_graph():
+    assert set(SCENES) <= set(list_scenes())
+    for name in SCENES:
+        path = LAUNCH_DIR / f'{name}.launch.py'
+        py_compile.compile(str(path), doraise=True)
+        text = path.read_text()
+        assert f"generate_robot_launch_description('{name}')" in text
+
+
+def test_launch_arguments_map_to_the_same_graph_as_the_demo():
+    scene = load_scene('brittle_star')
+    from_launch = graph_from_arguments('brittle_star', {'simulate': 'false', 'rerun': 'false',
+                                                        'gait_rate': '20'})
+    direct = robot_graph(scene, simulate=False, rerun=False, gait_rate_hz=20.0)
+    assert from_launch == direct
+    kwargs = node_action_kwargs(direct[0])
+    assert kwargs['executable'] == 'driver_node'
+    assert kwargs['parameters'] == [direct[0].parameters]
+    with pytest.raises(ValueError, match='true or false'):
+        graph_from_arguments('brittle_star', {'simulate': 'maybe'})
