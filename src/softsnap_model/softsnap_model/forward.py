@@ -46,7 +46,7 @@ import numpy as np
 
 from .geometry import cable_path as _cable_path
 from .geometry import rib_centers as _rib_centers
-from .geometry import _g_functions_series, half_angle_functions, segment_length_derivatives
+from .geometry import _g_series, half_angle_functions, segment_length_derivatives
 from .skeleton import Skeleton
 
 __all__ = [
@@ -640,15 +640,21 @@ def _guess_b(P, lam):
 def _branch_eval(b, P):
     """``l, l', l''`` along the branches (derivatives in ``b``), for ``0 <= b <= pi``.
 
-    Same algebra as :func:`segment_length_derivatives` with the per-segment weights
-    precomputed (``s^2, s (d1 + d2) direction, d1 d2``): a handful of numpy calls, which
-    is what a single solve of 11 segments costs.
+    Same algebra as :func:`segment_length_derivatives` (product form) with the
+    per-segment constants precomputed: ``e1, e2`` are the offsets times the direction,
+    so ``(s + e1 b)(s + e2 b)`` is the product along the branch.
     """
-    q = (_g_functions_series(b) @ P['weights'])[..., 0]
-    length = np.sqrt(q[..., 0] + P['dd2'])
+    g, g_b, g_bb = _g_series(b)
+    e1, e2, s = P['e1'], P['e2'], P['s']
+    p1 = s + e1 * b
+    p2 = s + e2 * b
+    prod = p1 * p2
+    prod_b = e1 * p2 + e2 * p1
+    length = np.sqrt(P['dd2'] + g * prod)
     half_inv = 0.5 / length
-    lp = q[..., 1] * half_inv
-    return length, lp, (q[..., 2] - 2.0 * lp * lp) * half_inv
+    lp = (g_b * prod + g * prod_b) * half_inv
+    lpp = (g_bb * prod + 2.0 * g_b * prod_b + P['two_e1e2'] * g - 2.0 * lp * lp) * half_inv
+    return length, lp, lpp
 
 
 def _newton(P, L_t, lam, b, lam_lo, lam_hi, max_iter, tol_mm, tol_rad, active=None):
@@ -725,7 +731,7 @@ def _newton_single(S, L_t, lam, b, lam_lo, lam_hi, max_iter, tol_mm, tol_rad):
     lam_c, lam_end, b_end = S['lam_c'], S['lam_end'], S['b_end']
     two_k, inv_two_k = S['two_k'], S['inv_two_k']
     mirror, has_mirror = S['mirror'], S['has_mirror']
-    lam_end_min, weights, dd2 = S['lam_end_min'], S['weights'], S['dd2']
+    lam_end_min = S['lam_end_min']
     held = contact = None
     it = 0
     while True:
@@ -738,11 +744,7 @@ def _newton_single(S, L_t, lam, b, lam_lo, lam_hi, max_iter, tol_mm, tol_rad):
         fixed = held if contact is None else (contact if held is None else held | contact)
         if fixed is not None and not fixed.any():
             fixed = None
-        q = (_g_functions_series(b) @ weights)[:, :, 0]
-        length = np.sqrt(q[:, 0] + dd2)
-        half_inv = 0.5 / length
-        lp = q[:, 1] * half_inv
-        l_aa = (q[:, 2] - 2.0 * lp * lp) * half_inv
+        length, lp, l_aa = _branch_eval(b, S)
         g = float(length.sum()) - L_t
         f = b + lam * inv_two_k * lp
         if fixed is not None:
@@ -852,10 +854,8 @@ def _stack(probs, index):
     mirror = mu_c > 0
     m = table_mu.shape[-1]
     d1, d2, direction, s = rows('d1'), rows('d2'), rows('direction'), probs[0].s
-    weights = np.stack([np.full(d1.shape, s * s), s * (d1 + d2) * direction, d1 * d2],
-                       axis=-1)[..., None]
     return dict(
-        weights=weights, dd2=(d1 - d2) ** 2, two_k=2.0 * k, inv_two_k=0.5 / k,
+        e1=d1 * direction, e2=d2 * direction, two_e1e2=2.0 * d1 * d2, dd2=(d1 - d2) ** 2, two_k=2.0 * k, inv_two_k=0.5 / k,
         has_mirror=bool(mirror.any()), mirror=mirror,
         mu_c_safe=np.where(mirror, mu_c, 1.0), beta_safe=np.where(mirror, beta, 1.0),
         mu_1=table_mu[..., 1], lam_1=k * table_mu[..., 1], b_1=table_b[..., 1],

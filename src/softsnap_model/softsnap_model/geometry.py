@@ -57,68 +57,72 @@ def half_angle_functions(u):
     return f0, f1, cos_u
 
 
-# Universal functions of the angle behind L^2: with g(a) = (2 sin(a/2)/a)^2,
-#   Q = L^2 = (d1 - d2)^2 + s^2 G0 + s (d1 + d2) G1 + d1 d2 G2,  G0 = g, G1 = a g, G2 = a^2 g,
-# since (s + d1 a)(s + d2 a) = s^2 + s (d1 + d2) a + d1 d2 a^2. g = sum_j (-1)^j 2 a^2j/(2j+2)!.
-# _G_SERIES[k] holds the coefficients of a^k in (G0, G1, G2, G0', G1', G2', G0'', G1'', G2''):
-# one power table and one matrix product give all nine, exact to double precision for
-# |a| <= pi (15 terms of g; the largest term is 8.1 at |a| = pi, the value 4, so no
-# cancellation to speak of).
-_G_POWERS = 32
+# g(a) = (2 sin(a/2)/a)^2 = sum_j (-1)^j 2 a^2j / (2j+2)! and its derivatives, as power
+# series in x = a^2: g = sum c0_j x^j, g' = a sum c1_j x^j, g'' = sum c2_j x^j. Sixteen
+# terms reach double precision for |a| <= pi (the last is below 1e-18 there, and the
+# largest term, 0.82 at |a| = pi, is twice the value: no cancellation to speak of).
+_G_TERMS = 16
 _G_SERIES_A_MAX = math.pi
 
 
-def _g_series():
-    coef = np.zeros((_G_POWERS, 3))
-    for j in range(15):
+def _g_coefficients():
+    coef = np.zeros((_G_TERMS, 3))
+    for j in range(_G_TERMS):
         gamma = (-1.0) ** j * 2.0 / math.factorial(2 * j + 2)
-        for col, shift in enumerate((0, 1, 2)):
-            coef[2 * j + shift, col] = gamma
-    powers = np.arange(_G_POWERS, dtype=float)
-    first = np.zeros_like(coef)
-    first[:-1] = coef[1:] * powers[1:, None]
-    second = np.zeros_like(coef)
-    second[:-1] = first[1:] * powers[1:, None]
-    # Rows: value, first, second derivative; columns G0, G1, G2 (row-major in the 9).
-    return np.concatenate([coef, first, second], axis=1)
+        coef[j, 0] = gamma
+        if j + 1 < _G_TERMS:
+            gamma_next = (-1.0) ** (j + 1) * 2.0 / math.factorial(2 * j + 4)
+            coef[j, 1] = 2 * (j + 1) * gamma_next                    # g'/a
+            coef[j, 2] = 2 * (j + 1) * (2 * j + 1) * gamma_next      # g''
+    return coef
 
 
-_G_SERIES = _g_series()
-_G_EXPONENTS = np.arange(_G_POWERS, dtype=float)
+_G_COEF = _g_coefficients()
+_G_EXPONENTS = np.arange(_G_TERMS, dtype=float)
 
 
-def _g_functions_series(a):
-    """(..., 3, 3) array [derivative order, G0/G1/G2] by the power series (|a| <= pi)."""
-    table = (a[..., None] ** _G_EXPONENTS) @ _G_SERIES
-    return table.reshape(a.shape + (3, 3))
+def _powers(x):
+    """``x[..., None] ** arange(_G_TERMS)``; by repeated products for large arrays, where
+    ``pow`` per element would dominate."""
+    if x.size <= 256:
+        return x[..., None] ** _G_EXPONENTS
+    out = np.empty(x.shape + (_G_TERMS,))
+    out[..., 0] = 1.0
+    out[..., 1] = x
+    for j in range(2, _G_TERMS):
+        np.multiply(out[..., j - 1], x, out=out[..., j])
+    return out
 
 
-def _g_functions_closed(a):
-    """Same as :func:`_g_functions_series` in closed form; well conditioned for |a| >= 1."""
+def _g_series(a):
+    """``(g, g', g'')`` by the power series; exact to rounding for ``|a| <= pi``."""
+    s = _powers(a * a) @ _G_COEF
+    return s[..., 0], a * s[..., 1], s[..., 2]
+
+
+def _g_closed(a):
+    """``(g, g', g'')`` in closed form; well conditioned for ``|a| >= 1``."""
     sin_a, cos_a = np.sin(a), np.cos(a)
     m = 2.0 * (1.0 - cos_a)
-    m1, m2 = 2.0 * sin_a, 2.0 * cos_a
     i1 = 1.0 / a
     i2 = i1 * i1
-    g0 = m * i2
-    g1 = m * i1
-    d_g0 = (m1 - 2.0 * m * i1) * i2
-    d_g1 = (m1 - m * i1) * i1
-    dd_g0 = (m2 - 4.0 * m1 * i1 + 6.0 * m * i2) * i2
-    dd_g1 = (m2 - 2.0 * m1 * i1 + 2.0 * m * i2) * i1
-    rows = [[g0, g1, m], [d_g0, d_g1, m1], [dd_g0, dd_g1, m2]]
-    return np.stack([np.stack(r, axis=-1) for r in rows], axis=-2)
+    return (m * i2, (2.0 * sin_a - 2.0 * m * i1) * i2,
+            (2.0 * cos_a - 8.0 * sin_a * i1 + 6.0 * m * i2) * i2)
 
 
-def _q_and_derivs(a, weights):
-    """``Q - (d1-d2)^2`` and its two derivatives, (..., 3), for ``weights`` (..., 3) =
-    ``(s^2, s (d1 + d2), d1 d2)``."""
-    funcs = _g_functions_series(a)
+def g_and_derivatives(a):
+    """``g(a) = (2 sin(a/2)/a)^2`` and its first two derivatives, accurate for all ``a``.
+
+    Power series for ``|a| <= pi`` (no division: exact at and near 0), closed form
+    beyond; both agree to rounding at the switch.
+    """
+    a = np.asarray(a, dtype=float)
+    g, g_a, g_aa = _g_series(a)
     big = np.abs(a) > _G_SERIES_A_MAX
     if big.any():
-        funcs = np.where(big[..., None, None], _g_functions_closed(np.where(big, a, 4.0)),
-                         funcs)
-    return (funcs @ weights[..., None])[..., 0]
+        closed = _g_closed(np.where(big, a, 4.0))
+        g, g_a, g_aa = (np.where(big, c, v) for c, v in zip(closed, (g, g_a, g_aa)))
+    return g, g_a, g_aa
 
 
 def segment_length_derivatives(angle_rad, d1_mm, d2_mm, spacing_mm):
@@ -156,12 +160,7 @@ def segment_length_derivatives(angle_rad, d1_mm, d2_mm, spacing_mm):
     d1 = np.asarray(d1_mm, dtype=float)
     d2 = np.asarray(d2_mm, dtype=float)
     s = np.asarray(spacing_mm, dtype=float)
-    funcs = _g_functions_series(a)
-    big = np.abs(a) > _G_SERIES_A_MAX
-    if big.any():
-        funcs = np.where(big[..., None, None], _g_functions_closed(np.where(big, a, 4.0)),
-                         funcs)
-    g, g_a, g_aa = funcs[..., 0, 0], funcs[..., 1, 0], funcs[..., 2, 0]
+    g, g_a, g_aa = g_and_derivatives(a)
     # Product form Q = dd^2 + g p1 p2: no cancellation even where a hole nears the
     # centre of curvature (s + d a -> 0), unlike the expanded G0/G1/G2 sum.
     p1 = s + d1 * a
