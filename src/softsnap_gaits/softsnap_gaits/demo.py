@@ -50,6 +50,8 @@ class ModuleStats:
     predicted_shapes: int = 0
     tip_errors_mm: list = dataclasses.field(default_factory=list)
     solve_times_s: list = dataclasses.field(default_factory=list)
+    command_to_shape_ms: list = dataclasses.field(default_factory=list)
+    measured_to_shape_ms: list = dataclasses.field(default_factory=list)
     last_commanded_angles: np.ndarray | None = None
     state: object = None
 
@@ -66,6 +68,16 @@ class Process:
         self.popen = subprocess.Popen([str(exe), *spec.ros_args()], stdout=self._log,
                                       stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                                       env=env, start_new_session=True)
+
+    def usage(self):
+        """(cpu seconds, rss bytes) of the process now; None once it has exited."""
+        import psutil
+        try:
+            proc = psutil.Process(self.popen.pid)
+            times = proc.cpu_times()
+            return times.user + times.system, proc.memory_info().rss
+        except psutil.Error:
+            return None
 
     def signal(self, sig: int) -> None:
         if self.popen.poll() is None:
@@ -134,14 +146,21 @@ class Observer:
     def _tip_mm(self, angles) -> np.ndarray:
         return rib_centers(np.asarray(angles, dtype=float), self.spacing_mm)[-1]
 
+    def _age_ms(self, msg) -> float:
+        """Arrival time minus the stamp of the length the shape was solved from, ms."""
+        stamp = msg.header.stamp.sec * 1e9 + msg.header.stamp.nanosec
+        return (self.node.get_clock().now().nanoseconds - stamp) / 1e6
+
     def _commanded(self, s: ModuleStats, msg) -> None:
         s.commanded_shapes += 1
+        s.command_to_shape_ms.append(self._age_ms(msg))
         s.last_commanded_angles = np.asarray(msg.angles, dtype=float)
         if msg.solve_time > 0.0:
             s.solve_times_s.append(msg.solve_time)
 
     def _predicted(self, s: ModuleStats, msg) -> None:
         s.predicted_shapes += 1
+        s.measured_to_shape_ms.append(self._age_ms(msg))
         if msg.solve_time > 0.0:
             s.solve_times_s.append(msg.solve_time)
         if s.last_commanded_angles is not None and len(msg.angles):
@@ -171,6 +190,13 @@ class Observer:
         rclpy.try_shutdown(context=self.context)
 
 
+def _percentiles(values) -> dict:
+    if not values:
+        return {'median': math.nan, 'p99': math.nan, 'n': 0}
+    v = np.asarray(values)
+    return {'median': float(np.median(v)), 'p99': float(np.percentile(v, 99)), 'n': int(v.size)}
+
+
 def summarise(scene, observer: Observer, seconds: float, recording: Path | None, exit_codes: dict[str, int | None]) -> dict:
     """The demo's summary as a plain dict (printed as a table, or JSON with --json)."""
     modules = {}
@@ -188,6 +214,8 @@ def summarise(scene, observer: Observer, seconds: float, recording: Path | None,
             'tip_error_mm_mean': float(np.mean(errors)),
             'tip_error_mm_max': float(np.max(errors)),
             'solve_time_us_mean': float(np.mean(s.solve_times_s) * 1e6) if s.solve_times_s else math.nan,
+            'command_to_shape_ms': _percentiles(s.command_to_shape_ms),
+            'measured_to_shape_ms': _percentiles(s.measured_to_shape_ms),
             'online': bool(state.online) if state is not None else False,
             'battery_v': float(state.battery_voltage) if state is not None else math.nan,
             'request_failures': int(state.request_failures) if state is not None else 0,
@@ -221,6 +249,12 @@ def print_summary(summary: dict) -> None:
         d = summary['model']
         print(f"model node: {d['solves']} solves, {d['skipped_unchanged']} unchanged lengths and "
               f"{d['skipped_duplicate']} duplicate modules skipped, {d['refused']} refused")
+    latency = [m['command_to_shape_ms']['median'] for m in summary['modules'].values()]
+    print(f"gait command -> commanded shape: median {np.nanmedian(latency):.2f} ms over modules")
+    if summary.get('processes'):
+        usage = ', '.join(f"{name} {u['cpu_percent']:.0f}%" for name, u in summary['processes'].items()
+                          if not name.startswith('sim_'))
+        print(f'CPU (% of one core): {usage}')
     crashed = {k: v for k, v in summary['exit_codes'].items() if v not in (0, None, -2, 130)}
     print('processes: all stopped cleanly' if not crashed else f'processes with errors: {crashed}')
     if summary['recording']:
@@ -252,6 +286,7 @@ def run(args: argparse.Namespace) -> int:
     old_handlers = {sig: signal.signal(sig, request_stop) for sig in (signal.SIGINT, signal.SIGTERM)}
     processes: list[Process] = []
     observer = None
+    elapsed, usage_start, usage_end = 0.0, {}, {}
     crashed: list[Process] = []
     try:
         print(f'starting {len(specs)} processes for {scene.name} '
@@ -274,9 +309,11 @@ def run(args: argparse.Namespace) -> int:
                   file=sys.stderr)
         observer.reset()
         start = time.monotonic()
+        usage_start = {p.spec.name: p.usage() for p in processes}
         while check_children() and time.monotonic() - start < args.seconds:
             observer.spin_for(0.1)
         elapsed = time.monotonic() - start
+        usage_end = {p.spec.name: p.usage() for p in processes}
         observer.spin_for(0.2)
     finally:
         # Stop the producers first (gait), the recorder last so it sees everything.
@@ -303,6 +340,10 @@ def run(args: argparse.Namespace) -> int:
         print(f'\n{p.spec.name} exited early with code {p.popen.returncode}; its last output:\n'
               f'{p.tail()}', file=sys.stderr)
     summary = summarise(scene, observer, round(elapsed, 2), recording, exit_codes)
+    summary['processes'] = {
+        name: {'cpu_percent': 100.0 * (usage_end[name][0] - usage_start[name][0]) / elapsed,
+               'rss_mib': usage_end[name][1] / 2**20}
+        for name in usage_start if usage_start[name] and usage_end.get(name)}
     observer.close()
     if args.json:
         print(json.dumps(summary, indent=2, default=float))

@@ -1,0 +1,64 @@
+#!/usr/bin/env python3
+"""Graph benchmark: the 5-module brittle star as separate processes at 50 and 100 Hz.
+
+Runs the demo graph (simulated modules, drivers, model node, gait node, rerun logger)
+for each gait command rate and prints: end-to-end latency from a gait command to the
+commanded shape published by the model node, and from a driver's measured length to the
+predicted shape (median and p99, observed in a separate process); command rates achieved
+against the configured rate; messages DDS reported lost; CPU (% of one core) and memory
+(RSS) per node.
+
+Usage: .venv/bin/python benchmarks/graph_bench.py [--seconds 20] [--rates 50 100]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+
+import numpy as np
+
+
+def run_demo(rate_hz: float, seconds: float, scene: str) -> dict:
+    with tempfile.TemporaryDirectory() as run_dir:
+        out = subprocess.run(
+            [sys.executable, '-m', 'softsnap_gaits.demo', '--scene', scene, '--seconds', str(seconds),
+             '--gait-rate', str(rate_hz), '--model-rate', str(max(100.0, rate_hz)),
+             '--run-dir', run_dir, '--json'],
+            capture_output=True, text=True, timeout=seconds + 180, stdin=subprocess.DEVNULL)
+    if out.returncode != 0:
+        raise RuntimeError(f'demo failed ({out.returncode}):\n{out.stdout[-2000:]}\n{out.stderr[-2000:]}')
+    return json.loads(out.stdout[out.stdout.index('{'):])
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument('--seconds', type=float, default=20.0)
+    parser.add_argument('--rates', type=float, nargs='+', default=[50.0, 100.0])
+    parser.add_argument('--scene', default='brittle_star')
+    args = parser.parse_args()
+    for rate in args.rates:
+        summary = run_demo(rate, args.seconds, args.scene)
+        modules = summary['modules'].values()
+        cmd_med = np.median([m['command_to_shape_ms']['median'] for m in modules])
+        cmd_p99 = np.max([m['command_to_shape_ms']['p99'] for m in modules])
+        meas_med = np.median([m['measured_to_shape_ms']['median'] for m in modules])
+        meas_p99 = np.max([m['measured_to_shape_ms']['p99'] for m in modules])
+        achieved = np.mean([m['command_rate_hz'] for m in modules])
+        lost = sum(m['messages_lost'] for m in modules)
+        print(f"\n{summary['scene']}: gait at {rate:g} Hz for {summary['seconds']:g} s")
+        print(f'  command -> commanded shape: median {cmd_med:.2f} ms, p99 {cmd_p99:.2f} ms')
+        print(f'  measured -> predicted shape: median {meas_med:.2f} ms, p99 {meas_p99:.2f} ms')
+        print(f'  command rate achieved: {achieved:.1f} Hz of {rate:g} Hz per module; '
+              f'messages lost: {lost}')
+        print(f"  {'node':16s} {'CPU % of 1 core':>16s} {'RSS MiB':>8s}")
+        for name, usage in summary['processes'].items():
+            print(f"  {name:16s} {usage['cpu_percent']:16.1f} {usage['rss_mib']:8.1f}")
+    print(f'\n(machine: {os.cpu_count()} cores)')
+
+
+if __name__ == '__main__':
+    main()
