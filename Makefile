@@ -13,10 +13,11 @@ test: bootstrap
 	$(PY) -m pytest $(PYTEST_ARGS)
 
 demo: bootstrap
-	$(PY) scripts/demo.py --scene $(SCENE) --seconds $(SECONDS)
+	$(PY) -m softsnap_gaits.demo --scene $(SCENE) --seconds $(SECONDS)
 
+# Every benchmark script; each prints its own table (several minutes in all).
 bench: bootstrap
-	$(PY) benchmarks/run_all.py
+	@for script in benchmarks/*_bench.py; do echo "== $$script"; $(PY) $$script || exit 1; done
 
 clean:
 	rm -rf .venv build runs
