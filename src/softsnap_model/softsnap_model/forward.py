@@ -606,32 +606,48 @@ _INNER_TOL_RAD = 1e-14
 def _start_from_table(P, L_t):
     """Initial (lambda, b) and a tension bracket from the exact path tables.
 
-    ``P`` is a dict of stacked arrays; the path tables are exact samples of the path, so
-    ``[lam_lo, lam_hi]`` brackets the root of ``T(lambda) = L_t``.
+    The path tables are exact samples of the path, so ``[lam_lo, lam_hi]`` brackets the
+    root of ``T(lambda) = L_t``; lambda and b are interpolated linearly in the length.
+    Vectorised per threading group (tables are stored once per distinct threading).
     """
-    path_len, path_lam, path_b = P['path_len'], P['path_lam'], P['path_b']
-    m = path_len.shape[-1]
-    # Rows are non-increasing; j = first sample with length <= L_t.
-    j = np.clip(np.sum(path_len > L_t[:, None], axis=-1), 1, m - 1)
-    rows = np.arange(L_t.shape[0])
-    len_lo, len_hi = path_len[rows, j - 1], path_len[rows, j]
-    lam_lo, lam_hi = path_lam[rows, j - 1], path_lam[rows, j]
-    span = len_lo - len_hi
-    w = np.where(span > 0, (len_lo - L_t) / np.where(span > 0, span, 1.0), 0.5)
-    lam = lam_lo + w * (lam_hi - lam_lo)
-    b = path_b[rows, j - 1] + w[:, None] * (path_b[rows, j] - path_b[rows, j - 1])
+    nb, n = L_t.shape[0], P['k'].shape[1]
+    lam, lam_lo, lam_hi = np.empty(nb), np.empty(nb), np.empty(nb)
+    b = np.empty((nb, n))
+    uid = P['uid']
+    for u, (path_len, path_lam, path_b) in enumerate(P['paths']):
+        sel = uid == u if len(P['paths']) > 1 else slice(None)
+        L = L_t[sel]
+        m = path_len.shape[0]
+        j = np.clip(np.searchsorted(-path_len, -L, side='left'), 1, m - 1)
+        len_lo, len_hi = path_len[j - 1], path_len[j]
+        span = len_lo - len_hi
+        w = np.where(span > 0, (len_lo - L) / np.where(span > 0, span, 1.0), 0.5)
+        lam_lo[sel], lam_hi[sel] = path_lam[j - 1], path_lam[j]
+        lam[sel] = path_lam[j - 1] + w * (path_lam[j] - path_lam[j - 1])
+        b[sel] = path_b[j - 1] + w[:, None] * (path_b[j] - path_b[j - 1])
     return lam, b, lam_lo, lam_hi
 
 
-def _guess_b(P, lam):
-    """Branch magnitudes interpolated from the per-segment tables (no solve)."""
-    mu = lam[:, None] / P['k']
-    tm, tb = P['table_mu'], P['table_b']
+def _tables(P, rows):
+    """Per-segment branch tables (len(rows), n, M) of the given batch rows."""
+    u = P['uid'][rows]
+    return P['tables_mu'][u], P['tables_b'][u]
+
+
+def _guess_b(P, lam, rows=None):
+    """Branch magnitudes interpolated from the per-segment tables (no solve).
+
+    ``lam`` holds the tensions of batch ``rows`` (all rows when None).
+    """
+    rows = np.arange(lam.shape[0]) if rows is None else rows
+    tm, tb = _tables(P, rows)
+    mu = lam[:, None] / P['k'][rows]
     m = tm.shape[-1]
-    idx = np.clip(np.sum(tm < mu[..., None], axis=-1), 1, m - 1)
-    flat = P['row_base'] + idx
-    mu_lo, mu_hi = tm.ravel()[flat - 1], tm.ravel()[flat]
-    b_lo, b_hi = tb.ravel()[flat - 1], tb.ravel()[flat]
+    idx = np.clip(np.sum(tm < mu[..., None], axis=-1), 1, m - 1)[..., None]
+    mu_lo = np.take_along_axis(tm, idx - 1, -1)[..., 0]
+    mu_hi = np.take_along_axis(tm, idx, -1)[..., 0]
+    b_lo = np.take_along_axis(tb, idx - 1, -1)[..., 0]
+    b_hi = np.take_along_axis(tb, idx, -1)[..., 0]
     w = (mu - mu_lo) / (mu_hi - mu_lo)
     w = np.where(np.isfinite(w), np.clip(w, 0.0, 1.0), 0.5)
     return b_lo + w * (b_hi - b_lo)
@@ -681,7 +697,8 @@ def _newton(P, L_t, lam, b, lam_lo, lam_hi, max_iter, tol_mm, tol_rad, active=No
             # trivial root: restart it on its branch.
             kick = mirror & (b <= 0.0) & (lamc > lam_c)
             if kick.any():
-                b = np.where(kick, _kick_b(P, lam), b)
+                r = np.nonzero(kick.any(axis=1))[0]
+                b[r] = np.where(kick[r], _kick_b(P, lam[r], r), b[r])
             held = mirror & (b <= 0.0)
         contact = (b >= b_end) & (lamc >= lam_end)
         fixed = held | contact
@@ -711,7 +728,8 @@ def _newton(P, L_t, lam, b, lam_lo, lam_hi, max_iter, tol_mm, tol_rad, active=No
         out = active & ~((new_lam > lam_lo) & (new_lam < lam_hi))
         if out.any():
             new_lam = np.where(out, 0.5 * (lam_lo + lam_hi), new_lam)
-            b = np.where(out[:, None], _guess_b(P, new_lam), b)
+            r = np.nonzero(out)[0]
+            b[r] = _guess_b(P, new_lam[r], r)
             # Shrink the bracket with the sign of the constraint at the rejected point.
             lam_lo = np.where(out & (g > 0), np.maximum(lam_lo, lam), lam_lo)
             lam_hi = np.where(out & (g < 0), np.minimum(lam_hi, lam), lam_hi)
@@ -784,19 +802,21 @@ def _newton_single(S, L_t, lam, b, lam_lo, lam_hi, max_iter, tol_mm, tol_rad):
                 held=held, contact=contact, iters=it)
 
 
-def _kick_b(P, lam):
+def _kick_b(P, lam, rows=None):
     """Branch magnitude of mirror segments past buckling (0 where not past it).
 
     In the first table cell after the pitchfork (where linear interpolation of
     ``b ~ sqrt(lambda - lam_c)`` is poor) the quadratic ``phi = mu_c (1 + beta b^2)`` is
-    used; beyond it the per-segment table.
+    used; beyond it the per-segment table. ``lam`` holds the tensions of ``rows``.
     """
-    mu = lam[:, None] / P['k']
-    near = np.sqrt(np.maximum(mu / P['mu_c_safe'] - 1.0, 0.0) / P['beta_safe'])
-    first = mu < P['mu_1']
+    rows = np.arange(lam.shape[0]) if rows is None else rows
+    mu = lam[:, None] / P['k'][rows]
+    near = np.sqrt(np.maximum(mu / P['mu_c_safe'][rows] - 1.0, 0.0) / P['beta_safe'][rows])
+    near = np.minimum(near, P['b_1'][rows])
+    first = mu < P['mu_1'][rows]
     if first.all():
-        return np.minimum(near, P['b_1'])
-    return np.where(first, np.minimum(near, P['b_1']), _guess_b(P, lam))
+        return near
+    return np.where(first, near, _guess_b(P, lam, rows))
 
 
 def _curvature(P, lam, b, lp, l_aa, held):
@@ -823,7 +843,8 @@ def _robust(P, L_t, lam_lo, lam_hi, max_iter=200):
     lam = 0.5 * (lam_lo + lam_hi)
     for _ in range(max_iter):
         mu = lam[:, None] / k
-        b = _branch_solve(mu, P['table_mu'], P['table_b'], direction, d1, d2, s)
+        tm, tb = _tables(P, np.arange(lam.shape[0]))
+        b = _branch_solve(mu, tm, tb, direction, d1, d2, s)
         length, l_a, l_aa = segment_length_derivatives(direction * b, d1, d2, s)
         lp = direction * l_a
         g = length.sum(axis=1) - L_t
@@ -841,31 +862,35 @@ def _robust(P, L_t, lam_lo, lam_hi, max_iter=200):
     return lam, b, lam_lo, lam_hi
 
 
+_PER_ITEM = ('uid', 'k', 'd', 'd1', 'd2', 'direction', 'lam_c', 'lam_end', 'mu_c', 'beta',
+             'b_end', 'mirror', 'mu_c_safe', 'beta_safe', 'mu_1', 'lam_1', 'b_1', 'e1', 'e2',
+             'two_e1e2', 'dd2', 'two_k', 'inv_two_k', 'straight')
+
+
 def _stack(probs, index):
-    """Stack per-threading problem data into batch arrays (rows follow ``index``)."""
+    """Batch arrays: small per-item (B, n) arrays, tables once per distinct threading.
+
+    ``index`` (B,) maps batch rows to ``probs``; keys in :data:`_PER_ITEM` have the
+    batch as leading axis (and are what a sub-batch slices).
+    """
     def rows(attr):
         return np.stack([getattr(p, attr) for p in probs])[index]
-    pl = max(p.path_lam.size for p in probs)
-
-    def pad(arr, n):  # repeat the last sample: the path ends there
-        return np.concatenate([arr, np.repeat(arr[-1:], n - arr.shape[0], axis=0)])
-    table_mu, table_b = rows('table_mu'), rows('table_b')
     k, mu_c, beta = rows('k'), rows('mu_c'), rows('beta')
+    d1, d2, direction = rows('d1'), rows('d2'), rows('direction')
+    tables_mu = np.stack([p.table_mu for p in probs])
+    tables_b = np.stack([p.table_b for p in probs])
     mirror = mu_c > 0
-    m = table_mu.shape[-1]
-    d1, d2, direction, s = rows('d1'), rows('d2'), rows('direction'), probs[0].s
     return dict(
-        e1=d1 * direction, e2=d2 * direction, two_e1e2=2.0 * d1 * d2, dd2=(d1 - d2) ** 2, two_k=2.0 * k, inv_two_k=0.5 / k,
-        has_mirror=bool(mirror.any()), mirror=mirror,
+        uid=np.asarray(index), s=probs[0].s, has_mirror=bool(mirror.any()),
+        tables_mu=tables_mu, tables_b=tables_b,
+        paths=[(p.path_len, p.path_lam, p.path_b) for p in probs],
+        k=k, d=rows('d'), d1=d1, d2=d2, direction=direction, lam_c=rows('lam_c'),
+        lam_end=rows('lam_end'), mu_c=mu_c, beta=beta, b_end=rows('b_end'), mirror=mirror,
         mu_c_safe=np.where(mirror, mu_c, 1.0), beta_safe=np.where(mirror, beta, 1.0),
-        mu_1=table_mu[..., 1], lam_1=k * table_mu[..., 1], b_1=table_b[..., 1],
-        row_base=np.arange(table_mu[..., 0].size).reshape(table_mu.shape[:-1]) * m,
-        d=rows('d'), d1=rows('d1'), d2=rows('d2'), k=rows('k'), s=probs[0].s,
-        direction=rows('direction'), lam_c=rows('lam_c'), lam_end=rows('lam_end'),
-        mu_c=mu_c, beta=beta, b_end=rows('b_end'), table_mu=table_mu, table_b=table_b,
-        path_lam=np.stack([pad(p.path_lam, pl) for p in probs])[index],
-        path_len=np.stack([pad(p.path_len, pl) for p in probs])[index],
-        path_b=np.stack([pad(p.path_b, pl) for p in probs])[index],
+        mu_1=tables_mu[index, :, 1], lam_1=k * tables_mu[index, :, 1],
+        b_1=tables_b[index, :, 1],
+        e1=d1 * direction, e2=d2 * direction, two_e1e2=2.0 * d1 * d2, dd2=(d1 - d2) ** 2,
+        two_k=2.0 * k, inv_two_k=0.5 / k,
         straight=np.array([p.straight_mm for p in probs])[index])
 
 
@@ -892,14 +917,15 @@ def _solve_arrays_inner(P, L_t, lam0, b0, max_iter, tol_mm, tol_rad):
         # just past a pitchfork; start mirror segments from their own branch instead.
         past = P['mirror'] & (lam[:, None] > P['lam_c']) & (lam[:, None] < P['lam_1'])
         if past.any():
-            b = np.where(past, _kick_b(P, lam), b)
+            r = np.nonzero(past.any(axis=1))[0]
+            b[r] = np.where(past[r], _kick_b(P, lam[r], r), b[r])
     st = _newton(P, L_t, lam, b, lam_lo, lam_hi, max_iter, tol_mm, tol_rad, active=~slack)
     ok = _accept(st, slack)
     bad = ~ok
     if bad.any():
         # Fallback on the items Newton could not certify.
-        sub = {key: (val[bad] if isinstance(val, np.ndarray) and val.ndim >= 1
-                     and val.shape[0] == L_t.shape[0] else val) for key, val in P.items()}
+        sub = {key: (val[bad] if key in _PER_ITEM else val) for key, val in P.items()}
+        # Sub-batches keep the tables of every threading; only the row map is sliced.
         lam_r, b_r, lo_r, hi_r = _robust(sub, L_t[bad], lam_lo[bad], lam_hi[bad])
         st_r = _newton(sub, L_t[bad], lam_r, b_r, lo_r, hi_r, 4, tol_mm, tol_rad)
         for key in st:
@@ -956,7 +982,7 @@ def _single(skeleton: Skeleton, d: tuple):
     return prob, P, S
 
 
-def _solve_single(S, L, lam0=None, b0=None, max_iter=MAX_ITER):
+def _solve_single(S, L, lam0=None, b0=None, max_iter=MAX_ITER, fallback=True):
     """One solve on the plain-float path; falls back to the batch engine (with its
     robust fallback) when the result is not certified. Returns (out dict, state)."""
     m = S['n_path']
@@ -982,16 +1008,16 @@ def _solve_single(S, L, lam0=None, b0=None, max_iter=MAX_ITER):
     curv_min = float(np.min(curv, where=~st['contact'], initial=np.inf))
     ok = (abs(st['g']) <= CONSTRAINT_TOL_MM and st['stat'] <= STATIONARITY_TOL_RAD
           and curv_min > 0)
-    if not ok:
+    if not ok and fallback:
         out = _solve_arrays(S['P'], np.array([L]), max_iter=max_iter)
         return {key: val[0] for key, val in out.items()}
     b = st['b']
     angles = S['direction'] * b
     g = abs(st['g'])
     return dict(angles=angles, tension=st['lam'], energy=float(S['k'] @ (angles * angles)),
-                iterations=st['iters'], converged=True, constraint_residual=g,
+                iterations=st['iters'], converged=ok, constraint_residual=g,
                 stationarity_residual=st['stat'], residual=max(g, st['stat']),
-                is_minimum=True, min_curvature=curv_min if curv_min < np.inf else 1.0,
+                is_minimum=curv_min > 0, min_curvature=curv_min if curv_min < np.inf else 1.0,
                 slack=False, at_contact=st['contact'])
 
 
