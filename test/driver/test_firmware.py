@@ -215,3 +215,24 @@ def test_bad_fault_values_are_refused():
     with pytest.raises(ValueError, match='load_fraction'):
         MotorModel(load_fraction=1.0)
     assert math.isinf(Faults().reboot_after_s)
+
+
+def test_sim_module_process_serves_several_modules(start_node):
+    import re
+    import subprocess
+    import sys
+    proc = start_node('softsnap_driver', 'sim_module', '--port', '0', '--count', '2', '--seed', '1')
+    deadline = time.monotonic() + 15
+    while len(re.findall(r'serving .* on 127\.0\.0\.1:(\d+)', proc.output())) < 2:
+        assert proc.alive() and time.monotonic() < deadline, proc.output()
+        time.sleep(0.05)
+    ports = [int(p) for p in re.findall(r'127\.0\.0\.1:(\d+)', proc.output())]
+    first, second = (ModuleClient('127.0.0.1', port, timeout_s=1.0) for port in ports)
+    first.set_target(2000, 255)
+    time.sleep(0.3)
+    assert first.status().encoder_count > 1000          # separate modules
+    assert second.status().encoder_count == 0
+    assert proc.stop() == 0
+    # The simulator path never imports rclpy (usable without ROS).
+    check = 'import sys, softsnap_driver.sim_module; assert "rclpy" not in sys.modules'
+    assert subprocess.run([sys.executable, '-c', check], timeout=60).returncode == 0

@@ -156,6 +156,7 @@ OPTIONS = {
     # name: (type, default, help)
     'host': (str, '127.0.0.1', 'address to listen on (keep loopback)'),
     'port': (int, 8101, 'TCP port (the firmware uses 80)'),
+    'count': (int, 1, 'number of modules, on ports port, port+1, ...'),
     'seed': (int, -1, 'random seed for faults, -1 for a random one'),
     'drop_probability': (float, 0.0, 'chance a reply is dropped (connection closed)'),
     'delay_probability': (float, 0.0, 'chance a reply is delayed by delay_s'),
@@ -233,26 +234,40 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     parser = build_parser()
     opts = parser.parse_args(_ros_params(argv))
+    if not 1 <= opts.count <= 64:
+        parser.error(f'--count must be in [1, 64], got {opts.count}')
+    servers: list[SimServer] = []
     try:
-        module = module_from_options(opts, time.monotonic())
-        server = SimServer(module, host=opts.host, port=opts.port)
+        for i in range(opts.count):
+            module = module_from_options(opts, time.monotonic())
+            if opts.seed >= 0:
+                module.rng.seed(opts.seed + i)
+            servers.append(SimServer(module, host=opts.host, port=opts.port + i if opts.port else 0))
     except (ValueError, OSError) as exc:
+        for server in servers:
+            server.stop()
         parser.error(str(exc))
-    print(f'[sim_module] serving the firmware protocol on {server.host}:{server.port}', flush=True)
+    for server in servers:
+        print(f'[sim_module] serving the firmware protocol on {server.host}:{server.port}', flush=True)
+    stopping = threading.Event()
 
     def stop(signum, frame):
-        server._stop.set()
+        stopping.set()
 
     # Explicit handlers: a shell starting us in the background may have ignored SIGINT.
     signal.signal(signal.SIGINT, stop)
     signal.signal(signal.SIGTERM, stop)
+    for server in servers:
+        server.start()
     try:
-        server.serve_forever()
+        while not stopping.wait(0.2):
+            pass
     except KeyboardInterrupt:
         pass
     finally:
-        server.stop()
-        print(f'[sim_module] stopped after {server.connections} connections', flush=True)
+        for server in servers:
+            server.stop()
+        print(f'[sim_module] stopped after {sum(s.connections for s in servers)} connections', flush=True)
     return 0
 
 
