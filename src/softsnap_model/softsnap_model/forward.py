@@ -44,8 +44,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .geometry import cable_path as _cable_path
-from .geometry import rib_centers as _rib_centers
 from .geometry import _g_series, half_angle_functions, segment_length_derivatives
 from .skeleton import Skeleton
 
@@ -1170,12 +1168,6 @@ def _threading_tuple(skeleton: Skeleton, threading) -> tuple:
         except TypeError:   # unhashable items: convert (and fail) the normal way
             pass
     return tuple(skeleton.threading_mm(threading).tolist())
-
-
-def _frames(angles, s):
-    """Rib centres and orientations (few numpy calls: this is on the single-solve path)."""
-    from .geometry import _rib_frames
-    return _rib_frames(angles, s)
 
 
 def solve_forward_batch(skeleton: Skeleton, threadings, cable_lengths_mm, *,
