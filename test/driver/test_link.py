@@ -207,14 +207,27 @@ def test_random_faults_are_survived_and_counted(sim_server, link_to):
     assert last(link).counters.reboots_detected == 0
 
 
-def test_stall_is_visible_as_no_progress(sim_server, link_to):
+def test_stall_is_detected_reported_and_stopped(sim_server, link_to):
     server = sim_server(Faults(stall_after_s=0.0, stall_duration_s=math.inf))
-    link = link_to(server)
+    link = link_to(server, stall_timeout_s=0.4)
     link.command(0.15)
-    time.sleep(0.5)
-    report = last(link)
-    assert report.status.encoder_count == 0 and report.encoder_target == CAL.command(0.15).count
-    assert report.status.power_w > 2.0                  # stall current drawn
+    assert wait_for(lambda: 'stalled' in last(link).last_error, 3.0)
+    assert any('stalled' in text for level, text in link.log.lines if level == 'warning')
+    with server.lock:
+        assert server.module.target == server.module.encoder_count == 0    # reach: motor off
+        server.module.faults.stall_duration_s = 0.0                        # unjammed
+    link.command(0.16)                                                     # a new target moves
+    assert wait_for(lambda: last(link).status.encoder_count > 1000, 3.0)
+
+
+def test_slow_but_moving_is_not_a_stall(sim_server, link_to):
+    server = sim_server()
+    link = link_to(server, stall_timeout_s=0.2, pwm_power=25)              # ~1000 counts/s
+    link.command(0.118)
+    time.sleep(1.0)
+    assert 'stall' not in last(link).last_error
+    with server.lock:
+        assert server.module.target == CAL.command(0.118).count
 
 
 def test_stop_sends_reach_on_shutdown(sim_server):

@@ -72,6 +72,8 @@ PARAMETERS = {
     'reboot_min_jump_counts': (300, _int('Only a fall from at least this far is a reboot, counts', 1, 1_000_000_000)),
     'max_speed_counts_per_s': (20000.0, _float(
         'Fastest the winch can move; faster falls to 0 are reboots, counts/s', 1.0, 1e9)),
+    'stall_timeout_s': (1.0, _float(
+        'Outside the deadband with no progress for this long: stalled, stop it, s (0: never)', 0.0, 3600.0)),
     'stop_on_shutdown': (True, ParameterDescriptor(description='Send reach (stop) when the driver exits')),
 }
 
@@ -124,7 +126,8 @@ class DriverNode(Node):
             reboot_zero_band_counts=values['reboot_zero_band_counts'],
             reboot_min_jump_counts=values['reboot_min_jump_counts'],
             max_speed_counts_per_s=values['max_speed_counts_per_s'],
-            stop_on_shutdown=values['stop_on_shutdown'])
+            stop_on_shutdown=values['stop_on_shutdown'],
+            stall_timeout_s=values['stall_timeout_s'])
 
     def _values_with(self, parameters: list[Parameter]) -> dict:
         values = {name: self.get_parameter(name).value for name in PARAMETERS}

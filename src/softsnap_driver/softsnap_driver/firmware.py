@@ -61,11 +61,13 @@ import random
 from collections import deque
 from dataclasses import dataclass, field
 
+from softsnap_driver.protocol import FIRMWARE_DEADBAND_COUNTS
+
 #: Keywords in the firmware's search order.
 KEYWORDS = ('status', 'set', 'calibrate', 'pause', 'resume', 'reach')
 HEX_DIGITS = '0123456789ABCDEF'
 #: The motor stops when |target - current| <= this many counts.
-DEADBAND_COUNTS = 30
+DEADBAND_COUNTS = FIRMWARE_DEADBAND_COUNTS
 #: Beyond this error (counts) the firmware raises its boost pin.
 BOOST_COUNTS = 60
 #: Longest request head the sim keeps (bytes); the rest of a longer head is ignored.

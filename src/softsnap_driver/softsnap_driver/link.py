@@ -22,6 +22,11 @@ Offline: after ``offline_after_failures`` consecutive failed requests the module
 reported offline and only polled, with exponential backoff from the poll period up to
 ``max_backoff_s``; the first answer brings it back online (after the reboot check).
 
+Stall: a module that is outside the firmware's deadband, not paused, and has not moved
+by ``STALL_PROGRESS_COUNTS`` for ``stall_timeout_s`` is stalled (jammed winch, dead
+motor, PWM too low): the driver warns, reports it in ``last_error`` and sends ``reach``
+so the motor stops drawing stall current; the next new target drives it again.
+
 Reboot: see :func:`softsnap_driver.core.reboot_suspected`. On a detected reboot the
 driver counts it, reports it (``last_error`` and a warning), drops the pending target,
 holds the module with ``reach`` and marks it *uncalibrated*: the encoder count no longer
@@ -38,7 +43,11 @@ from collections import deque
 from dataclasses import dataclass, field, replace
 
 from softsnap_driver.core import CableCalibration, TargetCommand, reboot_suspected
-from softsnap_driver.protocol import ModuleClient, ModuleError, ModuleStatus
+from softsnap_driver.protocol import (FIRMWARE_DEADBAND_COUNTS, ModuleClient, ModuleError,
+                                      ModuleStatus)
+
+#: Movement smaller than this (counts) over ``stall_timeout_s`` is no progress.
+STALL_PROGRESS_COUNTS = 10
 
 
 class NeedsCalibration(ValueError):
@@ -62,6 +71,7 @@ class LinkConfig:
     reboot_min_jump_counts: int = 300
     max_speed_counts_per_s: float = 20000.0
     stop_on_shutdown: bool = True
+    stall_timeout_s: float = 1.0        # 0 disables stall detection
 
 
 @dataclass(frozen=True)
@@ -136,6 +146,7 @@ class ModuleLink:
         self._status_time = 0.0
         self._module_target: int | None = None   # what the module steers to, if known
         self._sent: tuple[int, int] | None = None  # (count, power) last acknowledged set
+        self._progress: tuple[int, float] | None = None  # (count, time) of last progress
         self._thread = threading.Thread(target=self._run, name=f'module_link:{config.host}:{config.port}',
                                          daemon=True)
 
@@ -287,7 +298,7 @@ class ModuleLink:
                 self._emit(config, fresh=False)
 
     def _exchange(self, config: LinkConfig, what: str, call,
-                  check_reboot: bool = True) -> ModuleStatus | None:
+                  check_reboot: bool = True, check_stall: bool = True) -> ModuleStatus | None:
         """One request; updates online state, backoff, reboot check; reports."""
         client = self._client_for(config)
         try:
@@ -315,8 +326,28 @@ class ModuleLink:
             if evidence is not None:
                 self._on_reboot(config, evidence)
                 return status
+        if check_stall and self._stalled(config, status, now):
+            with self._cond:
+                self._last_error = (
+                    f'motor stalled: count {status.encoder_count}, target {self._module_target}, '
+                    f'no progress for {config.stall_timeout_s:g} s at {status.power_w:.2f} W; '
+                    'stopped it (reach)')
+            self._log.warning(self._last_error)
+            self._hold(config, 'reach')       # reports the stopped module
+            return status
         self._emit(config, fresh=True)
         return status
+
+    def _stalled(self, config: LinkConfig, status: ModuleStatus, now: float) -> bool:
+        """Track progress toward the target; True once when it stopped for too long."""
+        count = status.encoder_count
+        if (config.stall_timeout_s <= 0 or status.paused or self._module_target is None
+                or abs(self._module_target - count) <= FIRMWARE_DEADBAND_COUNTS
+                or self._progress is None
+                or abs(count - self._progress[0]) > STALL_PROGRESS_COUNTS):
+            self._progress = (count, now)
+            return False
+        return now - self._progress[1] >= config.stall_timeout_s
 
     def _on_failure(self, config: LinkConfig, what: str, exc: ModuleError) -> None:
         now = self._clock()
@@ -348,6 +379,12 @@ class ModuleLink:
             self._module_target = status.encoder_count
 
     def _do_set(self, config: LinkConfig, cmd: TargetCommand) -> None:
+        # Re-derive the count with the current calibration (parameters may have changed
+        # since the command was accepted); clamping was counted when it arrived.
+        try:
+            cmd = config.calibration.command(cmd.requested_length_m)
+        except ValueError:
+            return  # cannot happen: the length was finite when accepted
         low, high = config.calibration.count_range
         if not low <= cmd.count <= high:
             # Unreachable by construction (CableCalibration clamps); a last guard.
@@ -365,6 +402,7 @@ class ModuleLink:
             return
         self._sent = key
         self._module_target = cmd.count
+        self._progress = (status.encoder_count, self._clock())   # a new target: re-arm
 
     def _do_stale(self, config: LinkConfig) -> None:
         with self._cond:
@@ -375,8 +413,9 @@ class ModuleLink:
         self._hold(config, 'reach')
 
     def _hold(self, config: LinkConfig, what: str) -> ModuleStatus | None:
-        status = self._exchange(config, what, lambda c: c.reach())
+        status = self._exchange(config, what, lambda c: c.reach(), check_stall=False)
         if status is not None:
+            self._progress = None
             self._sent = None
             self._module_target = status.encoder_count
         return status

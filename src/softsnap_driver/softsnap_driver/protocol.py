@@ -48,6 +48,9 @@ POWER_SAMPLES = 256
 POWER_DIGITS = 4
 POWER_UNIT_W = 1e-4
 
+#: The firmware stops the motor within this many counts of its target.
+FIRMWARE_DEADBAND_COUNTS = 30
+
 #: A reply longer than this is not the firmware's (its JSON line is about 1.2 kB).
 MAX_REPLY_BYTES = 16384
 
