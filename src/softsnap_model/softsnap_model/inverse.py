@@ -64,6 +64,8 @@ MAX_TENSION = 1e3  # grid top when no hole pair saturates (custom hole sets)
 #: Branch and bound stops after this many rounds of interval splitting (the certified
 #: lower bound is reported either way).
 MAX_BB_ROUNDS = 40
+#: ... or once more intervals than this remain open.
+MAX_BB_INTERVALS = 4096
 #: Distance (mm) the first target point may lie from the base rib centre (the origin).
 ORIGIN_TOL_MM = 1e-6
 
@@ -260,10 +262,10 @@ def _distance_to_polyline(query, points):
 def fit_angles_to_points(target_points, n_segments, spacing_mm):
     """Fit bending angles so that the rib centres lie on a target polyline.
 
-    Rib ``k`` sits at arc length ``k * spacing_mm`` along the spine, so the targets of the
-    rib centres are the polyline's points at those arc lengths (past its end, the last
-    polyline segment is extended). The angles are the least-squares fit of the rib
-    centres (``geometry.rib_centers``) to those points, started from the chord headings.
+    The first guess puts rib ``k`` at arc length ``k * spacing_mm`` along the polyline
+    (past its end, the last polyline segment is extended). Then, rib by rib from the
+    base, each angle is moved (within 0.5 rad of the guess) to bring the next rib centre
+    onto the polyline: rib centres given as the polyline are recovered exactly.
 
     Parameters
     ----------
@@ -281,22 +283,40 @@ def fit_angles_to_points(target_points, n_segments, spacing_mm):
         Fitted bending angles, rad.
     fit_error_mm : float
         Largest distance of a fitted rib centre from the polyline, mm.
+
+    Examples
+    --------
+    >>> angles, err = fit_angles_to_points([[0, 0], [50, 0], [100, 0], [200, 0]], 11, 18.0)
+    >>> float(abs(angles).max()) < 1e-9, err < 1e-9
+    (True, True)
     """
     points = _as_points(target_points)
     goal = _resample(points, spacing_mm * np.arange(n_segments + 1))
     chord = np.diff(goal, axis=0)
     heading = np.unwrap(np.arctan2(chord[:, 1], chord[:, 0]))
-    start = np.empty(n_segments)
+    angles = np.empty(n_segments)
     theta = 0.0
     for i in range(n_segments):  # chord i leaves rib i at heading theta + a_i / 2
-        start[i] = 2.0 * (heading[i] - theta)
-        theta += start[i]
+        angles[i] = 2.0 * (heading[i] - theta)
+        theta += angles[i]
 
-    def residual(angles):
-        return (geometry.rib_centers(angles, spacing_mm)[1:] - goal[1:]).ravel()
+    def gap(angle, i):
+        trial = angles.copy()
+        trial[i] = angle
+        trial[i + 1:] = 0.0
+        centre = geometry.rib_centers(trial[:i + 1], spacing_mm)[-1]
+        return float(_distance_to_polyline(centre[None], points)[0])
 
-    fit = optimize.least_squares(residual, start, xtol=1e-14, ftol=1e-14, gtol=1e-14)
-    angles = fit.x
+    for i in range(n_segments):
+        guess = angles[i]
+        fit = optimize.minimize_scalar(lambda x: gap(x, i), bounds=(guess - 0.5, guess + 0.5),
+                                       method='bounded', options={'xatol': 1e-12})
+        if fit.fun < gap(guess, i):
+            # Keep the rest of the chain on its guessed headings.
+            delta = fit.x - guess
+            angles[i] = fit.x
+            if i + 1 < n_segments:
+                angles[i + 1] -= delta
     fit_error = float(np.max(_distance_to_polyline(
         geometry.rib_centers(angles, spacing_mm), points)))
     return angles, fit_error
@@ -620,7 +640,7 @@ def _branch_and_bound(prob, tol_rad):
             lower_bound_cost = min(lower_bound_cost, float(np.min(bounds[done, 0])))
         if not np.any(keep):
             break
-        if rounds >= MAX_BB_ROUNDS:
+        if rounds >= MAX_BB_ROUNDS or np.count_nonzero(keep) > MAX_BB_INTERVALS:
             lower_bound_cost = min(lower_bound_cost, float(np.min(bounds[keep, 0])))
             converged = False
             break
@@ -732,6 +752,8 @@ def design_threading(skeleton, target_angles=None, target_points=None, *, k=3,
     mask = _allowed_mask(names, skeleton.n_ribs, fixed_holes, forbidden_holes, allowed_holes)
     length_range = _as_length_range(cable_length_range)
     prob = _Problem(skeleton, target, mask, length_range, int(k) + 1)
+    if length_range is not None:
+        _check_length_range(prob)
 
     cands, stats = _branch_and_bound(prob, float(tol_rad))
     if not cands.best:
@@ -753,6 +775,18 @@ def design_threading(skeleton, target_angles=None, target_points=None, *, k=3,
         n_forward_solves=n_solves, n_tension_nodes=stats['n_nodes'],
         n_candidates=stats['n_candidates'], converged=stats['converged'],
         message='; '.join(notes), solve_time=time.perf_counter() - started)
+
+
+def _check_length_range(prob):
+    """Refuse a length range no allowed threading reaches (shortest to straight)."""
+    ends, ends_len = prob.table(np.array([0.0, np.inf]))
+    shortest, _ = kbest_chain(ends_len[1:], prob.mask, 1)
+    longest, _ = kbest_chain(-ends_len[:1], prob.mask, 1)
+    lo, hi = float(shortest[0, 0]), float(-longest[0, 0])
+    if prob.length_range[1] <= lo or prob.length_range[0] > hi:
+        raise ValueError('no threading allowed by the constraints reaches a cable length in '
+                         f'[{prob.length_range[0]}, {prob.length_range[1]}] mm; allowed '
+                         f'threadings reach ({lo:.6g}, {hi:.6g}] mm')
 
 
 def _verify(prob, ranked, n_wanted, fit_error):
