@@ -49,6 +49,8 @@ __all__ = [
     'design_threading',
     'fit_angles_to_points',
     'GLOBAL_TOL_RAD',
+    'result_to_dict',
+    'add_cli',
 ]
 
 #: Optimality tolerance of the branch and bound: no design has an angle error (L2, rad)
@@ -826,3 +828,67 @@ def _verify(prob, ranked, n_wanted, fit_error):
             break
     designs.sort(key=lambda d: d.error)
     return designs[:n_wanted], n_solves, off_branch
+
+
+# --------------------------------------------------------------------------- command line
+
+
+def add_cli(subparsers):
+    """Register ``softsnap-model inverse`` (see :mod:`softsnap_model.cli`)."""
+    parser = subparsers.add_parser(
+        'inverse', help='globally best threading and cable length for a target shape')
+    target = parser.add_mutually_exclusive_group(required=True)
+    target.add_argument('--angles', help='target angle per segment, rad ("a0 a1 ..." or '
+                        'comma separated)')
+    target.add_argument('--points', help='JSON file with the target polyline [[x, y], ...] '
+                        'in mm, base frame, starting at the origin')
+    parser.add_argument('--k', type=int, default=3, help='ranked alternatives (default 3)')
+    parser.add_argument('--fixed', action='append', default=[],
+                        help='RIB:HOLE, e.g. 0:R1 (repeatable)')
+    parser.add_argument('--forbid', action='append', default=[], help='forbidden hole '
+                        '(repeatable)')
+    parser.add_argument('--allow', action='append', default=None, help='allowed hole '
+                        '(repeatable; default all)')
+    parser.add_argument('--length-range', nargs=2, type=float, metavar=('MIN_MM', 'MAX_MM'))
+    parser.add_argument('--tol', type=float, default=GLOBAL_TOL_RAD,
+                        help='global optimality tolerance, rad')
+    parser.set_defaults(handler=_cli_handler)
+
+
+def _cli_handler(args, skeleton):
+    import json
+
+    kwargs = dict(k=args.k, forbidden_holes=args.forbid, allowed_holes=args.allow,
+                  cable_length_range=args.length_range, tol_rad=args.tol)
+    fixed = {}
+    for item in args.fixed:
+        rib, sep, hole = item.partition(':')
+        if not sep or not rib.strip().lstrip('-').isdigit():
+            raise ValueError(f'--fixed expects RIB:HOLE such as 0:R1, got {item!r}')
+        fixed[int(rib)] = hole.strip()
+    kwargs['fixed_holes'] = fixed or None
+    if args.angles is not None:
+        try:
+            kwargs['target_angles'] = [float(v) for v in args.angles.replace(',', ' ').split()]
+        except ValueError:
+            raise ValueError(f'--angles must be numbers, got {args.angles!r}') from None
+    else:
+        with open(args.points) as handle:
+            kwargs['target_points'] = json.load(handle)
+    res = design_threading(skeleton, **kwargs)
+    return result_to_dict(res)
+
+
+def result_to_dict(res):
+    """Plain-data (JSON-serialisable) form of a :class:`DesignResult`."""
+    def one(d):
+        return {'holes': list(d.holes), 'threading_mm': d.threading.tolist(),
+                'cable_length_mm': d.cable_length, 'angles_rad': d.angles.tolist(),
+                'rib_centers_mm': d.rib_centers.tolist(), 'error_rad': d.error,
+                'position_error_mm': d.position_error, 'tension': d.tension}
+    out = one(res)
+    out.update(alternatives=[one(a) for a in res.alternatives], fit_error_mm=res.fit_error,
+               target_angles_rad=res.target_angles.tolist(), lower_bound_rad=res.lower_bound,
+               converged=res.converged, message=res.message, solve_time_s=res.solve_time,
+               n_forward_solves=res.n_forward_solves, n_tension_nodes=res.n_tension_nodes)
+    return out
