@@ -164,9 +164,17 @@ def test_closed_without_reply_and_garbage_are_typed(raw_server):
 
 
 def test_one_request_at_a_time(raw_server):
+    lock = threading.Lock()
+    active = [0, 0]            # requests being answered now, most at once
+
     def slow_reply(conn, stopping):
         conn.recv(1024)
+        with lock:
+            active[0] += 1
+            active[1] = max(active)
         stopping.wait(0.05)
+        with lock:
+            active[0] -= 1     # before the reply: the client may start its next request
         conn.sendall(firmware_reply())
 
     server = raw_server(slow_reply)
@@ -186,7 +194,7 @@ def test_one_request_at_a_time(raw_server):
     for thread in threads:
         thread.join(10)
     assert not errors
-    assert server.max_concurrent == 1
+    assert active[1] == 1
 
 
 def test_client_refuses_bad_arguments():
