@@ -40,7 +40,7 @@ def start_model_node(skip: bool, rate: float) -> subprocess.Popen:
     return subprocess.Popen(
         [exe, '--ros-args', '-r', f'__ns:={NS}', '-p', 'scene:=brittle_star', '-p', f'rate:={rate}',
          '-p', f'skip_work:={"true" if skip else "false"}', '-p', 'diagnostics_period:=0.5'],
-        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
+        stdout=open(os.environ.get("MODEL_BENCH_LOG", os.devnull), "w"), stderr=subprocess.STDOUT, start_new_session=True,
         env=dict(os.environ, ROS_HOME=tempfile.mkdtemp()))
 
 

@@ -153,3 +153,33 @@ def test_chained_modules_sit_on_their_parents_tips(snake):
     # The head moved too (it rides on the chain), the tail did not.
     assert not np.allclose(poses['head'][0], snake.module('head').base_position_m)
     np.testing.assert_allclose(poses['tail'][0], snake.module('tail').base_position_m)
+
+
+def test_without_skipping_every_length_is_solved_separately_with_rib_centres(snake):
+    # Regression: the no-skip mode (the benchmark's reference) crashed on its group keys.
+    predictor = RobotPredictor(snake, skip=False)
+    length = straight(snake, 'head') - 30.0
+    for _ in range(2):
+        for name in snake.module_names:
+            predictor.submit('commanded', name, length)
+        updated = predictor.tick(rib_centers=False)
+        assert len(updated['commanded']) == 5
+        assert all(shape.rib_centers_mm is not None for shape in updated['commanded'])
+    assert predictor.counters.solves == 10
+    assert predictor.counters.skipped_duplicate == predictor.counters.skipped_unchanged == 0
+
+
+def test_a_solver_refusal_at_tick_time_keeps_the_last_shape(brittle_star):
+    def refusing_solver(skeleton, threading, length, initial=None):
+        if length < 170.0:
+            raise ValueError(f'refused {length}')
+        return solve_forward(skeleton, threading, length, initial=initial)
+
+    predictor = RobotPredictor(brittle_star, solver=refusing_solver)
+    predictor.submit('predicted', 'yellow', 180.0)
+    first = predictor.tick()['predicted'][0]
+    predictor.submit('predicted', 'yellow', 160.0)
+    assert predictor.tick() == {'commanded': [], 'predicted': []}
+    assert predictor.shapes('predicted')[0] is first
+    assert predictor.errors == [('yellow', 'predicted', 'refused 160.0')]
+    assert predictor.counters.refused == 1

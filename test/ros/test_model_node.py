@@ -186,3 +186,27 @@ def test_identical_snake_modules_cost_one_solve(start_node, ros_node):
     assert ros_node.spin_until(
         lambda: diagnostics[-1].skipped_unchanged >= before.skipped_unchanged + 5, 10.0)
     assert diagnostics[-1].solves == before.solves
+
+
+def test_predictions_go_on_during_an_inverse_design(brittle_star_node, ros_node):
+    # Regression: an awaiting inverse design used to block the node's timers and itself.
+    from softsnap_interfaces.msg import ModelDiagnostics
+    from softsnap_interfaces.srv import ForwardShape, InverseDesign
+    diagnostics = []
+    ros_node.create_subscription(ModelDiagnostics, f'{NS}/model/diagnostics', diagnostics.append, 50)
+    inverse = ros_node.create_client(InverseDesign, f'{NS}/model_node/inverse_design')
+    forward = forward_client(ros_node)
+    assert ros_node.spin_until(lambda: inverse.service_is_ready() and forward.service_is_ready()
+                               and diagnostics, 20.0)
+    # A noisy target that is not reachable exactly: the branch and bound has work to do.
+    target = [0.3 * math.sin(i) - 0.05 * i for i in range(11)]
+    pending = [inverse.call_async(InverseDesign.Request(target_angles=target, alternatives=3))
+               for _ in range(2)]
+    n_before = len(diagnostics)
+    answer = ros_node.call(forward, ForwardShape.Request(holes=['R2'] * 12, cable_length=0.17))
+    assert answer.success
+    assert ros_node.spin_until(lambda: all(f.done() for f in pending), 60.0)
+    for future in pending:
+        assert future.result().success, future.result().message
+        assert len(future.result().alternatives) == 3
+    assert len(diagnostics) > n_before  # the diagnostics timer kept running

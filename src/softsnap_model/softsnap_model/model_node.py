@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 import time
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import rclpy
@@ -26,9 +27,9 @@ from geometry_msgs.msg import Point, Pose
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParametersResult
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
-from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
-from rclpy.executors import MultiThreadedExecutor
+from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.qos import QoSProfile
+from rclpy.task import Future
 
 from softsnap_interfaces.msg import CableLength, Design, ModelDiagnostics, ModuleShape, RobotShape
 from softsnap_interfaces.srv import ForwardShape, InverseDesign
@@ -86,29 +87,44 @@ class ModelNode(Node):
                              f'got {self.rib_centers_mode!r}')
         self.service_calls = 0
         self.service_failures = 0
+        self._last_msgs: dict[tuple[str, str], ModuleShape] = {}
         self._solve_time_reported = (0, 0.0)
 
         # Lengths are a stream where only the newest matters: sensor-data QoS would drop
         # messages under load; keep a small reliable queue so no command is lost silently.
         qos = QoSProfile(depth=10)
+        # Length topics are drained once per tick instead of waking the executor for every
+        # message: only the newest length per module matters for a prediction, and rclpy's
+        # per-message dispatch (~0.2 ms) would otherwise dominate the node's CPU at 100 Hz.
+        # The subscriptions live on an inbox node that no executor spins; up to `depth`
+        # messages per topic wait in DDS between two ticks.
+        self._inbox = Node('model_node_inbox', namespace=self.get_namespace(),
+                           context=self.context, start_parameter_services=False,
+                           enable_rosout=False)
+        self._length_subscriptions = []
         self.module_publishers = {}
         for module in self.scene.modules:
             for source in SOURCES:
-                self.create_subscription(
-                    CableLength, f'{module.name}/{LENGTH_TOPIC[source]}',
-                    lambda msg, m=module.name, s=source: self.length_callback(msg, m, s), qos)
+                subscription = self._inbox.create_subscription(
+                    CableLength, f'{module.name}/{LENGTH_TOPIC[source]}', lambda msg: None, qos)
+                self._length_subscriptions.append((module.name, source, subscription))
                 self.module_publishers[(module.name, source)] = self.create_publisher(
                     ModuleShape, f'{module.name}/shape/{source}', qos)
         self.robot_publishers = {s: self.create_publisher(RobotShape, f'model/shape/{s}', qos)
                                  for s in SOURCES}
         self.diagnostics_publisher = self.create_publisher(ModelDiagnostics, 'model/diagnostics', qos)
-        # Services run in their own group so that an inverse design (up to ~1 s) never
-        # stalls the prediction timer; they share no state with the predictor.
-        services = MutuallyExclusiveCallbackGroup()
-        self.create_service(ForwardShape, '~/forward_shape', self.forward_shape_callback,
-                            callback_group=services)
+        self.create_service(ForwardShape, '~/forward_shape', self.forward_shape_callback)
+        # An inverse design can take up to ~1 s: it runs on a worker thread (one at a time)
+        # so that predictions and forward solves go on meanwhile; the guard condition wakes
+        # the executor when the answer is ready.
+        # While its coroutine awaits, a callback keeps its group busy: the service and the
+        # guard get a reentrant group of their own, so neither they nor the default group
+        # (lengths, timers, forward service) are blocked by a design in progress.
+        design_group = ReentrantCallbackGroup()
+        self._design_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix='inverse_design')
+        self._design_done = self.create_guard_condition(lambda: None, callback_group=design_group)
         self.create_service(InverseDesign, '~/inverse_design', self.inverse_design_callback,
-                            callback_group=services)
+                            callback_group=design_group)
         self.tick_timer = self.create_timer(1.0 / self.get_parameter('rate').value, self.tick_callback)
         self.diagnostics_timer = self.create_timer(
             self.get_parameter('diagnostics_period').value, self.diagnostics_callback)
@@ -158,32 +174,51 @@ class ModelNode(Node):
                    for m in self.scene.modules)
 
     def tick_callback(self) -> None:
+        try:
+            self._tick()
+        except Exception as error:  # never let one bad tick stop the predictions
+            self.get_logger().error(f'prediction tick failed: {error!r}', throttle_duration_sec=1.0)
+
+    def _drain_lengths(self) -> None:
+        """Submit every length message that arrived since the last tick, oldest first."""
+        for module, source, subscription in self._length_subscriptions:
+            with subscription.handle:
+                while (taken := subscription.handle.take_message(CableLength, False)) is not None:
+                    self.length_callback(taken[0], module, source)
+
+    def _tick(self) -> None:
+        self._drain_lengths()
         want = {source: self._want_rib_centers(source) for source in SOURCES}
         updated = self.predictor.tick(want)
+        for module, source, reason in self.predictor.errors:
+            self.get_logger().warning(f'could not solve the {source} shape of {module!r}: '
+                                      f'{reason}; keeping the last valid shape',
+                                      throttle_duration_sec=1.0)
+        self.predictor.errors.clear()
         stamp = self.get_clock().now().to_msg()
         for source in SOURCES:
             if not updated[source]:
                 continue
+            # Each new shape becomes one message, published on its module topic and reused
+            # inside the robot message (building messages is a large part of a tick).
             for shape in updated[source]:
-                self.module_publishers[(shape.module, source)].publish(self._shape_msg(shape, stamp))
+                msg = self._shape_msg(shape, stamp)
+                self._last_msgs[(shape.module, source)] = msg
+                self.module_publishers[(shape.module, source)].publish(msg)
             robot = RobotShape()
             robot.header.stamp = stamp
             robot.header.frame_id = self.scene.name
             robot.robot = self.scene.name
-            for shape, (position, orientation) in zip(self.predictor.shapes(source),
-                                                      self.predictor.base_poses(source)):
-                if shape is None:
-                    msg = ModuleShape(source=source, converged=False)
-                else:
-                    msg = self._shape_msg(shape, stamp)
-                robot.modules.append(msg)
+            for module, (position, orientation) in zip(self.scene.modules,
+                                                       self.predictor.base_poses(source)):
+                msg = self._last_msgs.get((module.name, source))
+                robot.modules.append(msg if msg is not None else
+                                     ModuleShape(module=module.name, source=source))
                 pose = Pose()
                 pose.position.x, pose.position.y, pose.position.z = position
                 (pose.orientation.x, pose.orientation.y,
                  pose.orientation.z, pose.orientation.w) = orientation
                 robot.base_poses.append(pose)
-            for module, msg in zip(self.scene.modules, robot.modules):
-                msg.module = module.name
             self.robot_publishers[source].publish(robot)
 
     def _shape_msg(self, shape, stamp) -> ModuleShape:
@@ -248,6 +283,12 @@ class ModelNode(Node):
             response.success = False
             response.message = str(error)
             return response
+        except Exception as error:  # a solver bug must not take the node down
+            self.service_failures += 1
+            self.get_logger().error(f'forward_shape internal error: {error!r}')
+            response.success = False
+            response.message = f'internal error: {error!r}'
+            return response
         response.success = bool(result.converged)
         response.message = getattr(result, 'message', '') or ('converged' if result.converged
                                                              else 'did not converge')
@@ -263,18 +304,33 @@ class ModelNode(Node):
         response.iterations = int(result.iterations)
         return response
 
-    def inverse_design_callback(self, request, response):
+    async def inverse_design_callback(self, request, response):
         self.service_calls += 1
         start = time.perf_counter()
-        try:
-            response = self._inverse_design(request, response)
-        except (ValueError, TypeError) as error:
-            response.success = False
-            response.message = str(error)
+        done = Future()
+
+        def work():
+            try:
+                answer = self._inverse_design(request, InverseDesign.Response())
+            except (ValueError, TypeError) as error:
+                answer = InverseDesign.Response(success=False, message=str(error))
+            except Exception as error:  # a solver bug must not take the node down
+                answer = InverseDesign.Response(success=False, message=f'internal error: {error!r}')
+            done.set_result(answer)
+            self._design_done.trigger()
+
+        self._design_pool.submit(work)
+        response = await done
         if not response.success:
             self.service_failures += 1
+            self.get_logger().warning(f'inverse_design refused: {response.message}')
         response.solve_time = time.perf_counter() - start
         return response
+
+    def destroy_node(self):
+        self._design_pool.shutdown(wait=False, cancel_futures=True)
+        self._inbox.destroy_node()
+        return super().destroy_node()
 
     def _inverse_design(self, request, response):
         has_angles, has_points = len(request.target_angles) > 0, len(request.target_points) > 0
@@ -325,16 +381,13 @@ def main(args=None):
         rclpy.logging.get_logger('model_node').fatal(f'cannot start: {error}')
         rclpy.try_shutdown()
         raise SystemExit(2)
-    # Two threads: the default group (lengths + prediction timer, serialised, so the
-    # predictor needs no lock) and the services group (stateless solver calls).
-    executor = MultiThreadedExecutor(num_threads=2)
-    executor.add_node(node)
+    # One thread runs every callback (no locks needed around the predictor; lower latency
+    # than the multi-threaded executor); inverse designs run on the node's worker thread.
     try:
-        executor.spin()
+        rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
-        executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown()
 

@@ -127,6 +127,9 @@ class RobotPredictor:
         self._solver = solver
         self.skip = bool(skip)
         self.counters = PredictorCounters()
+        #: (module, source, reason) of lengths the solver refused at tick time; the caller
+        #: reports and clears them.
+        self.errors: list[tuple[str, str, str]] = []
         self._index = {m.name: i for i, m in enumerate(scene.modules)}
         self._threading = {m.name: np.asarray(m.threading_mm, dtype=float) for m in scene.modules}
         # Modules with equal threadings share solves: key them by their offsets.
@@ -196,12 +199,22 @@ class RobotPredictor:
                 key += (name, source)  # every module and source solved on its own
             groups.setdefault(key, []).append((name, source))
         updated: dict[str, list[ModulePrediction]] = {source: [] for source in SOURCES}
-        for (threading_key, length), members in groups.items():
+        for key, members in groups.items():
+            length = key[1]
             first = self._slots[members[0]]
             initial = first.shape.angles if first.shape is not None else None
             start = time.perf_counter()
-            result = self._solver(self.skeleton, self._threading[members[0][0]], length,
-                                  initial=initial)
+            try:
+                result = self._solver(self.skeleton, self._threading[members[0][0]], length,
+                                      initial=initial)
+            except ValueError as error:
+                # e.g. a length inside a snap-through the solver refuses: keep the last
+                # valid shapes, report why.
+                for name, source in members:
+                    self._slots[(name, source)].pending_mm = None
+                    self.errors.append((name, source, str(error)))
+                self.counters.refused += len(members)
+                continue
             elapsed = time.perf_counter() - start
             self.counters.solves += 1
             self.counters.solve_time_s += elapsed
