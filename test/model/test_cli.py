@@ -60,3 +60,18 @@ def test_console_help_runs():
     proc = subprocess.run([sys.executable, '-m', 'softsnap_model.cli', '--help'],
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 0 and 'forward' in proc.stdout and 'sweep' in proc.stdout
+
+
+def test_parse_threading_expands_repeats():
+    assert parse_threading('R3x6 L3x6') == ['R3'] * 6 + ['L3'] * 6
+    assert parse_threading('r1x2, 2.5') == ['R1', 'R1', 2.5]
+
+
+def test_record_subcommand_writes_a_sweep_recording(tmp_path, capsys, read_rrd):
+    out = tmp_path / 'sweep.rrd'
+    assert main(['record', 'sweep', '--threading', 'R3x12', '--max-contraction-mm', '30',
+                 '--steps', '4', '--out', str(out)]) == 0
+    answer = json.loads(capsys.readouterr().out)
+    assert answer == {'recording': str(out.resolve()), 'steps': 4}
+    rec = read_rrd(out)
+    assert len(rec.values('robot/module/predicted/spine', 'LineStrips3D:strips')) == 4

@@ -29,17 +29,26 @@ import sys
 import numpy as np
 
 #: Subcommands contributed by other modules, ``'package.module:function'``.
-PLUGINS: list[str] = ['softsnap_model.inverse:add_cli']
+PLUGINS: list[str] = ['softsnap_model.inverse:add_cli', 'softsnap_model.recording:add_cli']
 
 
 def parse_threading(text: str) -> list:
-    """``"R3 R3 L3"`` or ``"10,10,-10"`` -> list of hole names and/or offsets in mm."""
-    items = [tok for tok in text.replace(',', ' ').split() if tok]
+    """Threading text -> list of hole names and/or offsets in mm, one per rib.
+
+    ``"R3 R3 L3"``, ``"10,10,-10"``, and repeats ``"R3x6 L3x6"`` (a hole name followed by
+    ``x`` and a count) are accepted; names are checked later against the skeleton.
+    """
     out = []
-    for tok in items:
+    for tok in text.replace(',', ' ').split():
         try:
             out.append(float(tok))
+            continue
         except ValueError:
+            pass
+        name, sep, count = tok.rpartition('x') if 'x' in tok.lower() else (tok, '', '')
+        if sep and count.isdigit() and name:
+            out += [name.upper()] * int(count)
+        else:
             out.append(tok)
     return out
 

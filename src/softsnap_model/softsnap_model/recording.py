@@ -47,6 +47,9 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+from . import geometry
+from .skeleton import Skeleton
+
 APPLICATION_ID = 'softsnap'
 TIMELINE = 'ros_time'
 STEP_TIMELINE = 'step'
@@ -54,9 +57,9 @@ ROBOT_ROOT = 'robot'
 PLOTS_ROOT = 'plots'
 SOURCES = ('commanded', 'predicted')
 
-# Skeleton constants (authors' CAD, see FACTS.md), in millimetres.
-RIB_SPACING_MM = 18.0
-RIB_HALF_LENGTH_MM = 12.5
+# Drawing defaults of the authors' module, in millimetres (from the one Skeleton definition).
+RIB_SPACING_MM = Skeleton().spacing_mm
+RIB_HALF_LENGTH_MM = Skeleton().rib_length_mm / 2.0
 
 # Colours (RGB): commanded blue, predicted orange; ribs are lighter and the cable darker
 # shades of the same hue so the two shapes stay apart when they overlap.
@@ -216,30 +219,9 @@ def _as_vector(values, name: str) -> np.ndarray:
 
 def rib_centres_mm(angles_rad: Sequence[float], spacing_mm: float = RIB_SPACING_MM
                    ) -> np.ndarray:
-    """Rib centres (n + 1, 2) in mm of a module with bending angles ``angles_rad`` (n).
-
-    Each segment is a circular arc of length ``spacing_mm``; the chord to the next rib
-    has length ``spacing_mm * sinc(a / 2)`` and leaves at heading ``t_k + a_k / 2``.
-    Uses the solver core's ``geometry.rib_centers`` when it is installed.
-    """
-    angles = _as_vector(angles_rad, 'angles_rad')
-    core = _core_geometry()
-    if core is not None and hasattr(core, 'rib_centers'):
-        return np.asarray(core.rib_centers(angles, spacing_mm), dtype=float)[:, :2]
-    headings = np.concatenate(([0.0], np.cumsum(angles)))
-    chord = spacing_mm * np.sinc(angles / (2.0 * np.pi))  # np.sinc(x) = sin(pi x)/(pi x)
-    mid = headings[:-1] + angles / 2.0
-    steps = np.stack((chord * np.cos(mid), chord * np.sin(mid)), axis=1)
-    return np.vstack((np.zeros((1, 2)), np.cumsum(steps, axis=0)))
-
-
-def _core_geometry():
-    """The solver core's geometry module, or None where it is not installed."""
-    try:
-        from softsnap_model import geometry
-    except ImportError:
-        return None
-    return geometry
+    """Rib centres (n + 1, 2) in mm of a module with bending angles ``angles_rad`` (n)."""
+    return np.asarray(geometry.rib_centers(_as_vector(angles_rad, 'angles_rad'), spacing_mm),
+                      dtype=float)
 
 
 def rib_frames(angles_rad: Sequence[float], rib_centres_m: np.ndarray | None = None,
@@ -502,7 +484,6 @@ def forward_sweep_angles(threading_mm: Sequence[float], contractions_mm: Sequenc
                          ) -> np.ndarray:
     """Angles (rad) of the solver core's quasi-static sweep, authors' skeleton."""
     from softsnap_model.forward import sweep
-    from softsnap_model.skeleton import Skeleton
 
     return np.asarray(sweep(Skeleton(), list(threading_mm), list(contractions_mm)).angles)
 
@@ -577,22 +558,11 @@ def record_threadings(path: str | Path, threadings_mm: Mapping[str, Sequence[flo
 
 # --- command line -----------------------------------------------------------------------
 
-HOLE_OFFSETS_MM = {'L0': -0.5, 'L1': -3.0, 'L2': -6.5, 'L3': -10.0,
-                   'R0': 0.5, 'R1': 3.0, 'R2': 6.5, 'R3': 10.0}
-
-
-def parse_threading(text: str, ribs: int = 12) -> list[float]:
+def parse_threading(text: str, skeleton: Skeleton | None = None) -> list[float]:
     """Hole offsets (mm) from names: ``"R1 R1 R2 ..."``, ``"R3x6 L3x6"`` or ``"R3x12"``."""
-    offsets: list[float] = []
-    for word in text.replace(',', ' ').split():
-        name, _, count = word.upper().partition('X')
-        if name not in HOLE_OFFSETS_MM or (count and not count.isdigit()):
-            raise ValueError(f'unknown hole {word!r}; expected one of '
-                             f'{sorted(HOLE_OFFSETS_MM)} optionally followed by xN')
-        offsets += [HOLE_OFFSETS_MM[name]] * (int(count) if count else 1)
-    if len(offsets) != ribs:
-        raise ValueError(f'expected {ribs} holes (one per rib), got {len(offsets)} from {text!r}')
-    return offsets
+    from softsnap_model.cli import parse_threading as parse_words
+
+    return (skeleton or Skeleton()).threading_mm(parse_words(text)).tolist()
 
 
 def add_record_arguments(parser: argparse.ArgumentParser):
@@ -614,8 +584,8 @@ def add_record_arguments(parser: argparse.ArgumentParser):
     return sub
 
 
-def run_record(args: argparse.Namespace) -> int:
-    """Carry out a parsed ``record`` command."""
+def run_record(args: argparse.Namespace) -> Path:
+    """Carry out a parsed ``record`` command; returns the path written."""
     if args.steps < 1 or not args.max_contraction_mm >= 0.0:
         raise ValueError(f'need steps >= 1 and max contraction >= 0 mm, got {args.steps} '
                          f'and {args.max_contraction_mm}')
@@ -630,8 +600,21 @@ def run_record(args: argparse.Namespace) -> int:
                 raise ValueError(f'expected NAME=HOLES, got {item!r}')
             named[name.strip()] = parse_threading(holes)
         path = record_threadings(args.out, named, contractions)
-    print(f'wrote {path}')
-    return 0
+    return path
+
+
+def add_cli(subparsers):
+    """Register ``softsnap-model record {sweep,threadings}`` (see :mod:`softsnap_model.cli`)."""
+    parser = subparsers.add_parser(
+        'record', help='write a rerun recording without ROS (a sweep, or threadings compared)')
+    add_record_arguments(parser)
+    parser.set_defaults(handler=_cli_handler)
+
+
+def _cli_handler(args: argparse.Namespace, skeleton) -> dict:
+    if skeleton != Skeleton():
+        raise ValueError('record draws the authors\' module only; --skeleton is not supported')
+    return {'recording': str(run_record(args).resolve()), 'steps': args.steps}
 
 
 def serve_recording(path: str | Path, *, web_port: int = 9090, grpc_port: int = 9876
@@ -663,7 +646,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         if args.what != 'view':
-            return run_record(args)
+            print(f'wrote {run_record(args)}')
+            return 0
         url, _stream = serve_recording(args.file, web_port=args.web_port,
                                        grpc_port=args.grpc_port)
         print(f'open {url}  (Ctrl-C to stop)', flush=True)
