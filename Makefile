@@ -13,7 +13,7 @@ test: bootstrap
 	$(PY) -m pytest $(PYTEST_ARGS)
 
 demo: bootstrap
-	$(PY) -m softsnap_gaits.demo --scene $(SCENE) --seconds $(SECONDS)
+	$(PY) -m softsnap_gaits.demo --scene $(SCENE) --seconds $(SECONDS) $(ARGS)
 
 # Every benchmark script; each prints its own table (several minutes in all).
 bench: bootstrap
