@@ -109,12 +109,12 @@ def prediction_cpu(node, executor, scene, proc, seconds: float, moving: bool) ->
         while time.monotonic() < deadline:
             executor.spin_once(timeout_sec=max(0.0, deadline - time.monotonic()))
     cpu_end, wall_end = ps.cpu_times(), time.monotonic()
-    spin_until(executor, lambda: False, 0.6)
+    last = diagnostics[-1]  # the last report inside the measured window
     cpu = (cpu_end.user + cpu_end.system - cpu_start.user - cpu_start.system) / (wall_end - wall_start)
-    last = diagnostics[-1]
     solves = last.solves - (diag0.solves if diag0 else 0)
     return {'cpu_percent': 100.0 * cpu, 'messages_in_per_s': (sent - sent0) / (wall_end - wall_start),
-            'solves_per_s': solves / (wall_end - wall_start), 'mean_solve_us': last.mean_solve_time * 1e6,
+            'solves_per_s': solves / (wall_end - wall_start),
+            'mean_solve_us': (last.mean_solve_time * 1e6) if solves else 0.0,
             'skipped_unchanged': last.skipped_unchanged, 'skipped_duplicate': last.skipped_duplicate,
             'skipped_rib_points': last.skipped_rib_points,
             'rss_mib': ps.memory_info().rss / 2**20}
