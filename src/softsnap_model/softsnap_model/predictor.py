@@ -26,7 +26,7 @@ import numpy as np
 
 from . import geometry
 from .forward import reachable_range, solve_forward
-from .scene import Scene, compose_base_pose
+from .scene import Scene, compose_base_pose, quaternion_to_matrix
 
 __all__ = ['SOURCES', 'ModulePrediction', 'PredictorCounters', 'RobotPredictor']
 
@@ -272,7 +272,6 @@ class RobotPredictor:
 
     def _tip_pose(self, base_pose, angles):
         """Robot-frame pose of the last rib of a module with the given base pose, angles."""
-        from .scene import quaternion_to_matrix
         position, orientation = base_pose
         tip_xy_mm = geometry.rib_centers(angles, self.skeleton.spacing_mm)[-1]
         heading = float(np.sum(angles))
