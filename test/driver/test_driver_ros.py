@@ -157,7 +157,7 @@ def test_faults_are_survived_and_reported(start_node, ros_node, sim_server):
     with server.lock:
         server.module.faults.stall_after_s = 0.0
     probe.command(0.19)
-    assert probe.wait_state(lambda s: 'stalled' in s.last_error, 10)
+    assert probe.wait_state(lambda s: 'stalled' in s.last_error and s.stalls_detected >= 1, 10)
     with server.lock:
         assert server.module.target == server.module.encoder_count
     assert driver.alive()

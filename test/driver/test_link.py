@@ -213,6 +213,7 @@ def test_stall_is_detected_reported_and_stopped(sim_server, link_to):
     link.command(0.15)
     assert wait_for(lambda: 'stalled' in last(link).last_error, 3.0)
     assert any('stalled' in text for level, text in link.log.lines if level == 'warning')
+    assert last(link).counters.stalls_detected >= 1
     with server.lock:
         assert server.module.target == server.module.encoder_count == 0    # reach: motor off
         server.module.faults.stall_duration_s = 0.0                        # unjammed

@@ -196,6 +196,7 @@ class DriverNode(Node):
         state.commands_refused = c.commands_refused
         state.reboots_detected = c.reboots_detected
         state.stale_stops = c.stale_stops
+        state.stalls_detected = c.stalls_detected
         state.last_error = report.last_error
         self.state_publisher.publish(state)
 

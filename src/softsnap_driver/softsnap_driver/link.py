@@ -81,6 +81,7 @@ class Counters:
     commands_refused: int = 0
     reboots_detected: int = 0
     stale_stops: int = 0
+    stalls_detected: int = 0
 
 
 @dataclass(frozen=True)
@@ -333,6 +334,7 @@ class ModuleLink:
                     f'no progress for {config.stall_timeout_s:g} s at {status.power_w:.2f} W; '
                     'stopped it (reach)')
             self._log.warning(self._last_error)
+            self._count(stalls_detected=1)
             self._hold(config, 'reach')       # reports the stopped module
             return status
         self._emit(config, fresh=True)
