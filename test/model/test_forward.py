@@ -173,6 +173,27 @@ def test_segment_angle_at_tension_matches_solver():
     assert np.allclose(a, res.angles, atol=1e-12)
 
 
+def test_segment_angle_at_tension_broadcast_matches_per_element():
+    # Regression (inverse design took 10-12 s): the broadcast call builds each distinct
+    # pair's profile once; it must give what every element computed alone gives.
+    names = list(SK.holes_mm)
+    d = np.array([SK.holes_mm[h] for h in names])
+    lam = np.concatenate(([0.0], np.geomspace(1e-4, 20.0, 24)))
+    k = np.array([0.5, 1.0, 3.0])
+    a = segment_angle_at_tension(lam[:, None, None, None], d[None, :, None, None],
+                                 d[None, None, :, None], 18.0, k)
+    assert a.shape == (lam.size, 8, 8, 3)
+    rng = np.random.default_rng(7)
+    for idx in zip(*(rng.integers(0, n, 150) for n in a.shape)):
+        i, p, q, j = idx
+        alone = segment_angle_at_tension(lam[i], d[p], d[q], 18.0, k[j])
+        assert abs(a[idx] - alone) <= 1e-13, (idx, a[idx], alone)
+    # Tension-monotone magnitude, constant side, and nothing rebuilt per element.
+    assert np.all(np.diff(np.abs(a), axis=0) >= -1e-15)
+    with pytest.raises(ValueError, match='NaN'):
+        segment_angle_at_tension([0.1, np.nan], 3.0, 6.5, 18.0)
+
+
 def test_cold_solve_equals_path_following():
     t = threading('snake')
     lo, hi = reachable_range(SK, t)

@@ -40,6 +40,7 @@ from __future__ import annotations
 import functools
 import math
 import numbers
+import threading
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -198,11 +199,40 @@ def _pair_profile_array(d1, d2, s, b_max, n_samples=_BRANCH_SAMPLES):
                 mu_end=mu_end, kind=kind.astype(str), b=bt, mu=mu, length=length)
 
 
-@functools.lru_cache(maxsize=4096)
-def _pair_profile(d1: float, d2: float, s: float, b_max: float):
-    """Memoised profile of one hole pair (pure function of its arguments)."""
-    p = _pair_profile_array(np.array([d1]), np.array([d2]), s, b_max)
-    return {key: val[0] for key, val in p.items()}
+# Per-pair profiles, memoised for the process: a threading's tables are a function of its
+# distinct hole pairs, so threadings (and the inverse design) share them. FIFO-bounded.
+_PROFILE_CACHE: dict = {}
+_PROFILE_CACHE_MAX = 16384
+_PROFILE_LOCK = threading.Lock()
+_PROFILE_KEYS = ('direction', 'mirror', 'mu_c', 'beta', 'b_end', 'mu_end', 'kind', 'b', 'mu')
+
+
+def _pair_profiles(d1, d2, s: float, b_max: float) -> dict:
+    """Profiles of the hole pairs ``(d1[j], d2[j])``, stacked along the first axis.
+
+    Each distinct pair is built once per process (pure function of ``(d1, d2, s,
+    b_max)``); the pairs not seen before are built together, vectorised.
+    """
+    keys = [(float(x), float(y), float(s), float(b_max)) for x, y in zip(d1, d2)]
+    with _PROFILE_LOCK:
+        found = [_PROFILE_CACHE.get(key) for key in keys]
+    missing = list(dict.fromkeys(key for key, f in zip(keys, found) if f is None))
+    if missing:
+        built = _pair_profile_array(np.array([key[0] for key in missing]),
+                                    np.array([key[1] for key in missing]), float(s),
+                                    float(b_max))
+        new = {key: {name: built[name][j] for name in _PROFILE_KEYS}
+               for j, key in enumerate(missing)}
+        with _PROFILE_LOCK:
+            _PROFILE_CACHE.update(new)
+            while len(_PROFILE_CACHE) > _PROFILE_CACHE_MAX:
+                del _PROFILE_CACHE[next(iter(_PROFILE_CACHE))]
+        found = [f if f is not None else new[key] for key, f in zip(keys, found)]
+    out = {name: np.array([f[name] for f in found]) for name in _PROFILE_KEYS
+           if name not in ('b', 'mu')}
+    out['b'] = np.stack([f['b'] for f in found])
+    out['mu'] = np.stack([f['mu'] for f in found])
+    return out
 
 
 def segment_branch(d1_mm, d2_mm, spacing_mm, max_angle_rad=None) -> SegmentBranch:
@@ -224,7 +254,7 @@ def segment_branch(d1_mm, d2_mm, spacing_mm, max_angle_rad=None) -> SegmentBranc
     d1, d2 = np.broadcast_arrays(np.asarray(d1_mm, float), np.asarray(d2_mm, float))
     shape = d1.shape
     b_max = _default_max_angle(spacing_mm, max_angle_rad)
-    p = _pair_profile_array(d1.ravel(), d2.ravel(), float(spacing_mm), b_max)
+    p = _pair_profiles(d1.ravel(), d2.ravel(), float(spacing_mm), b_max)
     return SegmentBranch(
         direction=p['direction'].reshape(shape).astype(int),
         mirror=p['mirror'].reshape(shape),
@@ -252,31 +282,66 @@ def _branch_solve(mu, table_mu, table_b, direction, d1, d2, s, iters=30):
     """
     m = table_mu.shape[-1]
     idx = np.clip(np.sum(table_mu < mu[..., None], axis=-1), 1, m - 1)
-    lo = np.take_along_axis(table_b, (idx - 1)[..., None], -1)[..., 0]
-    hi = np.take_along_axis(table_b, idx[..., None], -1)[..., 0]
-    mu_lo = np.take_along_axis(table_mu, (idx - 1)[..., None], -1)[..., 0]
-    mu_hi = np.take_along_axis(table_mu, idx[..., None], -1)[..., 0]
-    below = mu <= table_mu[..., 0]
-    above = mu >= table_mu[..., -1]
+
+    def take(table, i):
+        return np.take_along_axis(table, i[..., None], -1)[..., 0]
+
+    cell = (take(table_b, idx - 1), take(table_b, idx), take(table_mu, idx - 1),
+            take(table_mu, idx), table_mu[..., 0], table_mu[..., -1], table_b[..., 0],
+            table_b[..., -1])
+    return _branch_refine(mu, cell, direction, d1, d2, s, iters)
+
+
+def _branch_solve_pairs(mu, pair, prof, s, iters=30):
+    """:func:`_branch_solve` for flat ``mu`` (N,) on the stacked profiles ``prof`` of U
+    distinct pairs, ``pair`` (N,) indexing them: each pair's table is searched once per
+    pair (binary search), never copied per element."""
+    table_mu, table_b = prof['mu'], prof['b']
+    n_pairs, m = table_mu.shape
+    if n_pairs == 1:
+        idx = np.searchsorted(table_mu[0], mu, side='left')
+    else:
+        idx = np.empty(mu.shape, dtype=np.intp)
+        order = np.argsort(pair, kind='stable')
+        bounds = np.searchsorted(pair[order], np.arange(n_pairs + 1))
+        for u in range(n_pairs):
+            sel = order[bounds[u]:bounds[u + 1]]
+            idx[sel] = np.searchsorted(table_mu[u], mu[sel], side='left')
+    flat = pair * m + np.clip(idx, 1, m - 1)
+    tm, tb = table_mu.ravel(), table_b.ravel()
+    cell = (tb[flat - 1], tb[flat], tm[flat - 1], tm[flat], table_mu[pair, 0],
+            table_mu[pair, -1], table_b[pair, 0], table_b[pair, -1])
+    return _branch_refine(mu, cell, prof['direction'][pair], prof['d1'][pair],
+                          prof['d2'][pair], s, iters)
+
+
+def _branch_refine(mu, cell, direction, d1, d2, s, iters):
+    """Safeguarded Newton for ``2 b + mu l'(b) = 0`` inside the table cell ``cell`` =
+    ``(b_lo, b_hi, mu_lo, mu_hi, mu_first, mu_last, b_first, b_last)``."""
+    lo, hi, mu_lo, mu_hi, mu_first, mu_last, b_first, b_last = cell
+    below = mu <= mu_first
+    above = mu >= mu_last
     with np.errstate(invalid='ignore', divide='ignore'):
         w = np.where(np.isfinite(mu_hi), (mu - mu_lo) / (mu_hi - mu_lo), 0.5)
     w = np.clip(np.nan_to_num(w, nan=0.5), 0.0, 1.0)
     b = lo + w * (hi - lo)
     for _ in range(iters):
-        _, lp, lpp = _branch_derivs(b, direction, d1, d2, s)
-        r = 2.0 * b + mu * lp
-        dr = 2.0 + mu * lpp
+        with np.errstate(invalid='ignore'):
+            _, lp, lpp = _branch_derivs(b, direction, d1, d2, s)
+            r = 2.0 * b + mu * lp
+            dr = 2.0 + mu * lpp
         lo = np.where(r < 0.0, b, lo)
         hi = np.where(r > 0.0, b, hi)
         with np.errstate(invalid='ignore', divide='ignore'):
             step = b - r / dr
         ok = (step > lo) & (step < hi) & np.isfinite(step)
         new = np.where(ok, step, 0.5 * (lo + hi))
-        done = np.abs(new - b) <= 1e-15 * (1.0 + np.abs(b))
+        # Entries outside the table (returned as its end values) never hold the loop.
+        done = (np.abs(new - b) <= 1e-15 * (1.0 + np.abs(b))) | below | above
         b = new
         if done.all():
             break
-    b = np.where(below, table_b[..., 0], np.where(above, table_b[..., -1], b))
+    b = np.where(below, b_first, np.where(above, b_last, b))
     return b
 
 
@@ -292,7 +357,7 @@ def segment_angle_at_tension(tension, d1_mm, d2_mm, spacing_mm, stiffness=1.0,
     Parameters
     ----------
     tension : array_like
-        Multiplier ``lambda >= 0`` (rad^2/mm).
+        Multiplier ``lambda >= 0`` (rad^2/mm); ``inf`` gives the branch end angle.
     d1_mm, d2_mm : array_like
         Hole offsets (mm).
     spacing_mm : float
@@ -310,17 +375,30 @@ def segment_angle_at_tension(tension, d1_mm, d2_mm, spacing_mm, stiffness=1.0,
         fold angle where the branch folds (then ``a(lambda)`` is not single valued past
         it; none of the authors' hole pairs folds before contact).
 
+    Notes
+    -----
+    Cost: each distinct ``(d1, d2)`` pair's branch profile is built once per process
+    (shared with the forward solver's tables); then all tensions are solved together,
+    so many tensions on a few pairs cost little more than the Newton on the output.
+
     Examples
     --------
     >>> a = segment_angle_at_tension(0.1, 10.0, 10.0, 18.0)
     >>> bool(a < 0)     # right-side holes bend clockwise
     True
+    >>> segment_angle_at_tension([[0.0], [0.1]], [10.0, -3.0], [10.0, 3.0], 18.0).shape
+    (2, 2)
     """
-    lam, d1, d2, k = np.broadcast_arrays(*(np.asarray(v, dtype=float) for v in
-                                           (tension, d1_mm, d2_mm, stiffness)))
+    lam = np.asarray(tension, dtype=float)
+    k = np.asarray(stiffness, dtype=float)
+    d1, d2 = np.broadcast_arrays(np.asarray(d1_mm, dtype=float),
+                                 np.asarray(d2_mm, dtype=float))
+    shape = np.broadcast_shapes(lam.shape, d1.shape, k.shape)
     for name, v in (('tension', lam), ('d1_mm', d1), ('d2_mm', d2), ('stiffness', k)):
-        if not np.all(np.isfinite(v)):
-            raise ValueError(f'{name} must be finite, got {v[~np.isfinite(v)].ravel()[0]!r}')
+        bad = np.isnan(v) if name == 'tension' else ~np.isfinite(v)
+        if np.any(bad):
+            what = 'must not be NaN' if name == 'tension' else 'must be finite'
+            raise ValueError(f'{name} {what}, got {v[bad].ravel()[0]!r}')
     if np.any(lam < 0):
         raise ValueError(f'tension must be >= 0, got {lam[lam < 0].ravel()[0]!r}')
     if np.any(k <= 0):
@@ -328,12 +406,19 @@ def segment_angle_at_tension(tension, d1_mm, d2_mm, spacing_mm, stiffness=1.0,
     s = float(spacing_mm)
     if not (math.isfinite(s) and s > 0):
         raise ValueError(f'spacing_mm must be finite and > 0, got {spacing_mm!r}')
-    shape = lam.shape
     b_max = _default_max_angle(s, max_angle_rad)
-    p = _pair_profile_array(d1.ravel(), d2.ravel(), s, b_max)
-    b = _branch_solve(lam.ravel() / k.ravel(), p['mu'], p['b'], p['direction'],
-                      d1.ravel(), d2.ravel(), s)
-    return (p['direction'] * b).reshape(shape)
+    # Distinct pairs of the (unbroadcast) hole arrays, then one index per output element.
+    u1, i1 = np.unique(d1.ravel(), return_inverse=True)
+    u2, i2 = np.unique(d2.ravel(), return_inverse=True)
+    key_u, pair = np.unique(i1 * u2.size + i2, return_inverse=True)
+    pu1, pu2 = u1[key_u // u2.size], u2[key_u % u2.size]
+    prof = _pair_profiles(pu1, pu2, s, b_max)
+    prof['d1'], prof['d2'] = pu1, pu2
+    pair = np.broadcast_to(pair.reshape(d1.shape), shape).ravel()
+    with np.errstate(invalid='ignore'):
+        mu = np.broadcast_to(lam / k, shape).ravel()
+    b = _branch_solve_pairs(mu, pair, prof, s)
+    return (prof['direction'][pair] * b).reshape(shape)
 
 
 # ----------------------------------------------------------------------------------------
@@ -372,15 +457,11 @@ def _problem(skeleton: Skeleton, d: tuple) -> _Problem:
     d_arr = np.array(d, dtype=float)
     d1, d2 = d_arr[:-1], d_arr[1:]
     k = skeleton.stiffness_array
-    prof = [_pair_profile(float(x), float(y), s, b_max) for x, y in zip(d1, d2)]
-    direction = np.array([p['direction'] for p in prof])
-    mu_c = np.array([p['mu_c'] for p in prof])
-    beta = np.array([p['beta'] for p in prof])
-    mu_end = np.array([p['mu_end'] for p in prof])
-    b_end = np.array([p['b_end'] for p in prof])
-    kind = tuple(str(p['kind']) for p in prof)
-    table_mu = np.stack([p['mu'] for p in prof])
-    table_b = np.stack([p['b'] for p in prof])
+    prof = _pair_profiles(d1, d2, s, b_max)
+    direction, mu_c, beta = prof['direction'], prof['mu_c'], prof['beta']
+    mu_end, b_end = prof['mu_end'], prof['b_end']
+    kind = tuple(str(x) for x in prof['kind'])
+    table_mu, table_b = prof['mu'], prof['b']
     lam_c, lam_end = k * mu_c, k * mu_end
     straight = float(np.sum(np.hypot(s, d2 - d1)))
     folds = [i for i, kd in enumerate(kind) if kd == 'fold']

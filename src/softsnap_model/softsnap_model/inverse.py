@@ -327,42 +327,6 @@ def fit_angles_to_points(target_points, n_segments, spacing_mm):
 # --------------------------------------------------------------------------- tension tables
 
 
-class _FastBranch:
-    """The forward solver's own per-segment branch, evaluated on many (tension, pair).
-
-    ``forward.segment_angle_at_tension`` rebuilds the branch profile of every broadcast
-    element; the inverse evaluates thousands of tensions on a handful of hole pairs, so
-    it reuses the forward module's memoised per-pair profile and its branch solve (the
-    same code, hence the same angles: ``test_fast_branch_matches_forward`` checks it).
-    Falls back to the public function if those internals change.
-    """
-
-    def __init__(self, tables, spacing):
-        self.mu, self.b, self.direction, self.d1, self.d2 = tables
-        self.spacing = spacing
-
-    @classmethod
-    def build(cls, d1, d2, spacing, contact_rad):
-        profile = getattr(forward, '_pair_profile', None)
-        solve = getattr(forward, '_branch_solve', None)
-        if profile is None or solve is None:
-            return None
-        try:
-            prof = [profile(float(x), float(y), float(spacing), float(contact_rad))
-                    for x, y in zip(d1, d2)]
-            tables = (np.stack([p['mu'] for p in prof]), np.stack([p['b'] for p in prof]),
-                      np.array([p['direction'] for p in prof], dtype=float),
-                      np.asarray(d1, float), np.asarray(d2, float))
-        except (KeyError, TypeError, ValueError):
-            return None
-        return cls(tables, float(spacing))
-
-    def __call__(self, mu, pair):
-        b = forward._branch_solve(mu, self.mu[pair], self.b[pair], self.direction[pair],
-                                  self.d1[pair], self.d2[pair], self.spacing)
-        return self.direction[pair] * b
-
-
 class _Problem:
     """Per-design data shared by the table, bound and refinement steps."""
 
@@ -382,8 +346,6 @@ class _Problem:
         m = self.offsets.size
         d1, d2 = np.broadcast_arrays(self.offsets[:, None], self.offsets[None, :])
         self.pair_d1, self.pair_d2 = d1.ravel(), d2.ravel()
-        self._fast = _FastBranch.build(self.pair_d1, self.pair_d2, self.spacing,
-                                       self.contact_rad)
         self.pair_grid = np.arange(m * m).reshape(m, m)
         branch = forward.segment_branch(self.pair_d1, self.pair_d2, self.spacing,
                                         self.contact_rad)
@@ -393,10 +355,8 @@ class _Problem:
         self.end_angle = (branch.direction * branch.end_angle_rad).reshape(m, m)
 
     def angles(self, lam, pair, k):
-        """Branch angles (rad) of hole pairs (flat indices) at tensions, broadcasting."""
-        lam, pair, k = np.broadcast_arrays(np.asarray(lam, float), np.asarray(pair), k)
-        if self._fast is not None:
-            return self._fast(lam / k, pair)
+        """Branch angles (rad) of hole pairs (flat indices) at tensions, broadcasting;
+        ``lam = inf`` gives the branch ends (every segment at contact)."""
         return forward.segment_angle_at_tension(lam, self.pair_d1[pair], self.pair_d2[pair],
                                                 self.spacing, k, self.contact_rad)
 
