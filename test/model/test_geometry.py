@@ -50,6 +50,31 @@ def test_finite_differences_near_zero_are_smooth():
             assert (dL_p - dL_m) / (2 * h) == pytest.approx(d2L, abs=1e-8)
 
 
+@pytest.mark.parametrize('size_limit', ['_POW_MAX_SIZE', '_HORNER_MIN_SIZE'])
+def test_large_arrays_match_mpmath_and_small_arrays(size_limit):
+    # Larger arrays evaluate the near-zero series otherwise (repeated products, then
+    # Horner's scheme); every way must meet the same mpmath contract, at and near a = 0.
+    from softsnap_model import geometry
+    mp.mp.dps = 40
+    pairs = [(10, 10), (10, -10), (3, 6.5), (-0.5, 0.5), (-10, 3), (0.0, 0.0)]
+    limit = getattr(geometry, size_limit)
+    a = np.tile(np.array(ANGLES), limit // len(ANGLES) + 1)
+    assert limit < a.size <= limit + len(ANGLES)
+    for d1, d2 in pairs:
+        big = segment_length_derivatives(a, d1, d2, 18.0)
+        for j, x in enumerate(ANGLES):
+            small = segment_length_derivatives(x, d1, d2, 18.0)
+            f = lambda y: mp_length(y, d1, d2)  # noqa: E731
+            ref = [float(f(x)), float(mp.diff(f, x)), float(mp.diff(f, x, 2))]
+            for k in range(3):
+                scale = ref[0] if k == 0 else max(1.0, abs(ref[k]))
+                assert abs(big[k][j] - ref[k]) <= 4e-15 * scale, (x, d1, d2, k)
+                assert abs(big[k][j] - small[k]) <= 4e-15 * scale, (x, d1, d2, k)
+    c_big = segment_length(a, 3.0, 6.5, 18.0)[:len(ANGLES)]
+    c_small = [float(segment_length(x, 3.0, 6.5, 18.0)) for x in ANGLES]
+    np.testing.assert_allclose(c_big, c_small, rtol=4e-15)
+
+
 def test_switch_at_pi_has_no_jump():
     eps = 1e-12
     for d1, d2 in [(10, 10), (3, -6.5)]:
