@@ -23,35 +23,60 @@ def subscribe(node, topic, msg_type, depth=200):
     return received
 
 
+def stamp_s(msg) -> float:
+    """Header stamp of a message in seconds (the publishing node's clock)."""
+    return msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+
+
 def measure_rate(node, received, window_s):
-    """Mean receive rate (Hz) over `window_s` seconds, from arrival times, and the messages."""
+    """Messages received during the next `window_s` seconds and their mean rate (Hz).
+
+    The rate is taken from the header stamps, i.e. it is the rate at which the node
+    published them: arrival times in this process also carry its own scheduling (a test
+    process starved for 100 ms takes the backlog in a burst, which says nothing about the
+    publisher).
+    """
     start = len(received)
     deadline = time.monotonic() + window_s
     node.spin_until(lambda: time.monotonic() >= deadline, window_s + 1.0)
-    times = [t for t, _ in received[start:]]
-    assert len(times) >= 3, f'only {len(times)} messages in {window_s} s'
-    return (len(times) - 1) / (times[-1] - times[0]), received[start:]
+    window = received[start:]
+    assert len(window) >= 3, f'only {len(window)} messages in {window_s} s'
+    stamps = [stamp_s(m) for _, m in window]
+    return (len(stamps) - 1) / (stamps[-1] - stamps[0]), window
+
+
+def wait_for_period(node, received, period_s):
+    """Spin until two consecutive messages are stamped about `period_s` apart.
+
+    After a rate change, commands from the old timer may still be queued here; the
+    measurement window starts once the new timer's spacing shows up.
+    """
+    def new_spacing():
+        if len(received) < 2:
+            return False
+        dt = stamp_s(received[-1][1]) - stamp_s(received[-2][1])
+        return abs(dt - period_s) < 0.2 * period_s
+
+    assert node.spin_until(new_spacing, TIMEOUT_S), 'the new rate never showed up'
 
 
 def check_rate(node, received, rate_hz, window_s=1.5):
-    """Assert the node publishes at `rate_hz`; returns (mean rate, median rate, messages).
+    """Assert the node publishes at `rate_hz`; returns (mean rate, messages).
 
     The machine is shared (2 cores, other engineers' tests): a starved process misses
     timer periods, which lowers the mean rate but not the typical interval. So the median
-    interval of the header stamps must match the period closely, the median arrival
-    interval loosely, and the mean rate must lie between 60 % and 110 % of the target.
+    interval of the header stamps must match the period closely and the mean rate (also
+    from the stamps) must lie between 60 % and 110 % of the target. Delivery is checked
+    by count: the window must hold at least 60 % of the messages the rate implies.
     """
     mean, window = measure_rate(node, received, window_s)
-    stamps = np.array([m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec for _, m in window])
-    arrivals = np.array([t for t, _ in window])
+    stamps = np.array([stamp_s(m) for _, m in window])
     median_stamp_hz = 1.0 / np.median(np.diff(stamps))
-    median_arrival_hz = 1.0 / np.median(np.diff(arrivals))
-    print(f'target {rate_hz:g} Hz: mean received {mean:.1f} Hz, median interval '
-          f'{median_stamp_hz:.1f} Hz (stamps) / {median_arrival_hz:.1f} Hz (arrivals), '
-          f'{len(window)} messages in {window_s} s')
+    print(f'target {rate_hz:g} Hz: mean {mean:.1f} Hz, median interval {median_stamp_hz:.1f} Hz '
+          f'(stamps), {len(window)} messages received in {window_s} s')
     assert median_stamp_hz == pytest.approx(rate_hz, rel=0.05)
-    assert median_arrival_hz == pytest.approx(rate_hz, rel=0.25)
     assert 0.6 * rate_hz <= mean <= 1.1 * rate_hz
+    assert len(window) >= 0.6 * rate_hz * window_s
     return mean, window
 
 
@@ -91,7 +116,7 @@ def test_gait_node_publishes_at_the_configured_rate(start_node, ros_node):
     # Change the rate at run time, then refuse an out-of-range one.
     client = ros_node.create_client(SetParameters, f'{NS}/gait_node/set_parameters')
     assert set_parameters(ros_node, client, rate=20.0)[0].successful
-    measure_rate(ros_node, yellow, 0.2)                  # let the new timer settle
+    wait_for_period(ros_node, yellow, 1.0 / 20.0)        # let the new timer settle
     check_rate(ros_node, yellow, 20.0)
     result = set_parameters(ros_node, client, rate=5000.0)[0]
     assert not result.successful and 'rate' in result.reason
@@ -136,8 +161,15 @@ def test_gait_node_services_start_stop_pause_resume_switch(start_node, ros_node)
     # Pause: commands keep coming but hold still; resume: they move again.
     assert ros_node.call(trigger['pause'], Trigger.Request()).success
     wait_phase(lambda p: p.paused and not p.running)
-    _, held = measure_rate(ros_node, yellow, 0.6)
-    assert len({m.cable_length for _, m in held}) == 1
+    # Select the held commands by stamp, not by arrival: commands published just before
+    # the pause can still be in this process's queue when the paused phase is taken (the
+    # executor serves the two topics independently), and they differ from the held value.
+    # Every tick stamped at or after this paused phase message ran while paused.
+    paused_at = stamp_s(phases[-1][1])
+    measure_rate(ros_node, yellow, 0.6)
+    held = [m.cable_length for _, m in yellow if stamp_s(m) >= paused_at]
+    assert len(held) >= 3, f'only {len(held)} commands while paused'
+    assert len(set(held)) == 1, sorted(set(held))
     assert ros_node.call(trigger['resume'], Trigger.Request()).success
     wait_phase(lambda p: p.running and not p.paused)
     _, moving = measure_rate(ros_node, yellow, 1.2)
@@ -161,11 +193,24 @@ def test_gait_node_services_start_stop_pause_resume_switch(start_node, ros_node)
     response = ros_node.call(trigger['stop'], Trigger.Request())
     assert response.success
     wait_phase(lambda p: not p.running and not p.paused)
-    t_stop = time.monotonic()
-    ros_node.spin_until(lambda: time.monotonic() > t_stop + 0.5, 2.0)
+    # Judge by the node's clock (header stamps), not by this process's wall clock: under
+    # load either process can be starved for a while, and commands published during the
+    # relax blend may arrive late. The stop happened at or before `stopped_at`; the blend
+    # (transition_time 0.1 s) is over by stopped_at + 0.1, the first tick after that
+    # publishes the straight length and later ticks publish no command, only the phase.
+    stopped_at = stamp_s(phases[-1][1])
+
+    def node_time_passed(dt):
+        return lambda: phases and stamp_s(phases[-1][1]) >= stopped_at + dt
+
+    assert ros_node.spin_until(node_time_passed(1.0), TIMEOUT_S), proc.output()
     count = len(yellow)
-    assert yellow[-1][1].cable_length == pytest.approx(straight_length_m('yellow'), abs=1e-9)
-    ros_node.spin_until(lambda: time.monotonic() > t_stop + 1.0, 2.0)
+    last_command = max((m for _, m in yellow), key=stamp_s)
+    assert last_command.cable_length == pytest.approx(straight_length_m('yellow'), abs=1e-9)
+    after_blend = [stamp_s(m) - stopped_at for _, m in yellow if stamp_s(m) >= stopped_at + 0.1]
+    assert len(after_blend) <= 1, f'commands after the relax blend at +{after_blend} s'
+    # Another half second of node time (phases keep coming): still no command.
+    assert ros_node.spin_until(node_time_passed(1.5), TIMEOUT_S), proc.output()
     assert len(yellow) == count
     assert proc.alive()
 
