@@ -35,17 +35,27 @@ from .graph import NodeSpec, robot_graph
 
 STOP_TIMEOUT_S = 10.0  # per process, after SIGINT, before SIGKILL
 READY_TIMEOUT_S = 60.0  # the whole graph up: discovery + first predicted shapes
+DRAIN_TIMEOUT_S = 10.0  # after the run: the observer takes what is still queued for it
+DRAIN_IDLE_S = 1.0  # ... and stops early once no command arrived for this long
+#: Queue depth of the observer's command and measured-length subscriptions: 20 s of 50 Hz
+#: commands, so an observer that falls behind on a loaded machine catches up afterwards
+#: instead of having its queue overwritten (which DDS does not report as lost).
+STREAM_DEPTH = 1000
 
 
 @dataclasses.dataclass
 class ModuleStats:
-    """What the observer saw of one module (counts; errors in mm; times in s)."""
+    """What the observer saw of one module (counts; errors in mm; times in s, stamps in ns).
 
-    commands: int = 0
+    Commands and measured lengths are kept by header stamp (the publisher's clock), so
+    what the summary reports about them is what the gait node and the driver published
+    during the run, not when this process got round to taking the messages.
+    """
+
+    command_stamps_ns: list = dataclasses.field(default_factory=list)
     lost: int = 0
-    first_command_s: float = math.nan
-    last_command_s: float = math.nan
-    measured: int = 0
+    last_command_arrival_s: float = math.nan
+    measured_stamps_ns: list = dataclasses.field(default_factory=list)
     commanded_shapes: int = 0
     predicted_shapes: int = 0
     tip_errors_mm: list = dataclasses.field(default_factory=list)
@@ -115,18 +125,19 @@ class Observer:
         self.spacing_mm = scene.skeleton.spacing_mm
         from rclpy.event_handler import SubscriptionEventCallbacks
 
-        def subscribe(msg_type, topic, callback, s):
+        def subscribe(msg_type, topic, callback, s, depth=100):
             # DDS reports messages it lost on the way (message_lost event): "dropped".
             events = SubscriptionEventCallbacks(
                 message_lost=lambda status, s=s: setattr(s, 'lost', s.lost + status.total_count_change))
-            self.node.create_subscription(msg_type, topic, callback, 100, event_callbacks=events)
+            self.node.create_subscription(msg_type, topic, callback, depth, event_callbacks=events)
 
         for m in scene.modules:
             s = self.stats[m.name]
             subscribe(CableLength, f'{m.name}/cable_length/command',
-                      lambda msg, s=s: self._command(s), s)
+                      lambda msg, s=s: self._command(s, msg), s, STREAM_DEPTH)
             subscribe(CableLength, f'{m.name}/cable_length/measured',
-                      lambda msg, s=s: setattr(s, 'measured', s.measured + 1), s)
+                      lambda msg, s=s: s.measured_stamps_ns.append(_stamp_ns(msg)), s,
+                      STREAM_DEPTH)
             subscribe(ModuleShape, f'{m.name}/shape/commanded',
                       lambda msg, s=s: self._commanded(s, msg), s)
             subscribe(ModuleShape, f'{m.name}/shape/predicted',
@@ -136,12 +147,9 @@ class Observer:
         self.node.create_subscription(ModelDiagnostics, 'model/diagnostics',
                                       lambda msg: setattr(self, 'diagnostics', msg), 10)
 
-    def _command(self, s: ModuleStats) -> None:
-        now = time.monotonic()
-        s.commands += 1
-        if math.isnan(s.first_command_s):
-            s.first_command_s = now
-        s.last_command_s = now
+    def _command(self, s: ModuleStats, msg) -> None:
+        s.command_stamps_ns.append(_stamp_ns(msg))
+        s.last_command_arrival_s = time.monotonic()
 
     def _tip_mm(self, angles) -> np.ndarray:
         return rib_centers(np.asarray(angles, dtype=float), self.spacing_mm)[-1]
@@ -172,6 +180,26 @@ class Observer:
         while time.monotonic() < deadline:
             self.executor.spin_once(timeout_sec=min(0.05, max(0.0, deadline - time.monotonic())))
 
+    def now_ns(self) -> int:
+        return self.node.get_clock().now().nanoseconds
+
+    def drain(self, end_ns: int) -> None:
+        """Spin until every module's commands stamped up to `end_ns` have been taken.
+
+        Messages of one topic arrive in order, so a command stamped after `end_ns` means
+        all earlier ones are in. Bounded: DRAIN_TIMEOUT_S in all, and it stops once no
+        command came for DRAIN_IDLE_S (a gait played once stops commanding).
+        """
+        deadline = time.monotonic() + DRAIN_TIMEOUT_S
+        while time.monotonic() < deadline:
+            stats = self.stats.values()
+            if all(s.command_stamps_ns and s.command_stamps_ns[-1] > end_ns for s in stats):
+                return
+            arrivals = [s.last_command_arrival_s for s in stats if s.command_stamps_ns]
+            if not arrivals or time.monotonic() - max(arrivals) > DRAIN_IDLE_S:
+                return
+            self.spin_for(0.05)
+
     def ready(self) -> bool:
         return all(s.predicted_shapes > 0 for s in self.stats.values())
 
@@ -190,6 +218,14 @@ class Observer:
         rclpy.try_shutdown(context=self.context)
 
 
+def _stamp_ns(msg) -> int:
+    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+
+
+def _in_window(stamps_ns, window_ns) -> list:
+    return sorted(t for t in stamps_ns if window_ns[0] <= t <= window_ns[1])
+
+
 def _percentiles(values) -> dict:
     if not values:
         return {'median': math.nan, 'p99': math.nan, 'n': 0}
@@ -197,18 +233,24 @@ def _percentiles(values) -> dict:
     return {'median': float(np.median(v)), 'p99': float(np.percentile(v, 99)), 'n': int(v.size)}
 
 
-def summarise(scene, observer: Observer, seconds: float, recording: Path | None, exit_codes: dict[str, int | None]) -> dict:
-    """The demo's summary as a plain dict (printed as a table, or JSON with --json)."""
+def summarise(scene, observer: Observer, seconds: float, recording: Path | None,
+              exit_codes: dict[str, int | None], window_ns: tuple[int, int] = (0, 2**63)) -> dict:
+    """The demo's summary as a plain dict (printed as a table, or JSON with --json).
+
+    Commands and measured lengths count the messages stamped inside `window_ns` (the
+    run, in ns of ROS time); the command rate is taken from their stamps.
+    """
     modules = {}
     for name, s in observer.stats.items():
-        span = s.last_command_s - s.first_command_s if s.commands > 1 else 0.0
+        commands = _in_window(s.command_stamps_ns, window_ns)
+        span = (commands[-1] - commands[0]) * 1e-9 if len(commands) > 1 else 0.0
         errors = np.asarray(s.tip_errors_mm) if s.tip_errors_mm else np.array([math.nan])
         state = s.state
         modules[name] = {
-            'commands_received': s.commands,
-            'command_rate_hz': (s.commands - 1) / span if span > 0 else 0.0,
+            'commands_received': len(commands),
+            'command_rate_hz': (len(commands) - 1) / span if span > 0 else 0.0,
             'messages_lost': s.lost,
-            'measured_lengths': s.measured,
+            'measured_lengths': len(_in_window(s.measured_stamps_ns, window_ns)),
             'commanded_shapes': s.commanded_shapes,
             'predicted_shapes': s.predicted_shapes,
             'tip_error_mm_mean': float(np.mean(errors)),
@@ -287,6 +329,7 @@ def run(args: argparse.Namespace) -> int:
     processes: list[Process] = []
     observer = None
     elapsed, usage_start, usage_end = 0.0, {}, {}
+    window_ns = (0, 2**63)  # ROS time of the run: set below
     crashed: list[Process] = []
     try:
         print(f'starting {len(specs)} processes for {scene.name} '
@@ -309,12 +352,16 @@ def run(args: argparse.Namespace) -> int:
                   file=sys.stderr)
         observer.reset()
         start = time.monotonic()
+        window_start_ns = observer.now_ns()
         usage_start = {p.spec.name: p.usage() for p in processes}
         while check_children() and time.monotonic() - start < args.seconds:
             observer.spin_for(0.1)
         elapsed = time.monotonic() - start
+        window_ns = (window_start_ns, observer.now_ns())
         usage_end = {p.spec.name: p.usage() for p in processes}
         observer.spin_for(0.2)
+        if check_children():
+            observer.drain(window_ns[1])
     finally:
         # Stop the producers first (gait), the recorder last so it sees everything.
         order = sorted(processes, key=lambda p: {'gait_node': 0, 'rerun_logger': 2}.get(p.spec.name, 1))
@@ -339,7 +386,7 @@ def run(args: argparse.Namespace) -> int:
     for p in crashed:
         print(f'\n{p.spec.name} exited early with code {p.popen.returncode}; its last output:\n'
               f'{p.tail()}', file=sys.stderr)
-    summary = summarise(scene, observer, round(elapsed, 2), recording, exit_codes)
+    summary = summarise(scene, observer, round(elapsed, 2), recording, exit_codes, window_ns)
     summary['processes'] = {
         name: {'cpu_percent': 100.0 * (usage_end[name][0] - usage_start[name][0]) / elapsed,
                'rss_mib': usage_end[name][1] / 2**20}
