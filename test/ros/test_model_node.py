@@ -80,6 +80,9 @@ def test_bad_requests_fail_with_reasons_and_the_node_survives(brittle_star_node,
         (ForwardShape.Request(holes=holes, cable_length=0.01), 'reachable'),
         (ForwardShape.Request(holes=holes, threading=[0.003] * 12, cable_length=0.19), 'not both'),
     ]
+    # Discovery of a fresh process can take seconds under load: wait as the other tests do
+    # (20 s), and show the node's output if it never comes up.
+    assert ros_node.spin_until(client.service_is_ready, 20.0), brittle_star_node.output()
     for request, reason in cases:
         response = ros_node.call(client, request)
         assert not response.success
@@ -105,7 +108,8 @@ def test_published_shapes_follow_a_changing_command(brittle_star_node, ros_node)
     ros_node.create_subscription(ModelDiagnostics, f'{NS}/model/diagnostics',
                                  diagnostics.append, 50)
     pub = ros_node.create_publisher(CableLength, f'{NS}/yellow/cable_length/command', 10)
-    assert ros_node.spin_until(lambda: pub.get_subscription_count() > 0 and diagnostics, 20.0)
+    assert ros_node.spin_until(lambda: pub.get_subscription_count() > 0 and diagnostics, 20.0), \
+        brittle_star_node.output()
 
     def command(length_mm):
         msg = CableLength(cable_length=length_mm / 1000.0)
