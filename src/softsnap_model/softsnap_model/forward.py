@@ -448,6 +448,7 @@ class _Problem:
     path_lam: np.ndarray     # (P,) increasing tensions along the whole path
     path_len: np.ndarray     # (P,) non-increasing total length there
     path_b: np.ndarray       # (P, n) exact branch magnitudes there
+    path_poly: np.ndarray    # (P-1, 4, n+1) start polynomial per cell, see _path_polynomials
 
 
 @functools.lru_cache(maxsize=256)
@@ -480,7 +481,7 @@ def _problem(skeleton: Skeleton, d: tuple) -> _Problem:
         # Thin to a bounded table; keep the ends and every buckling tension.
         keep = np.unique(np.concatenate([np.linspace(0, lam_path.size - 1,
                                                      4 * _BRANCH_SAMPLES).astype(int)]))
-        lam_path = np.unique(np.concatenate([lam_path[keep], lam_c, [lam_top]]))
+        lam_path = np.unique(np.concatenate([lam_path[keep], lam_c, lam_end, [lam_top]]))
         lam_path = lam_path[lam_path <= lam_top]
     mu = lam_path[:, None] / k[None, :]
     shape = mu.shape
@@ -488,9 +489,10 @@ def _problem(skeleton: Skeleton, d: tuple) -> _Problem:
     tb = np.broadcast_to(table_b, shape + table_b.shape[-1:])
     bb = _branch_solve(mu, tm, tb, np.broadcast_to(direction, shape),
                        np.broadcast_to(d1, shape), np.broadcast_to(d2, shape), s)
-    lengths, _, _ = _branch_derivs(bb, direction, d1, d2, s)
+    lengths, lp, lpp = _branch_derivs(bb, direction, d1, d2, s)
     path_len = np.minimum.accumulate(lengths.sum(axis=1))
     path_len[0] = straight
+    poly = _path_polynomials(lam_path, path_len, bb, lp, lpp, k, lam_c, lam_end)
     if snap:
         min_mm = float(path_len[-1])
     else:
@@ -500,7 +502,46 @@ def _problem(skeleton: Skeleton, d: tuple) -> _Problem:
                     mu_c=mu_c, beta=beta,
                     lam_end=lam_end, b_end=b_end, kind=kind, table_mu=table_mu,
                     table_b=table_b, straight_mm=straight, min_mm=min_mm, snap=snap,
-                    path_lam=lam_path, path_len=path_len, path_b=bb)
+                    path_lam=lam_path, path_len=path_len, path_b=bb, path_poly=poly)
+
+
+def _path_polynomials(lam, length, b, lp, lpp, k, lam_c, lam_end):
+    """Cubic Hermite start polynomials of the path cells, in ``t in [0, 1]`` across a cell.
+
+    Cell ``j`` joins samples ``j`` and ``j + 1``. Along the path every free segment has
+    ``db/dlambda = 1 / (k phi'(b))`` and ``dT/dlambda = sum l' db/dlambda``, so the exact
+    samples also give the slopes of ``lambda`` and ``b`` in the length, one-sided at the
+    cell ends (a segment stops at contact, a mirror one starts at its buckling tension).
+    Returns ``c`` (P-1, 4, n+1): ``[b, lambda](t) = sum_p t^p c[j, p]``. Cells where a
+    slope is not finite (a pitchfork starts, nothing moves) or where the cubic would
+    leave the cell's hull keep the linear interpolant; constant entries stay exact.
+    """
+    vals = np.concatenate([b, lam[:, None]], axis=1)               # (P, n+1)
+    p0, p1 = vals[:-1], vals[1:]
+    h = (length[1:] - length[:-1])[:, None]                        # < 0 in a moving cell
+    with np.errstate(all='ignore'):
+        db_dlam = 1.0 / (2.0 * k * (b * lpp - lp) / (lp * lp))      # 1 / (k phi'(b))
+        slopes = []
+        for at, free in ((slice(None, -1), (lam[:-1, None] >= lam_c) & (lam[1:, None] <= lam_end)),
+                         (slice(1, None), (lam[:-1, None] >= lam_c) & (lam[1:, None] <= lam_end))):
+            dbl = np.where(free, db_dlam[at], 0.0)
+            dT = np.sum(np.where(free, lp[at] * dbl, 0.0), axis=1, keepdims=True)
+            slopes.append(h * np.concatenate([dbl, np.ones_like(dT)], axis=1) / dT)
+        d0, d1 = slopes
+        c = np.stack([p0, d0, 3.0 * (p1 - p0) - 2.0 * d0 - d1, 2.0 * (p0 - p1) + d0 + d1],
+                     axis=1)
+        # Check the cubic on a few interior points: it must stay in the cell's hull.
+        t = np.array([0.25, 0.5, 0.75])
+        inner = np.einsum('tp,jpc->jtc', t[:, None] ** np.arange(4), c)
+        lo, hi = np.minimum(p0, p1)[:, None], np.maximum(p0, p1)[:, None]
+        tol = 1e-12 * (1.0 + np.abs(hi))
+        cubic = (np.all(np.isfinite(c), axis=(1, 2)) & (h[:, 0] < 0)
+                 & np.all((inner >= lo - tol) & (inner <= hi + tol), axis=(1, 2)))
+    linear = np.stack([p0, p1 - p0, np.zeros_like(p0), np.zeros_like(p0)], axis=1)
+    c = np.where(cubic[:, None, None], c, linear)
+    # Entries constant over a cell (held straight, at contact) stay exactly constant.
+    c[:, 1:] = np.where((p0 == p1)[:, None, :], 0.0, c[:, 1:])
+    return c
 
 
 def _check_length(prob: _Problem, length: np.ndarray, skeleton, threading_desc):
@@ -680,20 +721,28 @@ class SweepResult(BatchResult):
 # ulp of the lengths; the loop stops early if rounding prevents reaching them.
 _INNER_TOL_MM = 1e-12
 _INNER_TOL_RAD = 1e-14
+#: A warm start (``initial``) is checked as the answer only when its branch magnitudes
+#: are within this distance (rad, max norm) of the table start, which is itself
+#: accurate to about 1e-12 rad (1e-5 in the few linear cells): a previous shape further
+#: away (any real length change: one encoder count moves the angles by ~1e-4 rad) is a
+#: worse start than the table and is left unused, at no cost.
+WARM_START_RADIUS_RAD = 1e-6
+_CUBIC = np.arange(4, dtype=float)
 
 
 def _start_from_table(P, L_t):
     """Initial (lambda, b) and a tension bracket from the exact path tables.
 
     The path tables are exact samples of the path, so ``[lam_lo, lam_hi]`` brackets the
-    root of ``T(lambda) = L_t``; lambda and b are interpolated linearly in the length.
-    Vectorised per threading group (tables are stored once per distinct threading).
+    root of ``T(lambda) = L_t``; lambda and b come from the cell's cubic Hermite
+    polynomial in the length (:func:`_path_polynomials`). Vectorised per threading
+    group (tables are stored once per distinct threading).
     """
     nb, n = L_t.shape[0], P['k'].shape[1]
-    lam, lam_lo, lam_hi = np.empty(nb), np.empty(nb), np.empty(nb)
-    b = np.empty((nb, n))
+    lam_lo, lam_hi = np.empty(nb), np.empty(nb)
+    start = np.empty((nb, n + 1))
     uid = P['uid']
-    for u, (path_len, path_lam, path_b) in enumerate(P['paths']):
+    for u, (path_len, path_lam, path_poly) in enumerate(P['paths']):
         sel = uid == u if len(P['paths']) > 1 else slice(None)
         L = L_t[sel]
         m = path_len.shape[0]
@@ -702,9 +751,8 @@ def _start_from_table(P, L_t):
         span = len_lo - len_hi
         w = np.where(span > 0, (len_lo - L) / np.where(span > 0, span, 1.0), 0.5)
         lam_lo[sel], lam_hi[sel] = path_lam[j - 1], path_lam[j]
-        lam[sel] = path_lam[j - 1] + w * (path_lam[j] - path_lam[j - 1])
-        b[sel] = path_b[j - 1] + w[:, None] * (path_b[j] - path_b[j - 1])
-    return lam, b, lam_lo, lam_hi
+        start[sel] = np.einsum('bp,bpc->bc', w[:, None] ** _CUBIC, path_poly[j - 1])
+    return start[:, n], start[:, :n], lam_lo, lam_hi
 
 
 def _tables(P, rows):
@@ -819,11 +867,15 @@ def _newton(P, L_t, lam, b, lam_lo, lam_hi, max_iter, tol_mm, tol_rad, active=No
                 held=held, contact=contact, curv=curv, iters=iters)
 
 
-def _newton_single(S, L_t, lam, b, lam_lo, lam_hi, max_iter, tol_mm, tol_rad):
+def _newton_single(S, L_t, lam, b, lam_lo, lam_hi, max_iter, tol_mm, tol_rad,
+                   derive_lam=False):
     """:func:`_newton` for one problem with plain-float control flow.
 
     Same iteration and safeguards; 1-D arrays over segments and Python floats for the
     tension, so an iteration is ~40 small numpy calls (the cost of a single solve).
+    With ``derive_lam`` the tension is first replaced by the least-squares multiplier
+    of the angles ``b`` (``min ||2 k b + lambda l'||`` over the segments neither
+    straight nor at their branch end), from the first evaluation.
     """
     lam_c, lam_end, b_end = S['lam_c'], S['lam_end'], S['b_end']
     two_k, inv_two_k = S['two_k'], S['inv_two_k']
@@ -831,17 +883,28 @@ def _newton_single(S, L_t, lam, b, lam_lo, lam_hi, max_iter, tol_mm, tol_rad):
     lam_end_min = S['lam_end_min']
     held = contact = None
     it = 0
+    first = None
+    if derive_lam:
+        first = _branch_eval(b, S)
+        lp = np.where((b < b_end) & ((b > 0.0) | ~mirror), first[1], 0.0)
+        den = float(lp @ lp)
+        if den > 0:
+            lam = min(max(float(-(two_k * b) @ lp) / den, lam_lo), lam_hi)
     while True:
         if has_mirror:
             kick = mirror & (b <= 0.0) & (lam > lam_c)
             if kick.any():
                 b = np.where(kick, _kick_b(S['P'], np.array([lam]))[0], b)
+                first = None
             held = mirror & (b <= 0.0)
         contact = (b >= b_end) & (lam >= lam_end) if lam >= lam_end_min else None
         fixed = held if contact is None else (contact if held is None else held | contact)
         if fixed is not None and not fixed.any():
             fixed = None
-        length, lp, l_aa = _branch_eval(b, S)
+        if first is None:
+            length, lp, l_aa = _branch_eval(b, S)
+        else:
+            (length, lp, l_aa), first = first, None
         g = float(length.sum()) - L_t
         f = b + lam * inv_two_k * lp
         if fixed is not None:
@@ -962,7 +1025,7 @@ def _stack(probs, index):
     return dict(
         uid=np.asarray(index), s=probs[0].s, has_mirror=bool(mirror.any()),
         tables_mu=tables_mu, tables_b=tables_b,
-        paths=[(p.path_len, p.path_lam, p.path_b) for p in probs],
+        paths=[(p.path_len, p.path_lam, p.path_poly) for p in probs],
         k=k, d=rows('d'), d1=d1, d2=d2, direction=direction, lam_c=rows('lam_c'),
         lam_end=rows('lam_end'), mu_c=mu_c, beta=beta, b_end=rows('b_end'), mirror=mirror,
         mu_c_safe=np.where(mirror, mu_c, 1.0), beta_safe=np.where(mirror, beta, 1.0),
@@ -973,23 +1036,17 @@ def _stack(probs, index):
         straight=np.array([p.straight_mm for p in probs])[index])
 
 
-def _solve_arrays(P, L_t, lam0=None, b0=None, max_iter=MAX_ITER, tol_mm=_INNER_TOL_MM,
-                  tol_rad=_INNER_TOL_RAD):
+def _solve_arrays(P, L_t, max_iter=MAX_ITER, tol_mm=_INNER_TOL_MM, tol_rad=_INNER_TOL_RAD):
     """Solve a batch; returns a dict of result arrays (angles, tension, residuals...)."""
     # One floating-point context for the whole solve: divisions by zero only occur in
     # masked-out entries (held or contact segments) and are never used.
     with np.errstate(all='ignore'):
-        return _solve_arrays_inner(P, L_t, lam0, b0, max_iter, tol_mm, tol_rad)
+        return _solve_arrays_inner(P, L_t, max_iter, tol_mm, tol_rad)
 
 
-def _solve_arrays_inner(P, L_t, lam0, b0, max_iter, tol_mm, tol_rad):
+def _solve_arrays_inner(P, L_t, max_iter, tol_mm, tol_rad):
     slack = L_t >= P['straight']
     lam, b, lam_lo, lam_hi = _start_from_table(P, L_t)
-    if lam0 is not None:
-        # Warm start: trust the given point only if it lies inside the exact bracket.
-        inside = (lam0 > lam_lo) & (lam0 < lam_hi)
-        lam = np.where(inside, lam0, lam)
-        b = np.where(inside[:, None], np.clip(b0, 0.0, P['b_end']), b)
     lam = np.where(slack, 0.0, lam)
     if P['has_mirror']:
         # Linear interpolation in lambda badly underestimates b ~ sqrt(lambda - lam_c)
@@ -1055,33 +1112,56 @@ def _single(skeleton: Skeleton, d: tuple):
          for key, val in P.items()}
     finite_end = prob.lam_end[np.isfinite(prob.lam_end)]
     S.update(P=P, lam_end_min=float(prob.lam_end.min()),
-             neg_path_len=-prob.path_len, path_lam=prob.path_lam, path_b=prob.path_b,
+             neg_path_len=-prob.path_len, path_lam=prob.path_lam, path_poly=prob.path_poly,
              straight=prob.straight_mm, n_path=prob.path_len.size,
              ones=np.ones(prob.k.shape), has_finite_end=bool(finite_end.size))
     return prob, P, S
 
 
-def _solve_single(S, L, lam0=None, b0=None, max_iter=MAX_ITER, fallback=True):
+def _solve_single(S, L, lam0=None, a0=None, max_iter=MAX_ITER, fallback=True):
     """One solve on the plain-float path; falls back to the batch engine (with its
-    robust fallback) when the result is not certified. Returns (out dict, state)."""
+    robust fallback) when the result is not certified. Returns the result dict.
+
+    ``a0`` (angles) and ``lam0`` (tension or None) are a warm start. It is used only
+    when ``a0`` is within :data:`WARM_START_RADIUS_RAD` of the table start, and then
+    only if it already meets the inner tolerances (no Newton step); otherwise the solve
+    is exactly the cold one. So a warm start never costs Newton iterations or accuracy.
+    """
     m = S['n_path']
     j = int(np.searchsorted(S['neg_path_len'], -L, side='left'))
     j = min(max(j, 1), m - 1)
     len_lo, len_hi = -S['neg_path_len'][j - 1], -S['neg_path_len'][j]
     lam_lo, lam_hi = float(S['path_lam'][j - 1]), float(S['path_lam'][j])
     w = (len_lo - L) / (len_lo - len_hi) if len_lo > len_hi else 0.5
-    lam = lam_lo + w * (lam_hi - lam_lo)
-    b_lo = S['path_b'][j - 1]
-    b = b_lo + w * (S['path_b'][j] - b_lo)
-    if lam0 is not None and lam_lo < lam0 < lam_hi:
-        lam, b = lam0, np.fmin(np.fmax(b0, 0.0), S['b_end'])
-    if S['has_mirror']:
-        past = S['mirror'] & (lam > S['lam_c']) & (lam < S['lam_1'])
-        if past.any():
-            b = np.where(past, _kick_b(S['P'], np.array([lam]))[0], b)
+    start = (w ** _CUBIC) @ S['path_poly'][j - 1]
+    b, lam = start[:-1], float(start[-1])
+    st = None
+    if a0 is not None:
+        # Cheap screen first: the max-norm distance can be within the radius only if
+        # the sums are within n times it (a NaN or inf angle fails here and raises).
+        gap = float(S['direction'] @ a0) - float(S['ones'] @ b)
+        if not math.isfinite(gap):
+            raise ValueError(f'initial: angles must be finite, got {a0.tolist()}')
+        if (abs(gap) <= b.size * WARM_START_RADIUS_RAD
+                and float(np.max(np.abs(S['direction'] * a0 - b))) <= WARM_START_RADIUS_RAD):
+            # Close enough to be the answer: check it (one evaluation, with its own
+            # tension, given or derived from it); keep it only if it already is.
+            b_w = np.fmin(np.fmax(S['direction'] * a0, 0.0), S['b_end'])
+            given = lam0 is not None and lam_lo <= lam0 <= lam_hi
+            with np.errstate(all='ignore'):
+                st = _newton_single(S, L, lam0 if given else lam, b_w, lam_lo, lam_hi, 0,
+                                    _INNER_TOL_MM, _INNER_TOL_RAD, not given)
+            if not (abs(st['g']) <= _INNER_TOL_MM and st['stat'] <= _INNER_TOL_RAD):
+                st = None
+    if st is None:
+        if S['has_mirror']:
+            past = S['mirror'] & (lam > S['lam_c']) & (lam < S['lam_1'])
+            if past.any():
+                b = np.where(past, _kick_b(S['P'], np.array([lam]))[0], b)
+        with np.errstate(all='ignore'):
+            st = _newton_single(S, L, lam, b, lam_lo, lam_hi, max_iter, _INNER_TOL_MM,
+                                _INNER_TOL_RAD)
     with np.errstate(all='ignore'):
-        st = _newton_single(S, L, lam, b, lam_lo, lam_hi, max_iter, _INNER_TOL_MM,
-                            _INNER_TOL_RAD)
         curv = _curvature(S['P'], np.array([st['lam']]), st['b'][None], st['lp'][None],
                           st['l_aa'][None], st['held'][None])[0]
     curv_min = float(np.min(curv, where=~st['contact'], initial=np.inf))
@@ -1129,26 +1209,22 @@ def _check_skeleton(skeleton):
         raise ValueError(f'skeleton must be a Skeleton, got {type(skeleton).__name__}')
 
 
-def _initial_state(initial, prob_n, direction, d1, d2, k, s):
-    """(lambda0, b0) from a ForwardResult or an array of angles."""
-    if isinstance(initial, (ForwardResult,)):
+def _initial_state(initial, n_segments):
+    """(lambda0 or None, angles) from a ForwardResult or an array of angles.
+
+    Only the shape is checked here; finiteness is checked where the angles are first
+    used (:func:`_solve_single`), so a warm start costs no extra pass over them.
+    """
+    if isinstance(initial, ForwardResult):
         a = np.asarray(initial.angles, dtype=float)
         lam = float(initial.tension)
+        lam = lam if math.isfinite(lam) else None
     else:
         a = np.asarray(initial, dtype=float)
         lam = None
-    if a.shape != (prob_n,):
-        raise ValueError(f'initial: expected {prob_n} angles, got shape {a.shape}')
-    if not np.all(np.isfinite(a)):
-        raise ValueError(f'initial: angles must be finite, got {a.tolist()}')
-    b = np.clip(direction * a, 0.0, None)
-    if lam is None or not math.isfinite(lam):
-        # Least-squares multiplier for the given angles: min ||2 k b + lam l'||.
-        _, l_a, _ = segment_length_derivatives(direction * b, d1, d2, s)
-        lp = direction * l_a
-        den = float(np.dot(lp, lp))
-        lam = float(-np.dot(2.0 * k * b, lp) / den) if den > 0 else 0.0
-    return max(lam, 0.0), b
+    if a.shape != (n_segments,):
+        raise ValueError(f'initial: expected {n_segments} angles, got shape {a.shape}')
+    return lam, a
 
 
 def solve_forward(skeleton: Skeleton, threading, cable_length_mm, initial=None, *,
@@ -1164,8 +1240,12 @@ def solve_forward(skeleton: Skeleton, threading, cable_length_mm, initial=None, 
     cable_length_mm : float
         Cable length between the holes of rib 0 and the last rib (mm).
     initial : ForwardResult or array_like of shape (n_segments,), optional
-        Warm start (e.g. the previous solve of a sweep). It only changes the cost: the
-        answer is the same shape as a cold solve.
+        Warm start (e.g. the previous shape of the module). It only changes the cost:
+        the answer is the same shape as a cold solve. The cold start is already a cubic
+        interpolation of exact samples of the path, so a previous shape is used only
+        when it is within ``WARM_START_RADIUS_RAD`` of that start and already solves
+        this length (then no Newton step is taken: e.g. the same length again);
+        otherwise the solve is the cold one, for about 1 us more.
     max_iter : int, optional
         Cap on bordered-Newton iterations before the robust fallback.
 
@@ -1200,18 +1280,19 @@ def solve_forward(skeleton: Skeleton, threading, cable_length_mm, initial=None, 
     prob, P, S = _single(skeleton, d)
     if not (math.isfinite(L) and L > prob.min_mm):
         _check_length(prob, np.array([L]), skeleton, _describe(skeleton, prob.d))
-    lam0 = b0 = None
+    lam0 = a0 = None
     if initial is not None:
-        lam0, b0 = _initial_state(initial, skeleton.n_segments, prob.direction, prob.d1,
-                                  prob.d2, prob.k, prob.s)
+        lam0, a0 = _initial_state(initial, skeleton.n_segments)
     if L >= prob.straight_mm:
+        if a0 is not None and not np.isfinite(a0).all():
+            raise ValueError(f'initial: angles must be finite, got {a0.tolist()}')
         n = skeleton.n_segments
         out = dict(angles=np.zeros(n), tension=0.0, energy=0.0, iterations=0,
                    converged=True, constraint_residual=0.0, stationarity_residual=0.0,
                    residual=0.0, is_minimum=True, min_curvature=1.0, slack=True,
                    at_contact=np.zeros(n, dtype=bool))
     else:
-        out = _solve_single(S, L, lam0, b0, max_iter=int(max_iter))
+        out = _solve_single(S, L, lam0, a0, max_iter=int(max_iter))
     angles = out['angles']
     centers, holes = _frames_single(angles, prob.s, prob.d)
     slack = bool(out['slack'])
