@@ -52,6 +52,19 @@ def test_branch_angles_come_from_the_public_forward_function():
     np.testing.assert_array_equal(table[-1], ends.direction * ends.end_angle_rad)
 
 
+def test_importing_the_package_does_not_load_scipy_optimize():
+    # Regression (first design in a fresh process took 1-3 s): scipy.optimize costs
+    # ~0.5 s to import and only polyline targets need it.
+    import subprocess
+    import sys
+    code = ('import sys, softsnap_model; from softsnap_model import design_threading; '
+            'design_threading(softsnap_model.Skeleton(), target_angles=[0.1] * 11, k=0); '
+            'print(any(m.startswith("scipy.optimize") for m in sys.modules))')
+    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                         check=True, timeout=120)
+    assert out.stdout.strip() == 'False'
+
+
 def test_branch_angle_magnitude_is_monotone_in_tension():
     # The interval bound rests on |a| rising with tension on a side that never changes.
     prob = inverse._Problem(AUTHORS, np.zeros(11), np.ones((12, 8), bool), None, 1)

@@ -334,10 +334,18 @@ def _branch_refine(mu, cell, direction, d1, d2, s, iters):
         hi = np.where(r > 0.0, b, hi)
         with np.errstate(invalid='ignore', divide='ignore'):
             step = b - r / dr
-        ok = (step > lo) & (step < hi) & np.isfinite(step)
-        new = np.where(ok, step, 0.5 * (lo + hi))
+        # A Newton step past the bracket by rounding only (root on a cell end: every
+        # path sample is some segment's table sample) is clamped, not bisected, which
+        # would creep towards the end one halving per iteration.
+        tol = 1e-15 * (1.0 + np.abs(b))
+        ok = (step > lo - tol) & (step < hi + tol) & np.isfinite(step)
+        new = np.where(ok, np.fmin(np.fmax(step, lo), hi), 0.5 * (lo + hi))
+        # Done when the step is at rounding level, or the residual is (near a pitchfork,
+        # where r' is small, the step would keep bouncing by a few ulp): then keep b.
         # Entries outside the table (returned as its end values) never hold the loop.
-        done = (np.abs(new - b) <= 1e-15 * (1.0 + np.abs(b))) | below | above
+        settled = np.abs(r) <= 1e-15 * (2.0 * np.abs(b) + np.abs(mu * lp))
+        new = np.where(settled, b, new)
+        done = settled | (np.abs(new - b) <= tol) | below | above
         b = new
         if done.all():
             break

@@ -39,7 +39,6 @@ import time
 from typing import Mapping, Sequence
 
 import numpy as np
-from scipy import optimize
 
 from . import forward, geometry
 from .inverse_dp import kbest_chain
@@ -292,6 +291,9 @@ def fit_angles_to_points(target_points, n_segments, spacing_mm):
     >>> float(abs(angles).max()) < 1e-9, err < 1e-9
     (True, True)
     """
+    # Imported here: scipy.optimize takes ~0.5 s to import, and only polyline targets
+    # need it (angle targets and every forward solve do not).
+    from scipy.optimize import minimize_scalar
     points = _as_points(target_points)
     goal = _resample(points, spacing_mm * np.arange(n_segments + 1))
     chord = np.diff(goal, axis=0)
@@ -311,7 +313,7 @@ def fit_angles_to_points(target_points, n_segments, spacing_mm):
 
     for i in range(n_segments):
         guess = angles[i]
-        fit = optimize.minimize_scalar(lambda x: gap(x, i), bounds=(guess - 0.5, guess + 0.5),
+        fit = minimize_scalar(lambda x: gap(x, i), bounds=(guess - 0.5, guess + 0.5),
                                        method='bounded', options={'xatol': 1e-12})
         if fit.fun < gap(guess, i):
             # Keep the rest of the chain on its guessed headings.
