@@ -49,7 +49,7 @@ from .geometry import _g_series, half_angle_functions, segment_length_derivative
 from .skeleton import Skeleton
 
 __all__ = [
-    'CONSTRAINT_TOL_MM', 'STATIONARITY_TOL_RAD', 'MAX_ITER',
+    'CONSTRAINT_TOL_MM', 'STATIONARITY_TOL_RAD', 'MAX_ITER', 'WARM_START_RADIUS_RAD',
     'InfeasibleLengthError', 'SnapThroughError',
     'SegmentBranch', 'segment_branch', 'segment_angle_at_tension',
     'ForwardResult', 'BatchResult', 'SweepResult',
@@ -529,9 +529,10 @@ def _path_polynomials(lam, length, b, lp, lpp, k, lam_c, lam_end):
     h = (length[1:] - length[:-1])[:, None]                        # < 0 in a moving cell
     with np.errstate(all='ignore'):
         db_dlam = 1.0 / (2.0 * k * (b * lpp - lp) / (lp * lp))      # 1 / (k phi'(b))
+        # Segments moving across the whole cell (bent, not yet at their branch end).
+        free = (lam[:-1, None] >= lam_c) & (lam[1:, None] <= lam_end)
         slopes = []
-        for at, free in ((slice(None, -1), (lam[:-1, None] >= lam_c) & (lam[1:, None] <= lam_end)),
-                         (slice(1, None), (lam[:-1, None] >= lam_c) & (lam[1:, None] <= lam_end))):
+        for at in (slice(None, -1), slice(1, None)):     # cell start, cell end
             dbl = np.where(free, db_dlam[at], 0.0)
             dT = np.sum(np.where(free, lp[at] * dbl, 0.0), axis=1, keepdims=True)
             slopes.append(h * np.concatenate([dbl, np.ones_like(dT)], axis=1) / dT)
