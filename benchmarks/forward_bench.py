@@ -6,7 +6,11 @@ Compares, on the same problems and in the same run:
       cable-length formula so that only the procedure differs;
   (b) our solver: the bordered Newton capped at 0, 1, 2 iterations (no fallback) and
       the default (certified) solve;
-  (c) batch mode (solve_forward_batch).
+  (c) batch mode (solve_forward_batch);
+  (d) warm starts as the model node makes them (previous shape, 0.26 mm steps on the
+      brittle star's modules) against cold solves of the same lengths;
+  (e) the first solve of a threading (path table built), with the per-pair branch
+      profiles shared from earlier threadings and with every cache empty.
 Error = largest rib-centre distance (mm) to an mpmath reference (40 digits, KKT Newton
 refined from our answer; see test/model/mp_reference.py).
 
@@ -36,6 +40,11 @@ from softsnap_model import (Skeleton, reachable_range, rib_centers, segment_leng
                             solve_forward, solve_forward_batch, sweep)
 
 SK = Skeleton()
+# The brittle star's five modules (src/softsnap_gaits/scenes/brittle_star.yaml).
+BRITTLE_STAR = [
+    'R1 R1 R1 R1 R1 R1 R1 R1 R2 R2 R3 R3', 'R1 R2 R2 L2 L3 L3 L3 L3 L3 L3 L2 R2',
+    'R1 R1 R1 R1 R1 R2 R2 R2 R2 R3 R3 R3', 'R3 R3 R3 R3 R3 R2 R1 L3 L3 L3 L3 L3',
+    'R3 R1 R1 R1 R1 R2 R2 R2 R2 R3 R3 R3']
 THREADINGS = {
     'yellow': 'R1 R1 R1 R1 R1 R1 R1 R1 R2 R2 R3 R3',
     'blue': 'R1 R2 R2 L2 L3 L3 L3 L3 L3 L3 L2 R2',
@@ -88,6 +97,38 @@ def baseline_solve(threading, length):
     return length_to_angle(res.x)
 
 
+def clear_caches(profiles=False):
+    """Forget every memoised threading (and, with ``profiles``, every pair profile)."""
+    for name in ('_problem', '_single', '_threading_cached'):
+        getattr(fwd, name).cache_clear()
+    if profiles:
+        fwd._PROFILE_CACHE.clear()
+
+
+def warm_vs_cold(step_mm=0.26):
+    """Median cold and warm (previous shape) solve times and mean Newton iterations."""
+    cold, warm, it_cold, it_warm = [], [], [], []
+    for text in BRITTLE_STAR:
+        t = text.split()
+        lo, hi = reachable_range(SK, t)
+        prev = solve_forward(SK, t, hi - 0.01)
+        for length in hi - step_mm * np.arange(1, 400):
+            if length <= lo + 0.5:
+                break
+            t0 = time.perf_counter()
+            rc = solve_forward(SK, t, length)
+            t1 = time.perf_counter()
+            rw = solve_forward(SK, t, length, initial=prev.angles)
+            t2 = time.perf_counter()
+            cold.append(t1 - t0)
+            warm.append(t2 - t1)
+            it_cold.append(rc.iterations)
+            it_warm.append(rw.iterations)
+            prev = rw
+    return (statistics.median(cold), statistics.median(warm), float(np.mean(it_cold)),
+            float(np.mean(it_warm)), len(cold))
+
+
 def timed(fn, repeat):
     times = []
     out = None
@@ -122,15 +163,18 @@ def main():
 
     rows = []   # (label, median time s, median error mm, max error mm)
 
-    # First call per threading (path tables built, then memoised).
-    fwd._problem.cache_clear()
-    fwd._single.cache_clear()
-    fwd._threading_cached.cache_clear()
-    first = []
+    # First call per threading (path tables built, then memoised): with the per-pair
+    # profiles already built by earlier threadings, and with every cache empty.
+    first, first_empty = [], []
     for name, text in THREADINGS.items():
-        t0 = time.perf_counter()
-        solve_forward(SK, text.split(), SK.straight_length_mm(text.split()) - 30.0)
-        first.append(time.perf_counter() - t0)
+        for out, profiles in ((first_empty, True), (first, False)):
+            clear_caches(profiles)
+            t0 = time.perf_counter()
+            solve_forward(SK, text.split(), SK.straight_length_mm(text.split()) - 30.0)
+            out.append(time.perf_counter() - t0)
+            if profiles:    # rebuild the profiles shared by the other threadings
+                for other in THREADINGS.values():
+                    reachable_range(SK, other.split())
 
     # (b) ours, default (certified) cold solves: no initial guess; per-threading tables
     # are memoised pure data, built by the first calls above.
@@ -171,6 +215,9 @@ def main():
     solve_forward_batch(SK, THREADINGS['yellow'].split(), yl)
     dt1, _ = timed(lambda: solve_forward_batch(SK, THREADINGS['yellow'].split(), yl), 3)
 
+    # Warm starts: the model node's case.
+    cold_t, warm_t, it_cold, it_warm, n_warm = warm_vs_cold()
+
     # Workspace sweep: 80 steps over 0-80 mm of the yellow module.
     c = np.linspace(0.0, 80.0, 80)
     sweep(SK, THREADINGS['yellow'].split(), c)
@@ -204,8 +251,12 @@ def main():
     print(f'batch (mixed threadings): {batch_rate:,.0f} solves/s; one threading: '
           f'{len(yl) / dt1:,.0f} solves/s  (target >= 50,000/s)')
     print(f'80-step workspace sweep: {sweep_time * 1e3:.2f} ms  (target < 10 ms)')
+    print(f'brittle star modules, 0.26 mm steps ({n_warm} solves): cold {cold_t * 1e6:.1f} us '
+          f'({it_cold:.2f} Newton iterations), warm from the previous shape '
+          f'{warm_t * 1e6:.1f} us ({it_warm:.2f})')
     print(f'first call per threading (path table build): median '
-          f'{statistics.median(first) * 1e3:.1f} ms')
+          f'{statistics.median(first) * 1e3:.1f} ms with shared pair profiles, '
+          f'{statistics.median(first_empty) * 1e3:.1f} ms with every cache empty')
 
     import matplotlib
     matplotlib.use('Agg')
