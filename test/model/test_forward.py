@@ -173,6 +173,22 @@ def test_segment_angle_at_tension_matches_solver():
     assert np.allclose(a, res.angles, atol=1e-12)
 
 
+def branch_angle_reference(mu, d1, d2, s=18.0):
+    """Branch angle by bracketing, element by element (no tables, no Newton)."""
+    from scipy.optimize import brentq
+    sign = -1.0 if d1 + d2 > 0 or (d1 + d2 == 0 and d1 >= 0) else 1.0
+    b_end = SK.contact_angle_rad
+
+    def phi(b):
+        return 2.0 * b / -(sign * sm.segment_length_derivatives(sign * b, d1, d2, s)[1])
+
+    if mu == 0.0 or phi(1e-9) >= mu:
+        return 0.0
+    if phi(b_end) <= mu:
+        return sign * b_end
+    return sign * brentq(lambda b: phi(b) - mu, 1e-9, b_end, xtol=1e-15, rtol=1e-15)
+
+
 def test_segment_angle_at_tension_broadcast_matches_per_element():
     # Regression (inverse design took 10-12 s): the broadcast call builds each distinct
     # pair's profile once; it must give what every element computed alone gives.
@@ -188,6 +204,9 @@ def test_segment_angle_at_tension_broadcast_matches_per_element():
         i, p, q, j = idx
         alone = segment_angle_at_tension(lam[i], d[p], d[q], 18.0, k[j])
         assert abs(a[idx] - alone) <= 1e-13, (idx, a[idx], alone)
+        # Independent per-element reference: the root of phi(b) = 2 b / -L'(b) = mu on
+        # the bend side (brentq), 0 below buckling, the contact angle beyond the branch.
+        assert abs(a[idx] - branch_angle_reference(lam[i] / k[j], d[p], d[q])) <= 1e-12
     # Tension-monotone magnitude, constant side, and nothing rebuilt per element.
     assert np.all(np.diff(np.abs(a), axis=0) >= -1e-15)
     with pytest.raises(ValueError, match='NaN'):
