@@ -87,7 +87,7 @@ class ModelNode(Node):
                              f'got {self.rib_centers_mode!r}')
         self.service_calls = 0
         self.service_failures = 0
-        self._last_msgs: dict[tuple[str, str], ModuleShape] = {}
+        self._last_msgs: dict[tuple[str, str], tuple] = {}  # (shape, its message)
         self._solve_time_reported = (0, 0.0)
 
         # Lengths are a stream where only the newest matters: sensor-data QoS would drop
@@ -199,31 +199,38 @@ class ModelNode(Node):
         for source in SOURCES:
             if not updated[source]:
                 continue
-            # Each new shape becomes one message, published on its module topic and reused
-            # inside the robot message (building messages is a large part of a tick).
+            # Serialising costs ~0.1 ms a message: topics nobody listens to are skipped, and
+            # a shape's message is built once, only when some topic needs it.
             for shape in updated[source]:
-                msg = self._shape_msg(shape, stamp)
-                self._last_msgs[(shape.module, source)] = msg
                 publisher = self.module_publishers[(shape.module, source)]
-                # Serialising costs ~0.1 ms a message: skip topics nobody listens to.
                 if publisher.get_subscription_count() > 0:
-                    publisher.publish(msg)
+                    publisher.publish(self._message_for(shape, stamp))
+            if self.robot_publishers[source].get_subscription_count() == 0:
+                continue
             robot = RobotShape()
             robot.header.stamp = stamp
             robot.header.frame_id = self.scene.name
             robot.robot = self.scene.name
-            for module, (position, orientation) in zip(self.scene.modules,
-                                                       self.predictor.base_poses(source)):
-                msg = self._last_msgs.get((module.name, source))
-                robot.modules.append(msg if msg is not None else
-                                     ModuleShape(module=module.name, source=source))
+            for module, shape, (position, orientation) in zip(
+                    self.scene.modules, self.predictor.shapes(source),
+                    self.predictor.base_poses(source)):
+                robot.modules.append(ModuleShape(module=module.name, source=source)
+                                     if shape is None else self._message_for(shape, stamp))
                 pose = Pose()
                 pose.position.x, pose.position.y, pose.position.z = position
                 (pose.orientation.x, pose.orientation.y,
                  pose.orientation.z, pose.orientation.w) = orientation
                 robot.base_poses.append(pose)
-            if self.robot_publishers[source].get_subscription_count() > 0:
-                self.robot_publishers[source].publish(robot)
+            self.robot_publishers[source].publish(robot)
+
+    def _message_for(self, shape, stamp) -> ModuleShape:
+        """The message of a shape, built on first use and reused while the shape is current."""
+        key = (shape.module, shape.source)
+        cached = self._last_msgs.get(key)
+        if cached is None or cached[0] is not shape:
+            cached = (shape, self._shape_msg(shape, stamp))
+            self._last_msgs[key] = cached
+        return cached[1]
 
     def _shape_msg(self, shape, stamp) -> ModuleShape:
         msg = ModuleShape()
