@@ -94,7 +94,8 @@ class DriverNode(Node):
         self.add_post_set_parameters_callback(self.parameters_applied_callback)
 
         m = self.module
-        self.measured_publisher = self.create_publisher(CableLength, f'{m}/cable_length/measured', 10)
+        # Depth 50: a briefly starved subscriber (model node, logger) loses no measurement.
+        self.measured_publisher = self.create_publisher(CableLength, f'{m}/cable_length/measured', 50)
         self.state_publisher = self.create_publisher(ModuleState, f'{m}/state', 10)
         self.command_subscription = self.create_subscription(
             CableLength, f'{m}/cable_length/command', self.command_callback, 10)

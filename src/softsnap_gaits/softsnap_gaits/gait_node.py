@@ -78,7 +78,9 @@ class GaitNode(Node):
         self.player = GaitPlayer(gait, transition_s=self.get_parameter('transition_time').value)
 
         self.command_publishers = {
-            m.name: self.create_publisher(CableLength, f'{m.name}/cable_length/command', 10)
+            # Depth 50 (1 s at 50 Hz): a reliable writer keeps unacknowledged commands that
+            # long, so a subscriber starved for a moment (a busy 2-core machine) loses none.
+            m.name: self.create_publisher(CableLength, f'{m.name}/cable_length/command', 50)
             for m in self.scene.modules}
         self.phase_publisher = self.create_publisher(GaitPhase, 'gait/phase', 10)
         self.create_service(Trigger, '~/start', self.start_callback)
