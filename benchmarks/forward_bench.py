@@ -36,22 +36,15 @@ sys.path.insert(0, str(REPO / 'test' / 'model'))
 from mp_reference import kkt_reference, rib_centers_mp  # noqa: E402
 
 import softsnap_model.forward as fwd  # noqa: E402
+from softsnap_model.reference import BRITTLE_STAR_MODULES, PAPER_THREADINGS  # noqa: E402
 from softsnap_model import (Skeleton, reachable_range, rib_centers, segment_length,  # noqa: E402
                             solve_forward, solve_forward_batch, sweep)
 
 SK = Skeleton()
-# The brittle star's five modules (src/softsnap_gaits/scenes/brittle_star.yaml).
-BRITTLE_STAR = [
-    'R1 R1 R1 R1 R1 R1 R1 R1 R2 R2 R3 R3', 'R1 R2 R2 L2 L3 L3 L3 L3 L3 L3 L2 R2',
-    'R1 R1 R1 R1 R1 R2 R2 R2 R2 R3 R3 R3', 'R3 R3 R3 R3 R3 R2 R1 L3 L3 L3 L3 L3',
-    'R3 R1 R1 R1 R1 R2 R2 R2 R2 R3 R3 R3']
-THREADINGS = {
-    'yellow': 'R1 R1 R1 R1 R1 R1 R1 R1 R2 R2 R3 R3',
-    'blue': 'R1 R2 R2 L2 L3 L3 L3 L3 L3 L3 L2 R2',
-    'red': 'R3 R3 R3 R3 R3 R2 R1 L3 L3 L3 L3 L3',
-    'snake': 'R2 R3 R3 R3 L3 L3 L3 L3 R3 R3 R3 R3',
-    'w': 'R3 R3 R3 R3 L2 L3 L2 R3 R3 R3 R3 R3',
-}
+# The brittle star's five modules and a spread of the paper's threadings (FACTS.md).
+BRITTLE_STAR = [' '.join(PAPER_THREADINGS[name]) for name in BRITTLE_STAR_MODULES]
+THREADINGS = {name: ' '.join(PAPER_THREADINGS[name])
+              for name in ('yellow', 'blue', 'red', 'snake', 'w')}
 
 
 def problems(n_per):

@@ -16,17 +16,12 @@ from softsnap_model import (CONSTRAINT_TOL_MM, STATIONARITY_TOL_RAD, InfeasibleL
 sys.path.insert(0, str(Path(__file__).parent))
 from mp_reference import kkt_reference, rib_centers_mp  # noqa: E402
 
+from softsnap_model.reference import PAPER_THREADINGS  # noqa: E402
+
 SK = Skeleton()
-PAPER = {
-    'yellow': 'R1 R1 R1 R1 R1 R1 R1 R1 R2 R2 R3 R3',
-    'blue': 'R1 R2 R2 L2 L3 L3 L3 L3 L3 L3 L2 R2',
-    'red': 'R3 R3 R3 R3 R3 R2 R1 L3 L3 L3 L3 L3',
-    'gripper': 'R1 R2 R2 L1 L3 L3 L3 L3 L3 L3 L3 L3',
-    'snake': 'R2 R3 R3 R3 L3 L3 L3 L3 R3 R3 R3 R3',
-    's': 'R3 R3 R3 R3 R3 R3 L3 L3 L3 L3 L3 L3',
-    'w': 'R3 R3 R3 R3 L2 L3 L2 R3 R3 R3 R3 R3',
-    'alternating': 'R3 L3 R3 L3 R3 L3 R3 L3 R3 L3 R3 L3',
-}
+PAPER = {name: ' '.join(PAPER_THREADINGS[name])
+         for name in ('yellow', 'blue', 'red', 'gripper', 'snake', 's', 'w')}
+PAPER['alternating'] = 'R3 L3 R3 L3 R3 L3 R3 L3 R3 L3 R3 L3'
 
 
 def threading(name):

@@ -7,24 +7,14 @@ import numpy as np
 import pytest
 from scipy import optimize
 
-from softsnap_model import forward, geometry, inverse
+from softsnap_model import forward, geometry, inverse, reference
 from softsnap_model.inverse import design_threading, fit_angles_to_points
 from softsnap_model.skeleton import Skeleton
 
 AUTHORS = Skeleton()
 
-# Threadings of the paper's robots (FACTS.md), rib 0 first.
-PAPER_THREADINGS = {
-    'yellow': 'R1 R1 R1 R1 R1 R1 R1 R1 R2 R2 R3 R3',
-    'blue': 'R1 R2 R2 L2 L3 L3 L3 L3 L3 L3 L2 R2',
-    'green': 'R1 R1 R1 R1 R1 R2 R2 R2 R2 R3 R3 R3',
-    'red': 'R3 R3 R3 R3 R3 R2 R1 L3 L3 L3 L3 L3',
-    'orange': 'R3 R1 R1 R1 R1 R2 R2 R2 R2 R3 R3 R3',
-    'gripper': 'R1 R2 R2 L1 L3 L3 L3 L3 L3 L3 L3 L3',
-    'snake': 'R2 R3 R3 R3 L3 L3 L3 L3 R3 R3 R3 R3',
-    's': 'R3 R3 R3 R3 R3 R3 L3 L3 L3 L3 L3 L3',
-    'w': 'R3 R3 R3 R3 L2 L3 L2 R3 R3 R3 R3 R3',
-}
+# Threadings of the paper's robots (FACTS.md), rib 0 first, as text.
+PAPER_THREADINGS = {name: ' '.join(holes) for name, holes in reference.PAPER_THREADINGS.items()}
 
 
 def forward_target(skeleton, threading, fraction):
