@@ -1,7 +1,10 @@
 """End to end: the demo runs a whole simulated robot for a few seconds in separate processes."""
 import json
+import os
+import signal
 import subprocess
 import sys
+import time
 
 import pytest
 
@@ -53,3 +56,66 @@ def test_demo_reports_a_bad_scene(tmp_path):
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2
     assert 'no_such_robot' in proc.stderr
+
+
+def demo_children(run_dir):
+    """Live processes started by the demo of this run (they carry its ROS_HOME)."""
+    import psutil
+    marker = str(run_dir / 'ros_home')
+    found = []
+    for proc in psutil.process_iter(['pid']):
+        try:
+            if proc.environ().get('ROS_HOME') == marker and proc.pid != os.getpid():
+                found.append(proc)
+        except (psutil.NoSuchProcess, psutil.AccessDenied, psutil.ZombieProcess):
+            continue
+    return found
+
+
+def start_demo(run_dir, seconds='60'):
+    return subprocess.Popen(
+        [sys.executable, '-m', 'softsnap_gaits.demo', '--scene', 'gripper', '--seconds', seconds,
+         '--run-dir', str(run_dir), '--no-rerun'],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, stdin=subprocess.DEVNULL)
+
+
+def wait_for_children(run_dir, count, timeout=60.0):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        children = demo_children(run_dir)
+        if len(children) >= count:
+            return children
+        time.sleep(0.2)
+    raise AssertionError(f'demo started {len(demo_children(run_dir))} of {count} processes')
+
+
+def test_ctrl_c_stops_every_process(tmp_path):
+    run_dir = tmp_path / 'run'
+    demo = start_demo(run_dir)
+    try:
+        wait_for_children(run_dir, 4 * 2 + 2)  # gripper: 4 sims + 4 drivers + model + gait
+        time.sleep(2.0)  # let the gait run a little
+        demo.send_signal(signal.SIGINT)
+        out, err = demo.communicate(timeout=60)
+    finally:
+        demo.kill()
+    assert demo.returncode == 130, err[-2000:]
+    assert 'SoftSnap demo: gripper' in out  # the summary is still printed
+    assert demo_children(run_dir) == []
+
+
+def test_a_crashing_node_stops_the_demo_without_orphans(tmp_path):
+    import psutil
+    run_dir = tmp_path / 'run'
+    demo = start_demo(run_dir)
+    try:
+        children = wait_for_children(run_dir, 4 * 2 + 2)
+        model = next(p for p in children if 'model_node' in ' '.join(p.cmdline()))
+        model.kill()  # SIGKILL: a crash, not a clean stop
+        out, err = demo.communicate(timeout=60)
+    finally:
+        demo.kill()
+    assert demo.returncode == 1
+    assert 'model_node exited early' in err
+    assert demo_children(run_dir) == []
+    assert not psutil.pid_exists(model.pid) or model.status() == psutil.STATUS_ZOMBIE
