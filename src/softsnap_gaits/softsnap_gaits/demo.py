@@ -201,7 +201,12 @@ class Observer:
             self.spin_for(0.05)
 
     def ready(self) -> bool:
-        return all(s.predicted_shapes > 0 for s in self.stats.values())
+        """Every module has both shapes: drivers, model node and gait node are all up.
+
+        (Predicted shapes alone only prove the drivers and the model node; the gait node
+        may start seconds later on a loaded machine.)
+        """
+        return all(s.predicted_shapes > 0 and s.commanded_shapes > 0 for s in self.stats.values())
 
     def reset(self) -> None:
         """Start counting afresh (after the start-up phase)."""
@@ -348,7 +353,8 @@ def run(args: argparse.Namespace) -> int:
         while check_children() and not observer.ready() and time.monotonic() < deadline:
             observer.spin_for(0.1)
         if check_children() and not observer.ready():
-            print(f'not every module produced a predicted shape within {READY_TIMEOUT_S:g} s',
+            print(f'not every module produced a commanded and a predicted shape within '
+                  f'{READY_TIMEOUT_S:g} s',
                   file=sys.stderr)
         observer.reset()
         start = time.monotonic()
