@@ -21,10 +21,7 @@ from __future__ import annotations
 import argparse
 import os
 import random
-import signal
 import statistics
-import subprocess
-import tempfile
 import time
 
 os.environ.setdefault('ROS_DOMAIN_ID', str(random.randint(101, 200)))
@@ -32,13 +29,14 @@ os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
 
 import psutil  # noqa: E402
 import rclpy  # noqa: E402
-from ament_index_python.packages import get_package_prefix  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 
 from softsnap_driver.firmware import DEADBAND_COUNTS  # noqa: E402
 from softsnap_driver.protocol import ModuleClient  # noqa: E402
 from softsnap_driver.sim_module import SimServer  # noqa: E402
 from softsnap_interfaces.msg import CableLength, ModuleState  # noqa: E402
+
+from benchlib import start_node, stop  # noqa: E402
 
 NS = '/bench'
 MODULE = 'm1'
@@ -56,21 +54,11 @@ def ms(values):
             f'{1e3 * percentile(values, 0.99):.2f}')
 
 
-def start_driver(port: int, poll_rate_hz: float) -> subprocess.Popen:
-    exe = os.path.join(get_package_prefix('softsnap_driver'), 'lib', 'softsnap_driver', 'driver_node')
-    args = [exe, '--ros-args', '-r', f'__ns:={NS}', '-p', f'module:={MODULE}', '-p', f'port:={port}',
-            '-p', f'counts_per_mm:={COUNTS_PER_MM}', '-p', f'straight_length_m:={STRAIGHT_M}',
-            '-p', 'pwm_power:=255', '-p', f'poll_rate_hz:={poll_rate_hz}', '-p', 'command_timeout_s:=0.0']
-    return subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                            start_new_session=True, env=dict(os.environ, ROS_HOME=tempfile.mkdtemp()))
-
-
-def stop(proc: subprocess.Popen) -> None:
-    os.killpg(proc.pid, signal.SIGINT)
-    try:
-        proc.wait(10)
-    except subprocess.TimeoutExpired:
-        os.killpg(proc.pid, signal.SIGKILL)
+def start_driver(port: int, poll_rate_hz: float):
+    return start_node('softsnap_driver', 'driver_node', [
+        '-r', f'__ns:={NS}', '-p', f'module:={MODULE}', '-p', f'port:={port}',
+        '-p', f'counts_per_mm:={COUNTS_PER_MM}', '-p', f'straight_length_m:={STRAIGHT_M}',
+        '-p', 'pwm_power:=255', '-p', f'poll_rate_hz:={poll_rate_hz}', '-p', 'command_timeout_s:=0.0'])
 
 
 def bench_protocol(seconds: float) -> list[tuple[str, ...]]:

@@ -16,40 +16,28 @@ from __future__ import annotations
 import argparse
 import os
 import random
-import signal
 import statistics
-import subprocess
 import sys
-import tempfile
 import time
 
 import psutil
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
-from ament_index_python.packages import get_package_prefix
 
 from softsnap_interfaces.msg import CableLength, ModelDiagnostics, RobotShape
 from softsnap_interfaces.srv import ForwardShape
 from softsnap_model.scene import load_scene
 
+from benchlib import start_node, stop  # noqa: E402
+
 NS = '/bench'
 
 
-def start_model_node(skip: bool, rate: float) -> subprocess.Popen:
-    exe = os.path.join(get_package_prefix('softsnap_model'), 'lib', 'softsnap_model', 'model_node')
-    return subprocess.Popen(
-        [exe, '--ros-args', '-r', f'__ns:={NS}', '-p', 'scene:=brittle_star', '-p', f'rate:={rate}',
-         '-p', f'skip_work:={"true" if skip else "false"}', '-p', 'diagnostics_period:=0.5'],
-        stdout=open(os.environ.get("MODEL_BENCH_LOG", os.devnull), "w"), stderr=subprocess.STDOUT, start_new_session=True,
-        env=dict(os.environ, ROS_HOME=tempfile.mkdtemp()))
-
-
-def stop(proc: subprocess.Popen) -> None:
-    os.killpg(proc.pid, signal.SIGINT)
-    try:
-        proc.wait(10)
-    except subprocess.TimeoutExpired:
-        os.killpg(proc.pid, signal.SIGKILL)
+def start_model_node(skip: bool, rate: float):
+    return start_node('softsnap_model', 'model_node', [
+        '-r', f'__ns:={NS}', '-p', 'scene:=brittle_star', '-p', f'rate:={rate}',
+        '-p', f'skip_work:={"true" if skip else "false"}', '-p', 'diagnostics_period:=0.5'],
+        log_path=os.environ.get('MODEL_BENCH_LOG'))
 
 
 def spin_until(executor, predicate, timeout):
