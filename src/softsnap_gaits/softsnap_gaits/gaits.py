@@ -31,12 +31,13 @@ Examples
 from __future__ import annotations
 
 import math
-import warnings
 from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any, Callable, Mapping
 
 import numpy as np
+
+from softsnap_model.forward import reachable_range
 
 __all__ = [
     'Gait', 'GaitError', 'GAIT_TYPES', 'make_gait', 'reachable_contraction_mm',
@@ -446,34 +447,14 @@ GAIT_TYPES: Mapping[str, Callable] = MappingProxyType({
 
 # ------------------------------------------------------------------ reachability
 
-_REACH_CACHE: dict[tuple, tuple[float, Any]] = {}
-
-
-def solver_available() -> bool:
-    """True when softsnap_model provides `reachable_range` (the forward solver)."""
-    try:
-        from softsnap_model.forward import reachable_range  # noqa: F401, PLC0415
-    except ImportError:
-        return False
-    return True
-
-
 def reachable_contraction_mm(skeleton, threading_mm) -> float:
     """Largest contraction (mm) the solver can reach for a threading on `skeleton`.
 
-    ``straight_length_mm - min_length_mm`` from `softsnap_model.forward.reachable_range`, cached
-    per (skeleton, threading).
+    ``straight_length_mm - min_length_mm`` from `softsnap_model.forward.reachable_range`
+    (which caches each threading's path itself).
     """
-    key = (id(skeleton), tuple(float(d) for d in threading_mm))
-    if key not in _REACH_CACHE:
-        from softsnap_model.forward import reachable_range  # noqa: PLC0415 - heavy, lazy
-        min_length, straight_length = reachable_range(skeleton, tuple(threading_mm))
-        value = float(straight_length) - float(min_length)
-        if not math.isfinite(value) or value < 0.0:
-            raise ValueError(f'reachable_range returned an invalid range for threading '
-                             f'{list(threading_mm)}: min {min_length!r}, straight {straight_length!r}')
-        _REACH_CACHE[key] = (value, skeleton)  # keep the skeleton alive: id stays unique
-    return _REACH_CACHE[key][0]
+    min_length, straight_length = reachable_range(skeleton, tuple(threading_mm))
+    return float(straight_length) - float(min_length)
 
 
 # --------------------------------------------------------------------- entry point
@@ -539,11 +520,6 @@ def make_gait(spec, scene, *, name: str | None = None, period_s: float | None = 
         peak, speed = peak * factor, speed * factor
         params = dict(params, amplitude_scale=factor)
 
-    if check_reachable and not solver_available():
-        warnings.warn('softsnap_model.reachable_range is not available: gait contractions are '
-                      "checked against the scenes' max_contraction_mm only", RuntimeWarning,
-                      stacklevel=2)
-        check_reachable = False
     limits = []
     for i, m in enumerate(scene.modules):
         limit, why = m.max_contraction_mm, "the scene's max_contraction_mm"
