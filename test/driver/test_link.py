@@ -1,6 +1,5 @@
 """ModuleLink (the driver's worker) against a simulated module over loopback, no ROS."""
 import math
-import threading
 import time
 
 import pytest

@@ -1,6 +1,5 @@
 """Scene files: schema of the five robots, geometry conventions, and refusal of bad files."""
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest

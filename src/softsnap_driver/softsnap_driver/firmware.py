@@ -59,7 +59,7 @@ import json
 import math
 import random
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 from softsnap_driver.protocol import FIRMWARE_DEADBAND_COUNTS
 

@@ -36,7 +36,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from typing import Mapping, Sequence
+from typing import Mapping
 
 import numpy as np
 
