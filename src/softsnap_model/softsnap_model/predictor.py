@@ -11,7 +11,8 @@ not need, and counts what it skipped:
   snake of five identical modules given the same command costs one solve), across both
   sources;
 - every solve is warm-started from that module's previous shape;
-- rib centres are computed only when the caller asks for them (someone subscribes).
+- rib centres are handed on only when the caller asks for them (someone subscribes), so
+  the node builds point messages only for subscribers.
 
 Units: millimetres and radians inside (the solver core's units); the node converts to SI.
 """
@@ -109,8 +110,9 @@ class RobotPredictor:
     length_tol_mm : float
         Length change below which a module is not solved again, mm.
     solver : callable, optional
-        ``solver(skeleton, threading_mm, cable_length_mm, initial=None)``; the forward
-        solver by default.
+        ``solver(skeleton, threading_mm, cable_length_mm, initial=None)`` returning a result
+        with ``angles``, ``rib_centers``, ``tension``, ``energy``, ``converged`` and
+        ``residual``; the forward solver by default.
     skip : bool
         Skip unneeded work (unchanged lengths, duplicate problems, unrequested rib
         centres). False solves every length received, separately, with rib centres: the
@@ -184,7 +186,7 @@ class RobotPredictor:
         Parameters
         ----------
         rib_centers : bool or mapping source -> bool
-            Whether to compute rib centres for the new shapes (per source if a mapping).
+            Whether the new shapes carry rib centres (per source if a mapping).
         """
         want = rib_centers if isinstance(rib_centers, Mapping) else dict.fromkeys(SOURCES, rib_centers)
         if not self.skip:
@@ -220,13 +222,10 @@ class RobotPredictor:
             self.counters.solve_time_s += elapsed
             self.counters.skipped_duplicate += len(members) - 1
             angles = np.array(result.angles, dtype=float)
-            centers = None
+            centers = np.asarray(result.rib_centers, dtype=float)  # the solve's own rib poses
             for i, (name, source) in enumerate(members):
                 slot = self._slots[(name, source)]
-                if want.get(source, False):
-                    if centers is None:
-                        centers = geometry.rib_centers(angles, self.skeleton.spacing_mm)
-                else:
+                if not want.get(source, False):
                     self.counters.skipped_rib_points += 1
                 slot.shape = ModulePrediction(
                     module=name, source=source, cable_length_mm=length, angles=angles,
