@@ -20,20 +20,35 @@ def test_length_to_count_known_answers(length_m, count):
 
 
 @pytest.mark.parametrize('length_m, count', [
-    (0.30, 0), (0.0, 7130), (-5.0, 7130), (1e300, 0),
-    (1.7e308, 0), (-1.7e308, 7130),     # regression: huge lengths overflowed the count
+    (0.2009, 0), (0.1171, 7130),        # within clamp_margin_m (5 mm) of the range
+    (0.203, 0), (0.113 + 1e-6, 7130),
 ])
-def test_out_of_range_commands_are_clamped_inside(length_m, count):
+def test_near_range_commands_are_clamped_inside(length_m, count):
     cmd = CAL.command(length_m)
     assert cmd.clamped and cmd.count == count
     low, high = CAL.length_range_m
     assert low - 1e-12 <= cmd.length_m <= high + 1e-12
 
 
-@pytest.mark.parametrize('bad', [math.nan, math.inf, -math.inf, '0.1', None, True])
-def test_non_finite_or_non_numbers_are_refused(bad):
-    with pytest.raises(ValueError):
-        CAL.command(bad)
+@pytest.mark.parametrize('length_m', [
+    0.0,                        # regression: a default-constructed CableLength was driven to full contraction
+    -0.0, -5.0, 5e-324, 0.30, 0.2031, 0.1129, 1e300, 1.7e308, -1.7e308,
+])
+def test_non_physical_commands_are_refused_with_the_range(length_m):
+    with pytest.raises(ValueError, match=r'> 0 m|outside the allowed range \[0\.118000, 0\.198000\]'):
+        CAL.command(length_m)
+
+
+def test_clamp_margin_is_a_parameter():
+    strict = CableCalibration(counts_per_mm=89.13, straight_length_m=0.198, max_contraction_m=0.080,
+                              clamp_margin_m=0.0)
+    assert not strict.command(0.198).clamped
+    with pytest.raises(ValueError, match='clamp_margin_m=0'):
+        strict.command(0.1985)
+    for bad in (-0.001, math.nan, math.inf, 2.0):
+        with pytest.raises(ValueError, match='clamp_margin_m'):
+            CableCalibration(counts_per_mm=89.13, straight_length_m=0.198, max_contraction_m=0.080,
+                             clamp_margin_m=bad)
 
 
 def test_count_range_never_exceeds_the_contraction_range():
@@ -41,7 +56,7 @@ def test_count_range_never_exceeds_the_contraction_range():
                            min_contraction_m=0.0049)
     low, high = cal.count_range
     assert low / 33.3 >= 4.9 - 1e-9 and high / 33.3 <= 50.1 + 1e-9
-    assert cal.command(0.3).count == low and cal.command(0.0).count == high
+    assert cal.command(0.2).count == low and cal.command(0.149).count == high
 
 
 def test_negative_count_sign():

@@ -1,6 +1,7 @@
 """Fuzz: the reply parser and the simulated module's request parser never fail unexpectedly."""
 import json
 
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -76,3 +77,95 @@ def test_sim_status_round_trips_through_the_client_parser(count, power, paused, 
     status = parse_reply(sim.reply())
     assert (status.encoder_count, status.motor_power, status.paused, status.encoder_errors) == \
         (count, power, paused, errors)
+
+
+# -- hostile but well-formed JSON: extreme numbers, wrong types, deep nesting, bad bytes --
+
+FIELDS = ['status', 'ip', 'mac', 'm_current', 'm_power', 'm_error', 'battery', 'pause', 'power']
+
+
+def huge_int_text(digits: int, sign: str = '') -> str:
+    return sign + '1' + '0' * digits
+
+
+extreme_number_texts = st.one_of(
+    # Beyond float range (regression: OverflowError from math.isfinite/float), and beyond
+    # sys.get_int_max_str_digits() (ValueError inside json.loads).
+    st.builds(huge_int_text, st.integers(300, 6000), st.sampled_from(['', '-'])),
+    st.sampled_from(['1e400', '-1e400', '1e-400', 'NaN', 'Infinity', '-Infinity', '-0',
+                     '2147483648', '-2147483649', '4294967296', '1.0', '4.15e0', '9' * 40]),
+    st.integers().map(str),
+    st.floats(allow_nan=True, allow_infinity=True).map(json.dumps),
+)
+
+
+def reply_with(field: str, value_text: str) -> bytes:
+    """A firmware reply whose `field` holds `value_text` verbatim (any JSON, or not)."""
+    base = json.loads(SimModule(start_time=0.0).status_json())
+    base[field] = '__X__'
+    return http_reply(json.dumps(base).replace('"__X__"', value_text))
+
+
+def assert_parses_or_malformed(raw: bytes):
+    try:
+        status = parse_reply(raw)
+    except MalformedReply as exc:
+        assert str(exc)                  # a reason is always given
+        return None
+    assert isinstance(status, ModuleStatus)
+    assert INT32_MIN <= status.encoder_count <= INT32_MAX
+    assert 0 <= status.motor_power <= 255 and 0 <= status.encoder_errors < 2 ** 32
+    assert 0.0 <= status.battery_voltage < 100.0
+    assert isinstance(status.ip, str) and isinstance(status.mac, str)
+    return status
+
+
+@FUZZ
+@given(st.sampled_from(FIELDS), extreme_number_texts)
+def test_reply_parser_on_extreme_numbers(field, number):
+    assert_parses_or_malformed(reply_with(field, number))
+
+
+@FUZZ
+@given(st.sampled_from(FIELDS), json_values)
+def test_reply_parser_on_wrong_types(field, value):
+    assert_parses_or_malformed(reply_with(field, json.dumps(value)))
+
+
+@FUZZ
+@given(st.sampled_from(FIELDS + ['extra']), st.integers(1, 8000), st.sampled_from('[{'))
+def test_reply_parser_on_deep_nesting(field, depth, bracket):
+    close = ']' if bracket == '[' else '}'
+    inner = '[' * depth + ']' * depth if bracket == '[' else '{"a":' * depth + '1' + close * depth
+    assert_parses_or_malformed(reply_with(field, inner))
+
+
+@FUZZ
+@given(st.binary(min_size=1, max_size=8), st.integers(0, 10 ** 6))
+def test_reply_parser_on_non_utf8_bytes(noise, where):
+    good = SimModule(start_time=0.0).reply()
+    at = where % len(good)
+    assert_parses_or_malformed(good[:at] + noise + good[at:])
+
+
+def test_regression_battery_beyond_float_range_is_malformed():
+    # Found against an independent firmware emulator: OverflowError killed the I/O thread.
+    with pytest.raises(MalformedReply, match="'battery' out of range"):
+        parse_reply(reply_with('battery', huge_int_text(400)))
+
+
+@pytest.mark.parametrize('field, text, reason', [
+    ('m_current', huge_int_text(5000), 'not JSON'),       # beyond int max str digits
+    ('extra', '[' * 5000 + ']' * 5000, 'not JSON|nest'),  # RecursionError in json
+    ('ip', '12', "'ip' must be a string"),
+    ('mac', '["02:53"]', "'mac' must be a string"),
+    ('status', '["ok"]', 'reply status'),
+])
+def test_hostile_values_give_the_reason(field, text, reason):
+    with pytest.raises(MalformedReply, match=reason):
+        parse_reply(reply_with(field, text))
+
+
+def test_non_utf8_reply_is_malformed_with_the_reason():
+    with pytest.raises(MalformedReply, match='not UTF-8'):
+        parse_reply(SimModule(start_time=0.0).reply().replace(b'"ok"', b'"\xff\xfe"'))

@@ -7,6 +7,7 @@ import pytest
 from softsnap_driver.core import CableCalibration
 from softsnap_driver.firmware import DEADBAND_COUNTS, Faults
 from softsnap_driver.link import LinkConfig, ModuleLink, NeedsCalibration
+from softsnap_driver.protocol import ModuleClient
 
 CAL = CableCalibration(counts_per_mm=89.13, straight_length_m=0.198, max_contraction_m=0.080)
 
@@ -95,18 +96,25 @@ def test_commands_coalesce_latest_wins(sim_server, link_to):
 def test_nothing_beyond_the_range_reaches_the_module(sim_server, link_to):
     server = sim_server()
     link = link_to(server)
-    for length in (0.5, -1.0, 0.0, 0.117, 0.199, 1e9, -1e9, 0.15):
+    for length in (0.117, 0.199, 0.15):             # within clamp_margin_m: clamped
         link.command(length)
         time.sleep(0.03)
-    for bad in (math.nan, math.inf, -math.inf):
+    # Non-physical: refused and counted, never clamped and sent. 0.0 is a default-constructed
+    # CableLength (regression: it was clamped to full contraction and sent).
+    for bad in (0.0, -0.0, -1.0, 0.5, 0.112, 0.2041, 1e9, -1e9, math.nan, math.inf, -math.inf):
         with pytest.raises(ValueError):
             link.command(bad)
     assert wait_for(lambda: targets(server) and targets(server)[-1] == CAL.command(0.15).count)
+    time.sleep(0.1)
     low, high = CAL.count_range
     assert all(low <= t <= high for t in targets(server))
-    assert high in targets(server) and low in targets(server)
-    assert wait_for(lambda: last(link).counters.commands_refused == 3)
-    assert last(link).counters.commands_clamped == 7
+    assert targets(server) == [high, low, CAL.command(0.15).count]
+    assert wait_for(lambda: last(link).counters.commands_refused == 11)
+    assert last(link).counters.commands_clamped == 2
+    assert 'command refused' in last(link).last_error and '-inf' in last(link).last_error
+    link.command(0.16)                                                 # accepted as it is
+    assert wait_for(lambda: last(link).last_error == '')
+    assert math.isfinite(last(link).last_error_stamp)
 
 
 def test_stale_stream_stops_where_it_is(sim_server, link_to):
@@ -119,6 +127,7 @@ def test_stale_stream_stops_where_it_is(sim_server, link_to):
         assert 0 < server.module.encoder_count < CAL.command(0.118).count - 100
     assert 'no command' in last(link).last_error
     assert any('no command' in text for level, text in link.log.lines if level == 'warning')
+    assert 'stop sent' in link.log.text() and 'stop confirmed' in link.log.text()
     time.sleep(0.5)
     assert last(link).counters.stale_stops == 1        # once per stream
     link.command(0.19)                                 # a new stream moves again
@@ -136,6 +145,9 @@ def test_offline_backoff_and_recovery(sim_server, link_to):
     assert wait_for(lambda: last(link).online and last(link).fresh, 5.0)
     assert 'answers again' in link.log.text()
     assert wait_for(lambda: targets(server) and targets(server)[-1] == CAL.command(0.17).count)
+    # last_error clears once the module answers normally; its time is kept.
+    assert wait_for(lambda: last(link).fresh and last(link).last_error == '')
+    assert 0 < time.monotonic() - last(link).last_error_stamp < 10
     # Backoff: far fewer attempts than one per poll period during 1.5 s.
     assert offline_attempts < 1.5 / 0.02 / 2
 
@@ -243,3 +255,166 @@ def test_stop_sends_reach_on_shutdown(sim_server):
     link.stop()
     with server.lock:
         assert server.module.target == server.module.encoder_count != CAL.command(0.118).count
+
+
+# -- safety: confirmed stops, internal errors, retry backoff ----------------------------
+
+ABANDONED_M = 0.118                                    # full contraction: 7130 counts
+ABANDONED = CAL.command(ABANDONED_M).count
+SLOW_PWM = 40                                          # about 1650 counts/s in the sim
+
+
+def module_state(server):
+    with server.lock:
+        return server.module.target, server.module.encoder_count
+
+
+def count_when(link, predicate):
+    """Encoder count in the last report before the first report matching predicate."""
+    for before, report in zip(link.reports, link.reports[1:]):
+        if predicate(report):
+            return before.status.encoder_count
+    raise AssertionError('no report matched')
+
+
+def assert_stopped_near(server, decided_count, slack=800):
+    target, count = module_state(server)
+    assert target == count, (target, count)                       # reach took effect
+    assert count < ABANDONED - 3000, count                        # never at the abandoned target
+    assert abs(count - decided_count) <= slack, (count, decided_count)
+    time.sleep(0.2)
+    assert module_state(server) == (target, count)                # and it stays there
+
+
+@pytest.mark.parametrize('lost', [1, 2])
+def test_watchdog_stop_is_retried_until_confirmed_when_reach_is_lost(sim_server, link_to, lost):
+    server = sim_server(Faults(drop_first_reach=lost))
+    link = link_to(server, command_timeout_s=0.3, pwm_power=SLOW_PWM)
+    link.command(ABANDONED_M)
+    assert wait_for(lambda: last(link).counters.stale_stops == 1, 3.0)
+    assert wait_for(lambda: 'stop confirmed' in link.log.text(), 3.0)
+    assert server.fault_counts.get('drop_head') == lost           # the lost reach requests
+    decided = count_when(link, lambda r: r.counters.stale_stops == 1)
+    assert_stopped_near(server, decided)
+    text = link.log.text()
+    assert text.index('stop sent') < text.index('stop not yet confirmed') < text.index('stop confirmed')
+    assert last(link).counters.stops_unconfirmed == 0
+    assert link._thread.is_alive()
+
+
+@pytest.mark.parametrize('lost', [1, 2])
+def test_stop_service_is_confirmed_when_reach_is_lost(sim_server, link_to, lost):
+    server = sim_server(Faults(drop_first_reach=lost))
+    link = link_to(server, pwm_power=SLOW_PWM)
+    link.command(ABANDONED_M)
+    assert wait_for(lambda: last(link).status.encoder_count > 300)
+    decided = last(link).status.encoder_count
+    ok, message = link.request('stop')
+    assert ok and message.startswith('stopped at count') and '(confirmed)' in message, message
+    assert server.fault_counts.get('drop_head') == lost
+    assert_stopped_near(server, decided)
+
+
+def test_failed_stop_service_keeps_trying_and_the_watchdog_stays_armed(sim_server, link_to):
+    server = sim_server()
+    link = link_to(server, pwm_power=SLOW_PWM, command_timeout_s=5.0, request_timeout_s=0.1,
+                   stop_deadline_s=0.3, offline_after_failures=50)
+    link.command(ABANDONED_M)
+    assert wait_for(lambda: last(link).status.encoder_count > 300)
+    with server.lock:                                  # Wi-Fi gone for 0.8 s, motor still running
+        server.module.faults.outage_after_s = server.module.since_start(server.clock())
+        server.module.faults.outage_duration_s = 0.8
+    ok, message = link.request('stop')
+    assert not ok and 'stop NOT confirmed' in message and 'keeps trying' in message, message
+    assert last(link).counters.stops_unconfirmed == 1
+    assert 'stop NOT confirmed' in last(link).last_error
+    # Not given up: once the module answers again the stop is confirmed.
+    assert wait_for(lambda: 'stop confirmed' in link.log.text(), 5.0)
+    target, count = module_state(server)
+    assert target == count < ABANDONED - 1000
+    assert wait_for(lambda: 'stop' not in last(link).last_error)
+    assert last(link).counters.stale_stops == 0        # 5 s watchdog not needed, still armed
+    assert link._stale_handled                         # disarmed only by the confirmed stop
+
+
+@pytest.mark.parametrize('lost', [1, 2])
+def test_stop_on_shutdown_is_confirmed_when_reach_is_lost(sim_server, lost):
+    server = sim_server(Faults(drop_first_reach=lost))
+    config = LinkConfig(host='127.0.0.1', port=server.port, calibration=CAL, pwm_power=SLOW_PWM,
+                        poll_period_s=0.02, command_timeout_s=0.0)
+    reports, log = [], Log()
+    link = ModuleLink(config, reports.append, log)
+    link.start()
+    link.command(ABANDONED_M)
+    assert wait_for(lambda: reports and reports[-1].status.encoder_count > 300)
+    decided = reports[-1].status.encoder_count
+    link.stop()
+    assert not link._thread.is_alive()
+    assert server.fault_counts.get('drop_head') == lost
+    assert 'stop confirmed' in log.text() and '(shutdown)' in log.text()
+    assert_stopped_near(server, decided)
+
+
+class FailingClient(ModuleClient):
+    """A real client whose third status poll raises an unexpected (non-module) error."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.polls = 0
+
+    def status(self, timeout_s=None):
+        self.polls += 1
+        if self.polls == 3:
+            raise RuntimeError('injected bug in the I/O loop')
+        return super().status(timeout_s)
+
+
+def test_unexpected_error_in_the_loop_is_counted_logged_and_survived(sim_server):
+    server = sim_server()
+    config = LinkConfig(host='127.0.0.1', port=server.port, calibration=CAL, pwm_power=SLOW_PWM,
+                        poll_period_s=0.02, command_timeout_s=0.5)
+    reports, log = [], Log()
+    link = ModuleLink(config, reports.append, log, client_factory=FailingClient)
+    link.start()
+    try:
+        link.command(ABANDONED_M)
+        assert wait_for(lambda: reports[-1].counters.internal_errors == 1)
+        errors = [text for level, text in log.lines if level == 'error']
+        assert any('injected bug' in text and 'Traceback' in text for text in errors), errors
+        assert any('internal error' in r.last_error for r in reports)
+        assert link._thread.is_alive()
+        polled = link._client.polls
+        assert wait_for(lambda: link._client.polls > polled + 5)        # polling goes on
+        # ... and so does the watchdog: the stream goes stale and the module is stopped.
+        assert wait_for(lambda: reports[-1].counters.stale_stops == 1, 3.0)
+        assert wait_for(lambda: 'stop confirmed' in log.text(), 3.0)
+        target, count = module_state(server)
+        assert target == count < ABANDONED - 3000
+        assert wait_for(lambda: 'internal' not in reports[-1].last_error)
+        assert reports[-1].counters.internal_errors == 1
+    finally:
+        link.stop()
+
+
+def test_failed_set_is_retried_after_a_growing_pause(sim_server):
+    server = sim_server(Faults(drop_probability=1.0))   # every connection closed unanswered
+    config = LinkConfig(host='127.0.0.1', port=server.port, calibration=CAL, pwm_power=200,
+                        poll_period_s=0.05, command_timeout_s=0.0, offline_after_failures=3,
+                        max_backoff_s=0.4)
+    reports, log = [], Log()
+    link = ModuleLink(config, reports.append, log)
+    link.command(0.15)                                   # queued before the first request
+    link.start()
+    try:
+        assert wait_for(lambda: reports and reports[-1].counters.request_failures >= 6, 10.0)
+    finally:
+        link.stop()
+    failures = [(r.stamp, r.last_error) for before, r in zip([None] + reports, reports)
+                if r.counters.request_failures > (before.counters.request_failures if before else 0)]
+    assert all('set failed' in error for _, error in failures[:3])   # the set, three times
+    gaps = [b[0] - a[0] for a, b in zip(failures, failures[1:])]
+    # Regression: three failures and "offline" within 1 ms. Now each pause doubles from the
+    # poll period (0.05, 0.1, 0.2 s) up to max_backoff_s (0.4 s).
+    for gap, pause in zip(gaps, (0.05, 0.1, 0.2, 0.4, 0.4)):
+        assert gap >= pause * 0.95, gaps
+    print(f'pauses between failed requests: {[round(g, 3) for g in gaps]} s')

@@ -7,17 +7,23 @@ module)::
     contraction_mm = count_sign * count / counts_per_mm
     cable_length_m = straight_length_m - contraction_mm / 1000
 
-Commands are clamped to the allowed contraction range ``[min_contraction_m,
-max_contraction_m]`` *in counts*, rounding towards the inside of the range, so the target
-sent to the module can never lie outside it, whatever the rounding.
+Commands within ``clamp_margin_m`` of the allowed contraction range ``[min_contraction_m,
+max_contraction_m]`` are clamped to it *in counts*, rounding towards the inside of the
+range, so the target sent to the module can never lie outside it, whatever the rounding.
+Non-physical commands are refused (ValueError), never clamped: a length <= 0, NaN or
+infinite, or further than ``clamp_margin_m`` outside the range (a default-constructed
+message holds 0.0 m: clamping it would drive the module to full contraction).
 
 Examples
 --------
 >>> cal = CableCalibration(counts_per_mm=100.0, straight_length_m=0.2, max_contraction_m=0.08)
 >>> cal.command(0.19)
 TargetCommand(requested_length_m=0.19, length_m=0.19, count=1000, clamped=False)
->>> cal.command(0.05).count, cal.command(0.05).clamped
+>>> cal.command(0.118).count, cal.command(0.118).clamped
 (8000, True)
+>>> cal.command(0.0)
+Traceback (most recent call last):
+ValueError: cable length must be > 0 m, got 0.0
 >>> round(cal.length_m(500), 6)
 0.195
 """
@@ -29,6 +35,11 @@ from dataclasses import dataclass
 #: A command counts as clamped only when it lies outside the allowed cable-length range
 #: by more than this (m): 1 nm, far below one encoder count, above float rounding.
 RANGE_TOL_M = 1e-9
+
+#: Default of :attr:`CableCalibration.clamp_margin_m` (m): commands at most this far
+#: outside the allowed range are clamped (a planner's rounding, a slightly different
+#: straight length); further out they are refused as non-physical.
+DEFAULT_CLAMP_MARGIN_M = 0.005
 
 
 @dataclass(frozen=True)
@@ -62,6 +73,9 @@ class CableCalibration:
         Smallest allowed contraction, in metres (0: the straight module).
     count_sign : int
         +1 if positive counts shorten the cable, -1 if they lengthen it.
+    clamp_margin_m : float
+        Commands at most this far outside the allowed cable-length range are clamped to
+        it, in metres (m), >= 0; further out they are refused.
     """
 
     counts_per_mm: float
@@ -69,6 +83,7 @@ class CableCalibration:
     max_contraction_m: float
     min_contraction_m: float = 0.0
     count_sign: int = 1
+    clamp_margin_m: float = DEFAULT_CLAMP_MARGIN_M
 
     def __post_init__(self):
         if not (math.isfinite(self.counts_per_mm) and self.counts_per_mm > 0):
@@ -82,6 +97,9 @@ class CableCalibration:
             raise ValueError(
                 f'max_contraction_m must be in [min_contraction_m={self.min_contraction_m}, '
                 f'straight_length_m={self.straight_length_m}), got {self.max_contraction_m!r}')
+        if not (isinstance(self.clamp_margin_m, (int, float)) and math.isfinite(self.clamp_margin_m)
+                and 0 <= self.clamp_margin_m <= 1.0):
+            raise ValueError(f'clamp_margin_m must be in [0, 1] m, got {self.clamp_margin_m!r}')
         if self.count_sign not in (1, -1):
             raise ValueError(f'count_sign must be +1 or -1, got {self.count_sign!r}')
         if self.count_range[0] > self.count_range[1]:
@@ -108,17 +126,25 @@ class CableCalibration:
         return self.straight_length_m - self.count_sign * count / self.counts_per_mm / 1000.0
 
     def command(self, length_m: float) -> TargetCommand:
-        """Translate a commanded cable length (m) to an encoder target, clamping it.
+        """Translate a commanded cable length (m) to an encoder target, clamping near-range values.
 
-        Raises ValueError for NaN or infinite lengths (a refused command).
+        Raises ValueError, quoting the value and the accepted range, for a non-physical
+        command: not a number, NaN, infinite, <= 0, or more than ``clamp_margin_m`` outside
+        the allowed range.
         """
         if isinstance(length_m, bool) or not isinstance(length_m, (int, float)):
             raise ValueError(f'cable length must be a number in metres, got {length_m!r}')
         if not math.isfinite(length_m):
             raise ValueError(f'cable length must be finite, got {length_m!r}')
+        if length_m <= 0:
+            raise ValueError(f'cable length must be > 0 m, got {length_m!r}')
         shortest, longest = self.length_range_m
+        margin = self.clamp_margin_m + RANGE_TOL_M
+        if not shortest - margin <= length_m <= longest + margin:
+            raise ValueError(
+                f'cable length {length_m!r} m is more than clamp_margin_m={self.clamp_margin_m:g} m '
+                f'outside the allowed range [{shortest:.6f}, {longest:.6f}] m')
         clamped = not (shortest - RANGE_TOL_M <= length_m <= longest + RANGE_TOL_M)
-        # Clamp the length first (huge values would overflow the count), then the count.
         bounded_m = min(max(float(length_m), shortest), longest)
         raw = self.count_sign * (self.straight_length_m - bounded_m) * 1000.0 * self.counts_per_mm
         low, high = self.count_range

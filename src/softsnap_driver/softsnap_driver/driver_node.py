@@ -23,12 +23,13 @@ import rclpy
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 SetParametersResult)
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from softsnap_interfaces.msg import CableLength, ModuleState
 from std_srvs.srv import Trigger
 
-from softsnap_driver.core import CableCalibration
+from softsnap_driver.core import DEFAULT_CLAMP_MARGIN_M, CableCalibration
 from softsnap_driver.link import LinkConfig, LinkReport, ModuleLink
 
 #: Default winch: 2800 counts per output revolution (N20 encoder, 7 PPR x4, 1:100) on a
@@ -74,7 +75,14 @@ PARAMETERS = {
         'Fastest the winch can move; faster falls to 0 are reboots, counts/s', 1.0, 1e9)),
     'stall_timeout_s': (1.0, _float(
         'Outside the deadband with no progress for this long: stalled, stop it, s (0: never)', 0.0, 3600.0)),
-    'stop_on_shutdown': (True, ParameterDescriptor(description='Send reach (stop) when the driver exits')),
+    'stop_on_shutdown': (True, ParameterDescriptor(
+        description='Stop the module (confirmed reach, within the shutdown budget) when the driver exits')),
+    'clamp_margin_m': (DEFAULT_CLAMP_MARGIN_M, _float(
+        'Commands at most this far outside the allowed length range are clamped; further out refused, m',
+        0.0, 1.0)),
+    'stop_deadline_s': (1.0, _float(
+        'Retry reach until the stop is confirmed, for at most this long, then report and keep trying, s',
+        0.05, 60.0)),
 }
 
 
@@ -116,7 +124,8 @@ class DriverNode(Node):
         calibration = CableCalibration(
             counts_per_mm=values['counts_per_mm'], straight_length_m=values['straight_length_m'],
             max_contraction_m=values['max_contraction_m'],
-            min_contraction_m=values['min_contraction_m'], count_sign=values['count_sign'])
+            min_contraction_m=values['min_contraction_m'], count_sign=values['count_sign'],
+            clamp_margin_m=values['clamp_margin_m'])
         return LinkConfig(
             host=values['host'], port=values['port'], calibration=calibration,
             pwm_power=values['pwm_power'], poll_period_s=1.0 / values['poll_rate_hz'],
@@ -128,7 +137,7 @@ class DriverNode(Node):
             reboot_min_jump_counts=values['reboot_min_jump_counts'],
             max_speed_counts_per_s=values['max_speed_counts_per_s'],
             stop_on_shutdown=values['stop_on_shutdown'],
-            stall_timeout_s=values['stall_timeout_s'])
+            stall_timeout_s=values['stall_timeout_s'], stop_deadline_s=values['stop_deadline_s'])
 
     def _values_with(self, parameters: list[Parameter]) -> dict:
         values = {name: self.get_parameter(name).value for name in PARAMETERS}
@@ -198,10 +207,17 @@ class DriverNode(Node):
         state.reboots_detected = c.reboots_detected
         state.stale_stops = c.stale_stops
         state.stalls_detected = c.stalls_detected
+        state.internal_errors = c.internal_errors
+        state.stops_unconfirmed = c.stops_unconfirmed
         state.last_error = report.last_error
+        if math.isfinite(report.last_error_stamp):
+            # The link stamps on its monotonic clock: shift to ROS time by the error's age.
+            age_ns = int(max(report.stamp - report.last_error_stamp, 0.0) * 1e9)
+            state.last_error_time = (self.get_clock().now() - Duration(nanoseconds=age_ns)).to_msg()
         self.state_publisher.publish(state)
 
     def destroy_node(self) -> None:
+        # Bounded (link.SHUTDOWN_BUDGET_S): the stop on shutdown fits the 2 s SIGINT budget.
         self.link.stop()
         super().destroy_node()
 

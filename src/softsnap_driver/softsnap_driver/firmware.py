@@ -175,6 +175,8 @@ class Faults:
     ``stall_after_s``/``stall_duration_s``: the motor is stalled (draws stall current,
     does not turn) in this window; ``inf`` duration for ever.
     ``outage_after_s``/``outage_duration_s``: connections are accepted but never answered.
+    ``drop_first_reach``: the first this many ``reach`` requests are read and then dropped
+    (connection closed without a reply, the module keeps its target): a lost stop.
     """
 
     drop_probability: float = 0.0
@@ -187,9 +189,13 @@ class Faults:
     stall_duration_s: float = math.inf
     outage_after_s: float = math.inf
     outage_duration_s: float = 0.0
+    drop_first_reach: int = 0
     seed: int | None = None
 
     def __post_init__(self):
+        if (isinstance(self.drop_first_reach, bool) or not isinstance(self.drop_first_reach, int)
+                or self.drop_first_reach < 0):
+            raise ValueError(f'drop_first_reach must be an int >= 0, got {self.drop_first_reach!r}')
         for name in ('drop_probability', 'delay_probability', 'garbage_probability'):
             value = getattr(self, name)
             if not 0.0 <= value <= 1.0:
@@ -241,6 +247,8 @@ class SimModule:
         self.charge_used_mah = 0.0
         self.reboots = 0
         self.requests = 0
+        #: ``reach`` requests dropped so far by ``Faults.drop_first_reach``.
+        self.reaches_dropped = 0
         #: Every accepted ``set`` (bounded), so tests can check what reached the module.
         self.received_targets: deque[ReceivedTarget] = deque(maxlen=100_000)
         self._reboot_pending = math.isfinite(self.faults.reboot_after_s)
@@ -419,6 +427,18 @@ class SimModule:
             return 'garbage'
         if f.delay_probability and self.rng.random() < f.delay_probability:
             return 'delay'
+        return None
+
+    def fault_for_head(self, head: bytes) -> str | None:
+        """The fault to act out once the request head is read: ``'drop'`` or None.
+
+        ``Faults.drop_first_reach``: the first N ``reach`` requests are dropped, so the
+        module does not stop (a lost stop). Nothing of the request is applied.
+        """
+        if (parse_request(head).command == 'reach'
+                and self.reaches_dropped < self.faults.drop_first_reach):
+            self.reaches_dropped += 1
+            return 'drop'
         return None
 
     def garbage_reply(self) -> bytes:

@@ -10,35 +10,74 @@ client).
 What the thread does, in priority order, each time it wakes:
 
 1. service actions (calibrate, pause, resume, stop), in arrival order;
-2. a stale command stream: no valid command for ``command_timeout_s`` -> ``reach``
-   (stop where it is), once per stream;
-3. the newest commanded target (latest wins: commands that arrive while a request is in
-   flight coalesce, only the newest matters; an unchanged target is not re-sent);
-4. a status poll every ``poll_period_s``.
+2. a stale command stream: no valid command for ``command_timeout_s`` -> a confirmed
+   stop (below), decided once per stream;
+3. a stop that is still wanted but not yet confirmed (watchdog, ``stop`` service, stall,
+   reboot): retried after the failure backoff until confirmed or a new command arrives;
+4. the newest commanded target (latest wins: commands that arrive while a request is in
+   flight coalesce, only the newest matters; an unchanged target is not re-sent); after
+   a failed request it waits for the backoff pause before it is sent again;
+5. a status poll every ``poll_period_s``.
 
 Every firmware reply is a full status, so each successful request is reported.
 
-Offline: after ``offline_after_failures`` consecutive failed requests the module is
-reported offline and only polled, with exponential backoff from the poll period up to
-``max_backoff_s``; the first answer brings it back online (after the reboot check).
+Confirmed stops: a stop is a state the driver confirms, not a request it sent. The
+firmware's ``reach`` sets its target to the current count; its reply carries that count.
+The driver sends ``reach`` and then ``status``; the stop is *confirmed* once a ``reach``
+was answered and the following status shows the count within ``STOP_STILL_COUNTS`` of the
+count in the ``reach`` reply (the motor no longer moves). A lost ``reach`` (no reply) or a
+count still moving sends ``reach`` again after a pause that doubles from
+``STOP_RETRY_FIRST_S`` to ``STOP_RETRY_MAX_S``, until ``stop_deadline_s`` has passed. Then
+the log says "stop NOT confirmed", ``stops_unconfirmed`` counts it, ``last_error`` says
+so, and the stop stays wanted: the thread keeps retrying after the failure backoff. The
+log says "stop sent" when the first ``reach`` goes out and "stop confirmed" only on
+confirmation.
+
+Unexpected errors: any exception other than a :class:`ModuleError` in a job (a bug, a
+broken calibration object, a failing report consumer) is caught, logged with its
+traceback (at most once per ``INTERNAL_ERROR_LOG_PERIOD_S``, every one counted in
+``internal_errors``), reported in ``last_error``, and the loop goes on after a pause of
+one poll period. The thread never dies silently: the watchdog, polls and stops keep
+running. The job that failed is dropped (a command is re-sent by the next command, a
+wanted stop is retried).
+
+Failure backoff: after a failed request the next poll or ``set`` waits ``poll_period_s *
+2**(failures - 1)``, at most ``max_backoff_s``. After ``offline_after_failures``
+consecutive failed requests the module is reported offline and only polled (with that
+backoff); the first answer brings it back online (after the reboot check).
+
+Errors in ``last_error``: it lists the problems that are *active* now, and each clears
+when its cause is gone: a failed request or an internal error on the next normal reply; a
+refused or clamped command on the next command accepted as it is; a stale-stream or stall
+stop on the next command; an unconfirmed stop on confirmation; a reboot on a successful
+``calibrate``. ``last_error_stamp`` keeps the time of the most recent error of any kind,
+so an error that came and went is not lost (the log holds its text, the counters its
+number).
 
 Stall: a module that is outside the firmware's deadband, not paused, and has not moved
 by ``STALL_PROGRESS_COUNTS`` for ``stall_timeout_s`` is stalled (jammed winch, dead
-motor, PWM too low): the driver warns, reports it in ``last_error`` and sends ``reach``
-so the motor stops drawing stall current; the next new target drives it again.
+motor, PWM too low): the driver warns, reports it in ``last_error`` and stops it
+(confirmed stop) so the motor stops drawing stall current; the next new target drives it
+again.
 
 Reboot: see :func:`softsnap_driver.core.reboot_suspected`. On a detected reboot the
 driver counts it, reports it (``last_error`` and a warning), drops the pending target,
-holds the module with ``reach`` and marks it *uncalibrated*: the encoder count no longer
-refers to the straight module, so a new target could drive the cable beyond the allowed
-contraction. Until ``calibrate`` succeeds (call it with the module straight), commands are
-refused and no measured length is reported. Nothing is re-sent as if nothing happened.
+holds the module with a confirmed stop and marks it *uncalibrated*: the encoder count no
+longer refers to the straight module, so a new target could drive the cable beyond the
+allowed contraction. Until ``calibrate`` succeeds (call it with the module straight),
+commands are refused and no measured length is reported. Nothing is re-sent as if
+nothing happened.
+
+Shutdown: :meth:`ModuleLink.stop` gives the thread ``SHUTDOWN_BUDGET_S`` (default) to end;
+if a target may be active (or a stop is wanted) it runs a confirmed stop within what is
+left of that budget, logs the outcome, and exits.
 """
 from __future__ import annotations
 
 import math
 import threading
 import time
+import traceback
 from collections import deque
 from dataclasses import dataclass, field, replace
 
@@ -48,6 +87,20 @@ from softsnap_driver.protocol import (FIRMWARE_DEADBAND_COUNTS, ModuleClient, Mo
 
 #: Movement smaller than this (counts) over ``stall_timeout_s`` is no progress.
 STALL_PROGRESS_COUNTS = 10
+#: A stop is confirmed when the status after an answered ``reach`` is within this many
+#: counts of the count the ``reach`` reply showed (the firmware's deadband).
+STOP_STILL_COUNTS = FIRMWARE_DEADBAND_COUNTS
+#: Pause before the first repeated ``reach`` of a stop, doubling up to the maximum (s).
+STOP_RETRY_FIRST_S = 0.02
+STOP_RETRY_MAX_S = 0.2
+#: Time :meth:`ModuleLink.stop` gives the worker (its last stop included), in seconds:
+#: leaves room within the node's 2 s SIGINT budget for rclpy's own shutdown.
+SHUTDOWN_BUDGET_S = 1.2
+#: A traceback of an unexpected error is logged at most once per this period (s); every
+#: error is counted.
+INTERNAL_ERROR_LOG_PERIOD_S = 5.0
+#: Order of the active problems in ``last_error``.
+_ERROR_KEYS = ('internal', 'link', 'reboot', 'stop', 'stale', 'stall', 'command')
 
 
 class NeedsCalibration(ValueError):
@@ -72,16 +125,21 @@ class LinkConfig:
     max_speed_counts_per_s: float = 20000.0
     stop_on_shutdown: bool = True
     stall_timeout_s: float = 1.0        # 0 disables stall detection
+    stop_deadline_s: float = 1.0        # confirm a stop within this (s), else report and retry
 
 
 @dataclass(frozen=True)
 class Counters:
+    """Event counts since the link started."""
+
     request_failures: int = 0
     commands_clamped: int = 0
     commands_refused: int = 0
     reboots_detected: int = 0
     stale_stops: int = 0
     stalls_detected: int = 0
+    internal_errors: int = 0         # unexpected exceptions caught in the worker loop
+    stops_unconfirmed: int = 0       # stops not confirmed within stop_deadline_s
 
 
 @dataclass(frozen=True)
@@ -98,7 +156,19 @@ class LinkReport:
     encoder_target: int
     pwm_power: int
     counters: Counters
-    last_error: str
+    last_error: str                  # active problems, '' when none
+    last_error_stamp: float = math.nan   # clock time (s) of the most recent error; NaN: none
+
+
+@dataclass(frozen=True)
+class StopOutcome:
+    """Result of one bounded attempt to stop the module (see "Confirmed stops")."""
+
+    confirmed: bool
+    count: int | None                # count the module holds at, when confirmed
+    attempts: int                    # reach requests sent
+    elapsed_s: float
+    message: str
 
 
 @dataclass
@@ -119,34 +189,44 @@ class ModuleLink:
         Called from the worker thread with a :class:`LinkReport` after every request.
     logger : object with ``info``, ``warning``, ``error`` methods (an rclpy logger works).
     clock : callable returning seconds (monotonic).
+    client_factory : callable ``(host, port, timeout_s) -> ModuleClient``
+        Builds the client (a subclass can add behaviour, e.g. in tests).
     """
 
-    def __init__(self, config: LinkConfig, report, logger, clock=time.monotonic):
+    def __init__(self, config: LinkConfig, report, logger, clock=time.monotonic,
+                 client_factory=ModuleClient):
         self._config = config
         self._report = report
         self._log = logger
         self._clock = clock
+        self._client_factory = client_factory
         self._cond = threading.Condition()
+        # Shared state, guarded by _cond.
         self._stop = False
+        self._exit_deadline = math.inf
         self._actions: deque[_Action] = deque()
         self._pending: TargetCommand | None = None
         self._last_command_time: float | None = None
+        self._commands_accepted = 0                 # a new command supersedes a wanted stop
         self._stale_handled = True
+        self._stop_wanted: str | None = None        # why a stop is wanted and not confirmed
         self._counters = Counters()
-        self._last_error = ''
+        self._errors: dict[str, str] = {}           # active problems by kind (_ERROR_KEYS)
+        self._last_error_stamp = math.nan
         self._calibrated = True
         self._warned_at: dict[str, float] = {}
         # Worker-only state.
         self._client: ModuleClient | None = None
         self._online = True
         self._failures = 0
-        self._backoff_s = 0.0
+        self._retry_at = -math.inf                  # no poll/set before this after a failure
         self._next_poll = 0.0
         self._last_report = -math.inf
         self._status: ModuleStatus | None = None
         self._status_time = 0.0
         self._module_target: int | None = None   # what the module steers to, if known
         self._sent: tuple[int, int] | None = None  # (count, power) last acknowledged set
+        self._may_move = False                   # a set went out since the last confirmed stop
         self._progress: tuple[int, float] | None = None  # (count, time) of last progress
         self._thread = threading.Thread(target=self._run, name=f'module_link:{config.host}:{config.port}',
                                          daemon=True)
@@ -160,13 +240,19 @@ class ModuleLink:
         self._thread.start()
 
     def stop(self, timeout: float | None = None) -> None:
-        """Stop the worker (sending ``reach`` first if configured and a target was sent)."""
+        """Stop the worker within ``timeout`` s (default ``SHUTDOWN_BUDGET_S``).
+
+        If configured and a target may be active, the worker first runs a confirmed stop
+        with what is left of that time, and logs whether it was confirmed.
+        """
+        budget = SHUTDOWN_BUDGET_S if timeout is None else timeout
         with self._cond:
             self._stop = True
+            # Keep a little of the budget for the thread to finish after its last request.
+            self._exit_deadline = self._clock() + max(budget - 0.1, 0.0)
             self._cond.notify_all()
         if self._thread.is_alive():
-            self._thread.join(timeout if timeout is not None
-                              else 2 * self._config.request_timeout_s + 1.0)
+            self._thread.join(budget)
 
     def update_config(self, config: LinkConfig) -> None:
         with self._cond:
@@ -174,10 +260,11 @@ class ModuleLink:
             self._cond.notify_all()
 
     def command(self, length_m: float) -> TargetCommand:
-        """Accept a commanded cable length (m): clamp it and queue it (latest wins).
+        """Accept a commanded cable length (m): clamp it if near the range and queue it.
 
-        Raises ValueError (NaN, infinite) or :class:`NeedsCalibration`; both are counted
-        as refused commands.
+        Latest wins. Raises ValueError (non-physical: NaN, infinite, <= 0, beyond the
+        clamp margin) or :class:`NeedsCalibration`; both are counted as refused commands.
+        A new command supersedes a stop that is still wanted (the sender is in control).
         """
         with self._cond:
             try:
@@ -187,18 +274,25 @@ class ModuleLink:
                                            'command refused until calibrate succeeds')
             except ValueError as exc:
                 self._count(commands_refused=1)
-                self._last_error = f'command refused: {exc}'
-                self._warn_throttled('refused', self._last_error)
+                self._set_error('command', f'command refused: {exc}')
+                self._warn_throttled('refused', self._errors['command'])
                 raise
             if cmd.clamped:
                 self._count(commands_clamped=1)
                 low, high = self._config.calibration.length_range_m
-                self._last_error = (f'command {cmd.requested_length_m!r} m clamped to {cmd.length_m:.6f} m '
-                                    f'(allowed [{low:.6f}, {high:.6f}] m)')
-                self._warn_throttled('clamped', self._last_error)
+                self._set_error('command', f'command {cmd.requested_length_m!r} m clamped to '
+                                f'{cmd.length_m:.6f} m (allowed [{low:.6f}, {high:.6f}] m)')
+                self._warn_throttled('clamped', self._errors['command'])
+            else:
+                self._clear_error('command')
+            self._clear_error('stale', 'stall')
             self._pending = cmd
             self._last_command_time = self._clock()
+            self._commands_accepted += 1
             self._stale_handled = False
+            if self._stop_wanted is not None:
+                self._stop_wanted = None
+                self._clear_error('stop')
             self._cond.notify_all()
         return cmd
 
@@ -212,8 +306,10 @@ class ModuleLink:
                 return False, 'driver is shutting down'
             self._actions.append(action)
             self._cond.notify_all()
+            config = self._config
         if timeout is None:
-            timeout = 2 * self._config.request_timeout_s + 1.0
+            # The worker may be inside a stop (up to stop_deadline_s) and then one request.
+            timeout = action_timeout_s(config)
         if not action.done.wait(timeout):
             return False, f'{kind}: no result within {timeout:.3g} s'
         return action.ok, action.message
@@ -222,6 +318,22 @@ class ModuleLink:
     def _count(self, **deltas: int) -> None:
         values = {name: getattr(self._counters, name) + delta for name, delta in deltas.items()}
         self._counters = replace(self._counters, **values)
+
+    def _set_error(self, key: str, message: str) -> None:
+        """Under the lock: record an active problem and the time of the latest error."""
+        self._errors[key] = message
+        self._last_error_stamp = self._clock()
+
+    def _clear_error(self, *keys: str) -> None:
+        for key in keys:
+            self._errors.pop(key, None)
+
+    def _error(self, key: str, message: str) -> None:
+        with self._cond:
+            self._set_error(key, message)
+
+    def _last_error(self) -> str:
+        return '; '.join(self._errors[key] for key in _ERROR_KEYS if key in self._errors)
 
     def _warn_throttled(self, key: str, message: str, period_s: float = 1.0) -> None:
         now = self._clock()
@@ -232,16 +344,13 @@ class ModuleLink:
     def _client_for(self, config: LinkConfig) -> ModuleClient:
         if (self._client is None or self._client.host != config.host or self._client.port != config.port
                 or self._client.timeout_s != config.request_timeout_s):
-            self._client = ModuleClient(config.host, config.port, config.request_timeout_s)
+            self._client = self._client_factory(config.host, config.port, config.request_timeout_s)
         return self._client
 
     # -- worker ------------------------------------------------------------------------
     def _run(self) -> None:
         try:
             self._loop()
-        except Exception as exc:  # noqa: BLE001 - report, never die silently
-            self._log.error(f'module link stopped by an unexpected error: {exc!r}')
-            raise
         finally:
             with self._cond:
                 actions, self._actions = list(self._actions), deque()
@@ -261,42 +370,83 @@ class ModuleLink:
         if (config.command_timeout_s > 0 and not self._stale_handled
                 and self._last_command_time is not None):
             stale_at = self._last_command_time + config.command_timeout_s
-            if now >= stale_at and self._online:
+            if now >= stale_at:
+                # Decided even while offline: the stop is retried until confirmed.
                 self._stale_handled = True
                 self._pending = None
+                self._stop_wanted = 'stale command stream'
                 return 'stale', None
-        if self._pending is not None and self._online and self._calibrated:
+        if self._stop_wanted is not None:
+            if now >= self._retry_at:
+                return 'stop', self._stop_wanted
+        elif (self._pending is not None and self._online and self._calibrated
+                and now >= self._retry_at):
             pending, self._pending = self._pending, None
             return 'set', pending
         if now >= self._next_poll:
             return 'poll', None
         if now >= self._last_report + config.poll_period_s:
             return 'heartbeat', None
-        wake = min(self._next_poll, self._last_report + config.poll_period_s,
-                   stale_at if self._online else math.inf)
+        wake = min(self._next_poll, self._last_report + config.poll_period_s, stale_at)
+        if self._stop_wanted is not None or (self._pending is not None and self._online
+                                             and self._calibrated):
+            wake = min(wake, self._retry_at)    # in the future here, else a job was returned
         return 'wait', max(wake - now, 0.0)
 
     def _loop(self) -> None:
         while True:
-            with self._cond:
-                job, arg = self._next_job()
-                while job == 'wait':
-                    self._cond.wait(arg)
+            job = 'next job'
+            try:
+                with self._cond:
                     job, arg = self._next_job()
-                config = self._config
-            if job == 'exit':
-                self._shutdown(config)
-                return
-            if job == 'action':
-                self._do_action(config, arg)
-            elif job == 'stale':
-                self._do_stale(config)
-            elif job == 'set':
-                self._do_set(config, arg)
-            elif job == 'poll':
-                self._exchange(config, 'status', lambda c: c.status())
-            else:
-                self._emit(config, fresh=False)
+                    while job == 'wait':
+                        self._cond.wait(arg)
+                        job, arg = self._next_job()
+                    config = self._config
+                if job == 'exit':
+                    self._shutdown(config)
+                    return
+                self._do_job(config, job, arg)
+            except Exception as exc:  # noqa: BLE001 - report, count, go on; never die silently
+                if job == 'exit':
+                    self._log.error(f'module link: shutdown failed: {exc!r}\n{traceback.format_exc()}')
+                    return
+                self._on_internal_error(job, exc)
+
+    def _do_job(self, config: LinkConfig, job: str, arg) -> None:
+        if job == 'action':
+            self._do_action(config, arg)
+        elif job == 'stale':
+            self._do_stale(config)
+        elif job == 'stop':
+            self._stop_until_confirmed(config, arg)
+        elif job == 'set':
+            self._do_set(config, arg)
+        elif job == 'poll':
+            self._exchange(config, 'status', lambda c: c.status())
+        else:
+            self._emit(config, fresh=False)
+
+    def _on_internal_error(self, job: str, exc: Exception) -> None:
+        with self._cond:
+            self._count(internal_errors=1)
+            self._set_error('internal', f'internal error in {job}: {type(exc).__name__}: {exc}')
+            count = self._counters.internal_errors
+            config = self._config
+        now = self._clock()
+        if now - self._warned_at.get('internal', -math.inf) >= INTERNAL_ERROR_LOG_PERIOD_S:
+            self._warned_at['internal'] = now
+            self._log.error(f'module link: unexpected error in {job} (internal error #{count}; '
+                            f'the link goes on):\n{traceback.format_exc()}')
+        # No hot loop if the same job fails again at once: the next poll waits a period.
+        self._next_poll = max(self._next_poll, now + config.poll_period_s)
+        try:
+            self._emit(config, fresh=False)
+        except Exception:  # noqa: BLE001 - already reporting an error; _emit guards itself
+            pass
+        with self._cond:
+            if not self._stop:
+                self._cond.wait(config.poll_period_s)
 
     def _exchange(self, config: LinkConfig, what: str, call,
                   check_reboot: bool = True, check_stall: bool = True) -> ModuleStatus | None:
@@ -314,8 +464,10 @@ class ModuleLink:
                            f'{self._failures} failed requests')
         self._online = True
         self._failures = 0
-        self._backoff_s = 0.0
+        self._retry_at = -math.inf
         self._next_poll = now + config.poll_period_s
+        with self._cond:
+            self._clear_error('link', 'internal')
         previous, previous_time = self._status, self._status_time
         self._status, self._status_time = status, now
         if previous is not None and self._calibrated and check_reboot:
@@ -326,17 +478,19 @@ class ModuleLink:
                 config.max_speed_counts_per_s)
             if evidence is not None:
                 self._on_reboot(config, evidence)
+                self._emit(config, fresh=True)
                 return status
         if check_stall and self._stalled(config, status, now):
+            message = (f'motor stalled: count {status.encoder_count}, target {self._module_target}, '
+                       f'no progress for {config.stall_timeout_s:g} s at {status.power_w:.2f} W; '
+                       'stopping it (reach)')
             with self._cond:
-                self._last_error = (
-                    f'motor stalled: count {status.encoder_count}, target {self._module_target}, '
-                    f'no progress for {config.stall_timeout_s:g} s at {status.power_w:.2f} W; '
-                    'stopped it (reach)')
-            self._log.warning(self._last_error)
-            self._count(stalls_detected=1)
-            self._hold(config, 'reach')       # reports the stopped module
-            return status
+                self._set_error('stall', message)
+                self._count(stalls_detected=1)
+                self._stop_wanted = 'stalled motor'
+                self._pending = None
+            self._log.warning(message)
+            self._progress = None
         self._emit(config, fresh=True)
         return status
 
@@ -354,39 +508,44 @@ class ModuleLink:
     def _on_failure(self, config: LinkConfig, what: str, exc: ModuleError) -> None:
         now = self._clock()
         self._failures += 1
+        message = f'{what} failed: {type(exc).__name__}: {exc}'
         with self._cond:
             self._count(request_failures=1)
-            self._last_error = f'{what} failed: {type(exc).__name__}: {exc}'
+            self._set_error('link', message)
         if self._online and self._failures >= config.offline_after_failures:
             self._online = False
             self._log.warning(f'module {config.host}:{config.port} offline after {self._failures} '
-                              f'failed requests ({self._last_error}); retrying with backoff')
-        if self._online:
-            self._next_poll = now + config.poll_period_s
-        else:
-            self._backoff_s = min(max(2 * self._backoff_s, config.poll_period_s), config.max_backoff_s)
-            self._next_poll = now + self._backoff_s
+                              f'failed requests ({message}); retrying with backoff')
+        # Bounded exponential backoff before the next poll or set (never at once).
+        self._retry_at = now + failure_backoff_s(config, self._failures)
+        self._next_poll = self._retry_at
 
     def _on_reboot(self, config: LinkConfig, evidence: str) -> None:
+        message = (f'module reboot detected ({evidence}): position reference lost; '
+                   'holding with reach; commands refused until calibrate')
         with self._cond:
             self._count(reboots_detected=1)
             self._calibrated = False
             self._pending = None
-            self._last_error = (f'module reboot detected ({evidence}): position reference lost; '
-                                'holding with reach; commands refused until calibrate')
+            self._stop_wanted = 'module reboot'
+            self._set_error('reboot', message)
         self._sent = None
-        self._log.warning(self._last_error)
-        status = self._exchange(config, 'reach', lambda c: c.reach())
-        if status is not None:
-            self._module_target = status.encoder_count
+        self._may_move = True        # whatever the firmware drives to now is unknown
+        self._module_target = None
+        self._log.warning(message)
 
     def _do_set(self, config: LinkConfig, cmd: TargetCommand) -> None:
         # Re-derive the count with the current calibration (parameters may have changed
         # since the command was accepted); clamping was counted when it arrived.
         try:
             cmd = config.calibration.command(cmd.requested_length_m)
-        except ValueError:
-            return  # cannot happen: the length was finite when accepted
+        except ValueError as exc:
+            # The range changed since the command was accepted: it is refused now.
+            with self._cond:
+                self._count(commands_refused=1)
+                self._set_error('command', f'command refused: {exc}')
+            self._log.warning(f'command refused: {exc}')
+            return
         low, high = config.calibration.count_range
         if not low <= cmd.count <= high:
             # Unreachable by construction (CableCalibration clamps); a last guard.
@@ -395,11 +554,13 @@ class ModuleLink:
         key = (cmd.count, config.pwm_power)
         if key == self._sent:
             return
+        # The firmware may apply a set whose reply is lost: from here a target may be active.
+        self._may_move = True
         status = self._exchange(config, 'set', lambda c: c.set_target(cmd.count, config.pwm_power))
         if status is None:
             with self._cond:
-                # Retry when back: keep it unless a newer command arrived meanwhile.
-                if self._pending is None and not self._stale_handled:
+                # Retry after the backoff: keep it unless a newer command arrived meanwhile.
+                if self._pending is None and self._stop_wanted is None:
                     self._pending = cmd
             return
         self._sent = key
@@ -407,20 +568,107 @@ class ModuleLink:
         self._progress = (status.encoder_count, self._clock())   # a new target: re-arm
 
     def _do_stale(self, config: LinkConfig) -> None:
+        message = (f'no command for {config.command_timeout_s:g} s: '
+                   'stopping the module where it is (reach)')
         with self._cond:
             self._count(stale_stops=1)
-            self._last_error = (f'no command for {config.command_timeout_s:g} s: '
-                                'stopped the module where it is (reach)')
-        self._log.warning(self._last_error)
-        self._hold(config, 'reach')
+            self._set_error('stale', message)
+        self._log.warning(message)
+        self._stop_until_confirmed(config, 'stale command stream')
 
-    def _hold(self, config: LinkConfig, what: str) -> ModuleStatus | None:
-        status = self._exchange(config, what, lambda c: c.reach(), check_stall=False)
-        if status is not None:
-            self._progress = None
-            self._sent = None
-            self._module_target = status.encoder_count
-        return status
+    def _stop_until_confirmed(self, config: LinkConfig, why: str,
+                              deadline: float | None = None) -> StopOutcome:
+        """Confirmed stop within ``stop_deadline_s`` (or ``deadline``); see the module doc.
+
+        Confirmed: the wanted stop is done. Not confirmed: counted, reported, and the stop
+        stays wanted (retried after the failure backoff) unless a new command arrived.
+        """
+        with self._cond:
+            epoch = self._commands_accepted
+        outcome = self._stop_round(config, why, deadline)
+        with self._cond:
+            superseded = self._commands_accepted != epoch
+            if outcome.confirmed:
+                self._clear_error('stop')
+                if not superseded:
+                    self._stop_wanted = None
+                    self._stale_handled = True
+            elif not superseded and not self._stop:
+                self._stop_wanted = why
+                if 'stop' not in self._errors:
+                    self._count(stops_unconfirmed=1)    # once per wanted stop, not per round
+                self._set_error('stop', outcome.message + '; still trying')
+        if not outcome.confirmed:
+            # Next round after the failure backoff (also when every request was answered).
+            self._retry_at = max(self._retry_at,
+                                 self._clock() + failure_backoff_s(config, max(self._failures, 1)))
+        self._emit(config, fresh=False)
+        return outcome
+
+    def _stop_round(self, config: LinkConfig, why: str, deadline: float | None) -> StopOutcome:
+        """Send ``reach`` (then ``status``) with growing pauses until confirmed or the deadline."""
+        start = self._clock()
+        if deadline is None:
+            deadline = start + config.stop_deadline_s
+        where = f'{config.host}:{config.port}'
+        attempts, pause, problem = 0, STOP_RETRY_FIRST_S, 'no attempt'
+        while True:
+            remaining = deadline - self._clock()
+            with self._cond:
+                interrupted = self._stop and why != 'shutdown'
+            if remaining <= 0 or interrupted:
+                break
+            attempts += 1
+            if attempts == 1:
+                self._log.info(f'stop sent to {where} ({why}): reach')
+            timeout = min(config.request_timeout_s, remaining)
+            reached = self._exchange(config, 'reach', lambda c: c.reach(timeout_s=timeout),
+                                     check_stall=False)
+            if reached is not None:
+                remaining = deadline - self._clock()
+                still = None
+                if remaining > 0:
+                    timeout = min(config.request_timeout_s, remaining)
+                    still = self._exchange(config, 'stop check', lambda c: c.status(timeout_s=timeout),
+                                           check_stall=False, check_reboot=False)
+                if still is not None:
+                    moved = still.encoder_count - reached.encoder_count
+                    if abs(moved) <= STOP_STILL_COUNTS:
+                        elapsed = self._clock() - start
+                        self._progress = None
+                        self._sent = None
+                        self._may_move = False
+                        self._module_target = reached.encoder_count
+                        self._log.info(f'stop confirmed at {where} ({why}): module holds at count '
+                                       f'{still.encoder_count} ({attempts} reach request(s), '
+                                       f'{elapsed:.3f} s)')
+                        return StopOutcome(True, still.encoder_count, attempts, elapsed,
+                                           f'stopped at count {still.encoder_count} (confirmed)')
+                    problem = (f'count still moving after reach ({reached.encoder_count} -> '
+                               f'{still.encoder_count})')
+                else:
+                    problem = 'reach answered but the status check failed'
+            else:
+                with self._cond:
+                    problem = self._errors.get('link', 'reach failed')
+            self._log.info(f'stop not yet confirmed at {where} ({why}, attempt {attempts}): '
+                           f'{problem}; retrying in {pause:.3f} s')
+            wait = min(pause, deadline - self._clock())
+            if wait > 0:
+                with self._cond:
+                    if not (self._stop and why != 'shutdown'):
+                        self._cond.wait(wait)
+            pause = min(2 * pause, STOP_RETRY_MAX_S)
+        elapsed = self._clock() - start
+        if interrupted:
+            message = (f'stop ({why}) interrupted by shutdown after {attempts} reach request(s); '
+                       'the shutdown stop takes over')
+            self._log.warning(message)
+        else:
+            message = (f'stop NOT confirmed after {attempts} reach request(s) in {elapsed:.3f} s '
+                       f'({why}): {problem}')
+            self._log.error(message + ('' if why == 'shutdown' else '; still trying'))
+        return StopOutcome(False, None, attempts, elapsed, message)
 
     def _do_action(self, config: LinkConfig, action: _Action) -> None:
         try:
@@ -432,6 +680,7 @@ class ModuleLink:
                         self._calibrated = True
                         self._pending = None
                         self._last_command_time = None
+                        self._clear_error('reboot')
                     self._sent = None
                     self._module_target = 0
                     self._emit(config, fresh=True)
@@ -439,11 +688,14 @@ class ModuleLink:
                                       f'{config.calibration.straight_length_m:g} m')
             elif action.kind == 'stop':
                 with self._cond:
+                    # The stream is not disarmed here: only a confirmed stop disarms it.
                     self._pending = None
-                    self._stale_handled = True
-                status = self._hold(config, 'stop')
-                if status is not None:
-                    action.message = f'stopped at count {status.encoder_count}'
+                    self._stop_wanted = 'stop service'
+                outcome = self._stop_until_confirmed(config, 'stop service')
+                action.ok, action.message = outcome.confirmed, outcome.message
+                if not outcome.confirmed:
+                    action.message += '; the driver keeps trying to stop it'
+                return
             else:
                 status = self._exchange(config, action.kind,
                                         lambda c: c.pause() if action.kind == 'pause' else c.resume())
@@ -451,16 +703,17 @@ class ModuleLink:
                     action.message = f'{action.kind}d: module paused={status.paused}'
             action.ok = status is not None
             if not action.ok:
-                action.message = self._last_error
+                with self._cond:
+                    action.message = self._errors.get('link', f'{action.kind} failed')
         finally:
             action.done.set()
 
     def _shutdown(self, config: LinkConfig) -> None:
-        if config.stop_on_shutdown and self._sent is not None and self._online:
-            try:
-                self._client_for(config).reach()
-            except ModuleError as exc:
-                self._log.warning(f'could not stop the module on shutdown: {exc}')
+        with self._cond:
+            wanted = self._stop_wanted is not None
+            deadline = self._exit_deadline
+        if config.stop_on_shutdown and (self._may_move or wanted):
+            self._stop_round(config, 'shutdown', min(deadline, self._clock() + config.stop_deadline_s))
 
     def _emit(self, config: LinkConfig, fresh: bool) -> None:
         now = self._clock()
@@ -468,7 +721,8 @@ class ModuleLink:
         calibration = config.calibration
         status = self._status
         with self._cond:
-            calibrated, counters, last_error = self._calibrated, self._counters, self._last_error
+            calibrated, counters = self._calibrated, self._counters
+            last_error, last_error_stamp = self._last_error(), self._last_error_stamp
         measured = (calibration.length_m(status.encoder_count)
                     if status is not None and calibrated else math.nan)
         target = self._module_target
@@ -477,8 +731,19 @@ class ModuleLink:
             status=status, measured_length_m=measured,
             target_length_m=calibration.length_m(target) if target is not None and calibrated else math.nan,
             encoder_target=target if target is not None else 0, pwm_power=config.pwm_power,
-            counters=counters, last_error=last_error)
+            counters=counters, last_error=last_error, last_error_stamp=last_error_stamp)
         try:
             self._report(report)
         except Exception as exc:  # noqa: BLE001 - a broken consumer must not stop the link
             self._warn_throttled('report', f'publishing the module state failed: {exc!r}')
+
+
+def failure_backoff_s(config: LinkConfig, failures: int) -> float:
+    """Pause after the ``failures``-th consecutive failed request (s): doubles from the
+    poll period, at most ``max_backoff_s``."""
+    return min(config.poll_period_s * 2.0 ** min(max(failures - 1, 0), 30), config.max_backoff_s)
+
+
+def action_timeout_s(config: LinkConfig) -> float:
+    """How long a service caller waits for its action (s): a stop in progress, then its own."""
+    return config.stop_deadline_s + 2 * config.request_timeout_s + 1.0

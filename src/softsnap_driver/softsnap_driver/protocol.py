@@ -139,21 +139,38 @@ def encode_set_request(target_count: int, power: int) -> bytes:
     return f'GET /?set={target_count & 0xFFFFFFFF:08X}{power:02X} HTTP/1.1\r\n\r\n'.encode('ascii')
 
 
+#: Largest magnitude accepted for a JSON number before any float conversion: far beyond
+#: every plausible field, far below float range (so no OverflowError can arise).
+_MAX_NUMBER = 1e15
+
+
+def _short(value, limit: int = 40) -> str:
+    """repr() of a reply value, cut to ``limit`` characters (replies come from the network)."""
+    try:
+        text = repr(value)
+    except Exception:  # noqa: BLE001 - e.g. an int too long to print; never fail here
+        text = f'<{type(value).__name__}>'
+    return text if len(text) <= limit else text[:limit] + '...'
+
+
 def _field(data: dict, key: str, kind):
     if key not in data:
         raise MalformedReply(f'reply lacks {key!r}')
     value = data[key]
     # bool is an int subclass in Python: refuse it where a number is expected.
     if kind is int and (isinstance(value, bool) or not isinstance(value, int)):
-        raise MalformedReply(f'{key!r} must be an integer, got {value!r}')
+        raise MalformedReply(f'{key!r} must be an integer, got {_short(value)}')
     if kind is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise MalformedReply(f'{key!r} must be a number, got {value!r}')
-        if not math.isfinite(value):
-            raise MalformedReply(f'{key!r} must be finite, got {value!r}')
+            raise MalformedReply(f'{key!r} must be a number, got {_short(value)}')
+        # Compare before converting: float() of a huge JSON integer raises OverflowError.
+        if isinstance(value, float) and not math.isfinite(value):
+            raise MalformedReply(f'{key!r} must be finite, got {_short(value)}')
+        if not -_MAX_NUMBER <= value <= _MAX_NUMBER:
+            raise MalformedReply(f'{key!r} out of range, got {_short(value)}')
         return float(value)
     if kind in (bool, str) and not isinstance(value, kind):
-        raise MalformedReply(f'{key!r} must be {kind.__name__}, got {value!r}')
+        raise MalformedReply(f'{key!r} must be {kind.__name__}, got {_short(value)}')
     return value
 
 
@@ -174,17 +191,33 @@ def parse_power_history(text: str) -> tuple[float, ...]:
 def parse_reply(raw: bytes) -> ModuleStatus:
     """Parse a complete firmware reply (status line, headers, JSON line).
 
-    Raises :class:`MalformedReply` for anything that is not an ``HTTP/1.x 200`` reply
-    whose body is the firmware's JSON status with ``"status": "ok"``; never any other
-    exception.
+    Raises :class:`MalformedReply` with the reason for anything that is not an
+    ``HTTP/1.x 200`` reply whose body is the firmware's JSON status with ``"status":
+    "ok"``; never any other exception, whatever the bytes (a reply comes from the
+    network, and the module has no authentication).
     """
+    try:
+        return _parse_reply(raw)
+    except MalformedReply:
+        raise
+    except Exception as exc:  # noqa: BLE001 - last guard: every other failure is malformed
+        raise MalformedReply(f'reply could not be parsed ({type(exc).__name__}: '
+                             f'{_short(str(exc), 80)})') from exc
+
+
+def _parse_reply(raw: bytes) -> ModuleStatus:
     if not isinstance(raw, (bytes, bytearray)):
         raise MalformedReply(f'reply must be bytes, got {type(raw).__name__}')
     if not raw:
         raise MalformedReply('empty reply')
     if len(raw) > MAX_REPLY_BYTES:
         raise MalformedReply(f'reply of {len(raw)} bytes exceeds {MAX_REPLY_BYTES}')
-    text = bytes(raw).decode('utf-8', errors='replace')
+    try:
+        # The firmware sends ASCII; anything else is not its reply.
+        text = bytes(raw).decode('utf-8')
+    except UnicodeDecodeError as exc:
+        raise MalformedReply(f'reply is not UTF-8 text (byte {exc.start}: '
+                             f'{bytes(raw[exc.start:exc.start + 4])!r})') from exc
     # Head and body are separated by an empty line; tolerate bare LF line ends.
     normalised = text.replace('\r\n', '\n')
     head, sep, body = normalised.partition('\n\n')
@@ -194,30 +227,40 @@ def parse_reply(raw: bytes) -> ModuleStatus:
     if len(status_line) < 2 or not status_line[0].startswith('HTTP/1.'):
         raise MalformedReply(f'not an HTTP reply: {head[:40]!r}')
     if status_line[1] != '200':
-        raise MalformedReply(f'HTTP status {status_line[1]!r}, expected 200')
+        raise MalformedReply(f'HTTP status {status_line[1][:10]!r}, expected 200')
     line = body.strip()
     if not line:
         raise MalformedReply('reply has no JSON body')
     try:
+        # ValueError covers bad JSON and integers beyond sys.get_int_max_str_digits();
+        # RecursionError deep nesting.
         data = json.loads(line)
     except (ValueError, RecursionError) as exc:
-        raise MalformedReply(f'reply body is not JSON: {line[:40]!r}') from exc
+        raise MalformedReply(f'reply body is not JSON ({type(exc).__name__}): {line[:40]!r}') from exc
     if not isinstance(data, dict):
         raise MalformedReply(f'reply body must be a JSON object, got {type(data).__name__}')
-    if data.get('status') != 'ok':
-        raise MalformedReply(f'reply status {data.get("status")!r}, expected "ok"')
+    status = data.get('status')
+    if not (isinstance(status, str) and status == 'ok'):
+        raise MalformedReply(f'reply status {_short(status)}, expected "ok"')
     count = _field(data, 'm_current', int)
     if not INT32_MIN <= count <= INT32_MAX:
-        raise MalformedReply(f'm_current {count} outside int32')
+        raise MalformedReply(f'm_current {_short(count)} outside int32')
     power = _field(data, 'm_power', int)
     if not 0 <= power <= PWM_MAX:
-        raise MalformedReply(f'm_power {power} outside [0, {PWM_MAX}]')
+        raise MalformedReply(f'm_power {_short(power)} outside [0, {PWM_MAX}]')
     errors = _field(data, 'm_error', int)
     if not 0 <= errors <= 2 ** 32 - 1:
-        raise MalformedReply(f'm_error {errors} outside uint32')
+        raise MalformedReply(f'm_error {_short(errors)} outside uint32')
     battery = _field(data, 'battery', float)
     if not 0.0 <= battery < 100.0:
         raise MalformedReply(f'battery {battery} V is not a plausible voltage')
+    identity = {}
+    for key in ('ip', 'mac'):
+        value = data.get(key, '')
+        if not isinstance(value, str) or len(value) > 64:
+            raise MalformedReply(f'{key!r} must be a string of at most 64 characters, '
+                                 f'got {_short(value)}')
+        identity[key] = value
     return ModuleStatus(
         encoder_count=count,
         motor_power=power,
@@ -225,8 +268,8 @@ def parse_reply(raw: bytes) -> ModuleStatus:
         battery_voltage=battery,
         paused=_field(data, 'pause', bool),
         power_history_w=parse_power_history(_field(data, 'power', str)),
-        ip=str(data.get('ip', '')),
-        mac=str(data.get('mac', '')),
+        ip=identity['ip'],
+        mac=identity['mac'],
     )
 
 
@@ -265,8 +308,8 @@ class ModuleClient:
     def close(self) -> None:
         self._closed = True
 
-    def status(self) -> ModuleStatus:
-        return self.request(encode_request('status'))
+    def status(self, timeout_s: float | None = None) -> ModuleStatus:
+        return self.request(encode_request('status'), timeout_s)
 
     def set_target(self, target_count: int, power: int) -> ModuleStatus:
         return self.request(encode_set_request(target_count, power))
@@ -280,25 +323,30 @@ class ModuleClient:
     def resume(self) -> ModuleStatus:
         return self.request(encode_request('resume'))
 
-    def reach(self) -> ModuleStatus:
-        return self.request(encode_request('reach'))
+    def reach(self, timeout_s: float | None = None) -> ModuleStatus:
+        return self.request(encode_request('reach'), timeout_s)
 
-    def request(self, payload: bytes) -> ModuleStatus:
-        """Send one raw request and parse the reply (serialised with other callers)."""
+    def request(self, payload: bytes, timeout_s: float | None = None) -> ModuleStatus:
+        """Send one raw request and parse the reply (serialised with other callers).
+
+        ``timeout_s`` shortens the deadline of this one request (s); it never exceeds the
+        client's ``timeout_s``.
+        """
         with self._lock:
             if self._closed:
                 raise ModuleConnectionError(f'{self!r} is closed')
-            return parse_reply(self._exchange(payload))
+            return parse_reply(self._exchange(payload, timeout_s))
 
-    def _exchange(self, payload: bytes) -> bytes:
-        deadline = time.monotonic() + self.timeout_s
+    def _exchange(self, payload: bytes, timeout_s: float | None = None) -> bytes:
+        timeout = self.timeout_s if timeout_s is None else min(max(timeout_s, 1e-3), self.timeout_s)
+        deadline = time.monotonic() + timeout
         where = f'{self.host}:{self.port}'
         try:
-            sock = socket.create_connection((self.host, self.port), timeout=self.timeout_s)
+            sock = socket.create_connection((self.host, self.port), timeout=timeout)
         except ConnectionRefusedError as exc:
             raise ModuleConnectionError(f'{where} refused the connection') from exc
         except (socket.timeout, TimeoutError) as exc:
-            raise ModuleTimeout(f'{where}: no connection within {self.timeout_s:.3g} s') from exc
+            raise ModuleTimeout(f'{where}: no connection within {timeout:.3g} s') from exc
         except OSError as exc:
             raise ModuleConnectionError(f'{where}: {exc.strerror or exc}') from exc
         chunks: list[bytes] = []
@@ -322,7 +370,7 @@ class ModuleClient:
                     if size > MAX_REPLY_BYTES:
                         raise MalformedReply(f'{where}: reply exceeds {MAX_REPLY_BYTES} bytes')
         except (socket.timeout, TimeoutError) as exc:
-            raise ModuleTimeout(f'{where}: no complete reply within {self.timeout_s:.3g} s') from exc
+            raise ModuleTimeout(f'{where}: no complete reply within {timeout:.3g} s') from exc
         except OSError as exc:
             if size:
                 # A reset after a complete reply is still a reply; parse what came.

@@ -119,6 +119,11 @@ class SimServer:
             self._hold(conn)
             return
         head = self._read_head(conn)
+        if fault is None and head:
+            with self.lock:
+                fault = self.module.fault_for_head(head)
+            if fault is not None:
+                self.fault_counts[f'{fault}_head'] = self.fault_counts.get(f'{fault}_head', 0) + 1
         if fault == 'drop' or not head:
             return
         if fault == 'delay':
@@ -168,6 +173,7 @@ OPTIONS = {
     'stall_duration_s': (float, -1.0, 'how long the stall lasts, s (-1: for ever)'),
     'outage_after_s': (float, -1.0, 'stop answering this long after start, s (-1: never)'),
     'outage_duration_s': (float, 0.0, 'how long the outage lasts, s'),
+    'drop_first_reach': (int, 0, 'drop the first N reach (stop) requests after reading them'),
     'no_load_rpm': (float, MotorModel.no_load_rpm, 'output shaft speed at 6 V, rpm'),
     'counts_per_rev': (float, MotorModel.counts_per_rev, 'encoder counts per output revolution'),
     'load_fraction': (float, MotorModel.load_fraction, 'cable load as a fraction of stall torque'),
@@ -222,7 +228,7 @@ def module_from_options(opts: argparse.Namespace, start_time: float) -> SimModul
         reboot_after_s=when(opts.reboot_after_s), reboot_downtime_s=opts.reboot_downtime_s,
         stall_after_s=when(opts.stall_after_s), stall_duration_s=when(opts.stall_duration_s),
         outage_after_s=when(opts.outage_after_s), outage_duration_s=opts.outage_duration_s,
-        seed=None if opts.seed < 0 else opts.seed)
+        drop_first_reach=opts.drop_first_reach, seed=None if opts.seed < 0 else opts.seed)
     motor = MotorModel(no_load_rpm=opts.no_load_rpm, counts_per_rev=opts.counts_per_rev,
                        load_fraction=opts.load_fraction)
     battery = BatteryModel(full_v=opts.battery_full_v, capacity_mah=opts.battery_capacity_mah)
