@@ -102,16 +102,24 @@ def test_bad_inputs_never_reach_the_module_nor_crash_the_node(start_node, ros_no
     driver = start_node('softsnap_driver', 'driver_node', *driver_args(server.port))
     probe = ModuleProbe(ros_node)
     probe.wait_ready()
+    # 0.0 is what a default-constructed CableLength holds: refused, never driven to full
+    # contraction. 0.117 is 1 mm beyond the range (within clamp_margin_m): clamped.
+    probe.publisher.publish(probe.CableLength())
     for length in (math.nan, math.inf, -math.inf, 5.0, -1.0, 0.0, 0.117, 1e308, -1e308, 0.15):
         probe.command(length)
-    assert probe.wait_state(lambda s: s.commands_refused == 3 and s.commands_clamped == 6), \
+    assert probe.wait_state(lambda s: s.commands_refused == 9 and s.commands_clamped == 1), \
         probe.last()
     assert ros_node.spin_until(lambda: probe.measured and within_deadband(probe.measured[-1].cable_length, 0.15), 10)
     with server.lock:
         sent = [r.target for r in server.module.received_targets]
     high = math.floor(MAX_CONTRACTION_M * 1000 * COUNTS_PER_MM + 1e-9)
     assert sent and all(0 <= t <= high for t in sent), sent
-    assert 'clamped' in probe.last().last_error or 'refused' in probe.last().last_error
+    assert sent.count(high) <= 1                       # only the clamped 0.117, never the 0.0s
+    # The last command was accepted as it is: last_error has cleared, its time is kept.
+    assert probe.wait_state(lambda s: s.last_error == '' and s.last_error_time.sec > 0), probe.last()
+    age_s = ros_node.get_clock().now().nanoseconds * 1e-9 - (
+        probe.last().last_error_time.sec + probe.last().last_error_time.nanosec * 1e-9)
+    assert 0 <= age_s < 60
     assert driver.alive()
     assert 'refused' in driver.output()
 
@@ -205,3 +213,67 @@ def test_parameters_are_validated(start_node, ros_node, sim_server, tmp_path):
         time.sleep(0.1)
     assert not bad.alive() and bad.proc.returncode == 2
     assert 'max_contraction_m' in bad.output()
+
+
+SLOW_PWM = 40          # about 1650 counts/s in the sim: full contraction takes over 4 s
+ABANDONED_M = 0.118    # full contraction, 7130 counts
+
+
+def abandoned_count():
+    return round((STRAIGHT_M - ABANDONED_M) * 1000 * COUNTS_PER_MM)
+
+
+def assert_module_stopped_near(server, decided_count, slack=1000):
+    with server.lock:
+        target, count = server.module.target, server.module.encoder_count
+    assert target == count, (target, count)
+    assert count < abandoned_count() - 2000, count
+    assert abs(count - decided_count) <= slack, (count, decided_count)
+
+
+@pytest.mark.parametrize('lost', [1, 2])
+def test_sigint_stop_is_confirmed_when_reach_is_lost(start_node, ros_node, sim_server, lost):
+    server = sim_server(Faults(drop_first_reach=lost))
+    driver = start_node('softsnap_driver', 'driver_node', *driver_args(server.port, pwm_power=SLOW_PWM))
+    probe = ModuleProbe(ros_node)
+    probe.wait_ready()
+    probe.command(ABANDONED_M)
+    assert probe.wait_state(lambda s: s.encoder_count > 300)
+    decided = probe.last().encoder_count
+    started = time.monotonic()
+    assert driver.stop() == 0                           # SIGINT, clean exit
+    print(f'driver_node exited {time.monotonic() - started:.3f} s after SIGINT')
+    output = driver.output()
+    assert 'stop sent' in output and 'stop confirmed' in output and '(shutdown)' in output, output
+    assert server.fault_counts.get('drop_head') == lost
+    assert_module_stopped_near(server, decided)
+
+
+def test_watchdog_and_stop_service_confirm_lost_stops_over_dds(start_node, ros_node, sim_server):
+    server = sim_server(Faults(drop_first_reach=1))
+    driver = start_node('softsnap_driver', 'driver_node', *driver_args(
+        server.port, pwm_power=SLOW_PWM, command_timeout_s=1.0))
+    probe = ModuleProbe(ros_node)
+    probe.wait_ready()
+    probe.command(ABANDONED_M)
+    assert probe.wait_state(lambda s: s.stale_stops == 1, 10)
+    assert ros_node.spin_until(lambda: 'stop confirmed' in driver.output(), 10), driver.output()
+    assert server.fault_counts.get('drop_head') == 1
+    with server.lock:
+        assert server.module.target == server.module.encoder_count < abandoned_count() - 2000
+
+    with server.lock:
+        server.module.faults.drop_first_reach = 2       # one more reach will be lost
+    first_stop = probe.last().encoder_count
+    deadline = time.monotonic() + 15                    # a new stream, kept fresh
+    while probe.last().encoder_count < first_stop + 300:
+        assert time.monotonic() < deadline, probe.last()
+        probe.command(ABANDONED_M)
+        ros_node.spin_until(lambda: False, 0.1)
+    decided = probe.last().encoder_count
+    response = probe.call('stop')
+    assert response.success and '(confirmed)' in response.message, response.message
+    assert server.fault_counts.get('drop_head') == 2
+    assert_module_stopped_near(server, decided)
+    assert probe.wait_state(lambda s: s.stops_unconfirmed == 0 and s.internal_errors == 0)
+    assert driver.alive()

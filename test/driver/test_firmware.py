@@ -178,6 +178,23 @@ def test_server_faults_over_sockets(sim_server):
     assert outage.fault_counts['outage'] >= 1
 
 
+def test_lost_reach_fault_drops_the_first_reach_requests_after_reading_them(sim_server):
+    server = sim_server(Faults(drop_first_reach=2))
+    client = ModuleClient('127.0.0.1', server.port, timeout_s=0.5)
+    client.set_target(5000, 40)
+    for _ in range(2):
+        with pytest.raises(ModuleConnectionError):
+            client.reach()                         # read, then closed without a reply
+        with server.lock:
+            assert server.module.target == 5000    # not applied: the module drives on
+    assert client.status().encoder_count > 0       # other requests are answered
+    stopped = client.reach()                       # the third reach gets through
+    with server.lock:
+        assert server.module.target == server.module.encoder_count
+        assert abs(stopped.encoder_count - server.module.target) <= DEADBAND_COUNTS
+    assert server.fault_counts == {'drop_head': 2} and server.module.reaches_dropped == 2
+
+
 def test_serves_one_client_at_a_time_and_closes(sim_server):
     import socket
     server = sim_server()
@@ -207,6 +224,7 @@ def test_sim_module_command_line(tmp_path):
     opts = build_parser().parse_args(argv)
     assert opts.port == 8102 and opts.drop_probability == 0.5
     assert build_parser().parse_args(['--reboot-after-s', '3']).reboot_after_s == 3.0
+    assert build_parser().parse_args(['--drop-first-reach', '2']).drop_first_reach == 2
 
 
 def test_bad_fault_values_are_refused():
@@ -215,6 +233,8 @@ def test_bad_fault_values_are_refused():
     with pytest.raises(ValueError, match='load_fraction'):
         MotorModel(load_fraction=1.0)
     assert math.isinf(Faults().reboot_after_s)
+    with pytest.raises(ValueError, match='drop_first_reach'):
+        Faults(drop_first_reach=-1)
 
 
 def test_sim_module_process_serves_several_modules(start_node):
