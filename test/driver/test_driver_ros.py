@@ -105,6 +105,7 @@ def test_bad_inputs_never_reach_the_module_nor_crash_the_node(start_node, ros_no
     # 0.0 is what a default-constructed CableLength holds: refused, never driven to full
     # contraction. 0.117 is 1 mm beyond the range (within clamp_margin_m): clamped.
     probe.publisher.publish(probe.CableLength())
+    assert probe.wait_state(lambda s: s.commands_refused == 1), probe.last()   # (depth 10 below)
     for length in (math.nan, math.inf, -math.inf, 5.0, -1.0, 0.0, 0.117, 1e308, -1e308, 0.15):
         probe.command(length)
     assert probe.wait_state(lambda s: s.commands_refused == 9 and s.commands_clamped == 1), \
@@ -166,6 +167,7 @@ def test_faults_are_survived_and_reported(start_node, ros_node, sim_server):
         server.module.faults.stall_after_s = 0.0
     probe.command(0.19)
     assert probe.wait_state(lambda s: 'stalled' in s.last_error and s.stalls_detected >= 1, 10)
+    assert ros_node.spin_until(lambda: '(stalled motor): module holds' in driver.output(), 10)
     with server.lock:
         assert server.module.target == server.module.encoder_count
     assert driver.alive()
@@ -173,12 +175,13 @@ def test_faults_are_survived_and_reported(start_node, ros_node, sim_server):
 
 def test_stale_command_stream_stops_the_module(start_node, ros_node, sim_server):
     server = sim_server()
-    start_node('softsnap_driver', 'driver_node',
-               *driver_args(server.port, command_timeout_s=0.5, pwm_power=40))
+    driver = start_node('softsnap_driver', 'driver_node',
+                        *driver_args(server.port, command_timeout_s=0.5, pwm_power=40))
     probe = ModuleProbe(ros_node)
     probe.wait_ready()
     probe.command(0.118)
     assert probe.wait_state(lambda s: s.stale_stops == 1, 10)
+    assert ros_node.spin_until(lambda: 'stop confirmed' in driver.output(), 10), driver.output()
     with server.lock:
         assert server.module.target == server.module.encoder_count
     assert 'no command' in probe.last().last_error
@@ -203,6 +206,10 @@ def test_parameters_are_validated(start_node, ros_node, sim_server, tmp_path):
     assert not result.successful and 'max_contraction_m' in result.reason
     assert not set_param('port', ParameterType.PARAMETER_INTEGER, integer_value=81).successful
     assert set_param('max_contraction_m', ParameterType.PARAMETER_DOUBLE, double_value=0.01).successful
+    probe.command(0.1)                                  # 88 mm beyond the new range: refused
+    assert probe.wait_state(lambda s: s.commands_refused == 1 and 'clamp_margin_m' in s.last_error)
+    assert not set_param('clamp_margin_m', ParameterType.PARAMETER_DOUBLE, double_value=-0.1).successful
+    assert set_param('clamp_margin_m', ParameterType.PARAMETER_DOUBLE, double_value=0.1).successful
     probe.command(0.1)                                  # now clamped to 10 mm contraction
     assert ros_node.spin_until(lambda: probe.measured and within_deadband(probe.measured[-1].cable_length, 0.188), 10)
 
@@ -243,7 +250,7 @@ def test_sigint_stop_is_confirmed_when_reach_is_lost(start_node, ros_node, sim_s
     started = time.monotonic()
     assert driver.stop() == 0                           # SIGINT, clean exit
     print(f'driver_node exited {time.monotonic() - started:.3f} s after SIGINT')
-    output = driver.output()
+    output = driver.log_path.read_text(errors='replace')      # the process has ended
     assert 'stop sent' in output and 'stop confirmed' in output and '(shutdown)' in output, output
     assert server.fault_counts.get('drop_head') == lost
     assert_module_stopped_near(server, decided)

@@ -122,6 +122,7 @@ def test_stale_stream_stops_where_it_is(sim_server, link_to):
     link = link_to(server, command_timeout_s=0.3, pwm_power=40)   # slow motion
     link.command(0.118)
     assert wait_for(lambda: last(link).counters.stale_stops == 1, 3.0)
+    assert wait_for(lambda: 'stop confirmed' in link.log.text())
     with server.lock:
         assert server.module.target == server.module.encoder_count   # reach
         assert 0 < server.module.encoder_count < CAL.command(0.118).count - 100
@@ -225,6 +226,7 @@ def test_stall_is_detected_reported_and_stopped(sim_server, link_to):
     assert wait_for(lambda: 'stalled' in last(link).last_error, 3.0)
     assert any('stalled' in text for level, text in link.log.lines if level == 'warning')
     assert last(link).counters.stalls_detected >= 1
+    assert wait_for(lambda: '(stalled motor): module holds' in link.log.text())
     with server.lock:
         assert server.module.target == server.module.encoder_count == 0    # reach: motor off
         server.module.faults.stall_duration_s = 0.0                        # unjammed
