@@ -22,8 +22,8 @@ import sys
 import rclpy
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 SetParametersResult)
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.duration import Duration
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from softsnap_interfaces.msg import CableLength, ModuleState
@@ -110,6 +110,7 @@ class DriverNode(Node):
         self.trigger_services = [
             self.create_service(Trigger, f'{m}/{kind}', self._trigger_callback(kind))
             for kind in ('calibrate', 'pause', 'resume', 'stop')]
+        self._error_stamp = (math.nan, None)   # (link clock, ROS time) of the latest error
         self.link = ModuleLink(config, self.report_callback, self.get_logger())
         self.link.start()
         low, high = config.calibration.length_range_m
@@ -211,9 +212,13 @@ class DriverNode(Node):
         state.stops_unconfirmed = c.stops_unconfirmed
         state.last_error = report.last_error
         if math.isfinite(report.last_error_stamp):
-            # The link stamps on its monotonic clock: shift to ROS time by the error's age.
-            age_ns = int(max(report.stamp - report.last_error_stamp, 0.0) * 1e9)
-            state.last_error_time = (self.get_clock().now() - Duration(nanoseconds=age_ns)).to_msg()
+            if report.last_error_stamp != self._error_stamp[0]:
+                # The link stamps on its monotonic clock: shift to ROS time by the error's
+                # age, once per error (so the field only changes when a new error happens).
+                age_ns = int(max(report.stamp - report.last_error_stamp, 0.0) * 1e9)
+                self._error_stamp = (report.last_error_stamp,
+                                     (self.get_clock().now() - Duration(nanoseconds=age_ns)).to_msg())
+            state.last_error_time = self._error_stamp[1]
         self.state_publisher.publish(state)
 
     def destroy_node(self) -> None:
