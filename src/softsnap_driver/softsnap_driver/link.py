@@ -328,10 +328,6 @@ class ModuleLink:
         for key in keys:
             self._errors.pop(key, None)
 
-    def _error(self, key: str, message: str) -> None:
-        with self._cond:
-            self._set_error(key, message)
-
     def _last_error(self) -> str:
         return '; '.join(self._errors[key] for key in _ERROR_KEYS if key in self._errors)
 
@@ -411,7 +407,10 @@ class ModuleLink:
                 if job == 'exit':
                     self._log.error(f'module link: shutdown failed: {exc!r}\n{traceback.format_exc()}')
                     return
-                self._on_internal_error(job, exc)
+                try:
+                    self._on_internal_error(job, exc)
+                except Exception:  # noqa: BLE001 - even reporting failed (a broken logger)
+                    time.sleep(0.1)   # keep the loop, and with it the watchdog, alive
 
     def _do_job(self, config: LinkConfig, job: str, arg) -> None:
         if job == 'action':
