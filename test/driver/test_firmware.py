@@ -219,12 +219,13 @@ def test_serves_one_client_at_a_time_and_closes(sim_server):
 
 
 def test_sim_module_command_line(tmp_path):
-    from softsnap_driver.sim_module import _ros_params, build_parser
+    from softsnap_driver.sim_module import _ros_params, build_parser, module_from_options
     argv = _ros_params(['--ros-args', '-r', '__ns:=/x', '-p', 'port:=8102', '-p', 'drop_probability:=0.5'])
     opts = build_parser().parse_args(argv)
     assert opts.port == 8102 and opts.drop_probability == 0.5
     assert build_parser().parse_args(['--reboot-after-s', '3']).reboot_after_s == 3.0
-    assert build_parser().parse_args(['--drop-first-reach', '2']).drop_first_reach == 2
+    opts = build_parser().parse_args(['--drop-first-reach', '2'])
+    assert module_from_options(opts, 0.0).faults.drop_first_reach == 2
 
 
 def test_bad_fault_values_are_refused():
