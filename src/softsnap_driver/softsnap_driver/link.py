@@ -650,7 +650,7 @@ class ModuleLink:
             else:
                 with self._cond:
                     problem = self._errors.get('link', 'reach failed')
-            self._log.info(f'stop not yet confirmed at {where} ({why}, attempt {attempts}): '
+            self._log.warning(f'stop not yet confirmed at {where} ({why}, attempt {attempts}): '
                            f'{problem}; retrying in {pause:.3f} s')
             wait = min(pause, deadline - self._clock())
             if wait > 0:
