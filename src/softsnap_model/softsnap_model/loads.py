@@ -42,7 +42,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .forward import InfeasibleLengthError, solve_forward
+from .forward import solve_forward
 from .geometry import cable_path, half_angle_functions, rib_centers, segment_length_derivatives
 from .skeleton import Skeleton
 
@@ -434,7 +434,7 @@ def solve_loaded(skeleton: Skeleton, threading, length_mm: float, loads: Loads,
     >>> sk = Skeleton()
     >>> t = 'R1 R1 R1 R1 R1 R1 R1 R1 R2 R2 R3 R3'.split()
     >>> res = solve_loaded(sk, t, 170.0, Loads(gravity_mps2=(0.0, -9.81, 0.0)))
-    >>> res.converged, res.angles[0] < solve_forward(sk, t, 170.0).angles[0]
+    >>> res.converged, bool(res.angles[0] < solve_forward(sk, t, 170.0).angles[0])
     (True, True)
     """
     if not isinstance(loads, Loads):
