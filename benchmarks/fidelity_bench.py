@@ -15,8 +15,9 @@ answer (the same reference as test/model/test_loads.py; itself good to ~1e-6 mm)
 Error = largest rib-centre distance (mm) to the reference.
 
 Times: median per problem of repeated solves (caches warm), then median and range over
-the problems; ratios against the idealised level's median from the same run; the load
-average at start and end says how busy the machine was.
+the problems; wall time and the process's CPU time (a busy machine preempts the longer
+loaded solves, which inflates their wall time); ratios against the idealised level's
+median from the same run; the load average at start and end says how busy it was.
 
 Usage: .venv/bin/python benchmarks/fidelity_bench.py [--quick]    (about 1 minute)
 """
@@ -74,12 +75,15 @@ def slsqp_error(sk, t, length, loads, res):
 
 
 def timed(fn, repeat):
-    times = []
+    """Median wall time and median CPU time of this process (s): on a busy machine the
+    wall time of a longer solve includes time spent preempted, the CPU time does not."""
+    wall, cpu = [], []
     for _ in range(repeat):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
+        wall.append(time.perf_counter() - t0)
+        cpu.append(time.process_time() - c0)
+    return statistics.median(wall), statistics.median(cpu)
 
 
 def main():
@@ -100,33 +104,37 @@ def main():
 
     rows = []
     for label, sk, solve in level_solvers():
-        times, errs, iters, ok = [], [], [], 0
+        times, cpus, errs, iters, ok = [], [], [], [], 0
         for name, t, length in problems:
             res = solve(t, length)
             ok += bool(res.converged)
             iters.append(res.iterations)
-            times.append(timed(lambda: solve(t, length), reps))
+            wall, cpu = timed(lambda: solve(t, length), reps)
+            times.append(wall)
+            cpus.append(cpu)
             if label.startswith('+ gravity'):
                 loads = TIP if 'tip' in label else ON_SIDE
                 errs.append(slsqp_error(sk, t, length, loads, res))
             else:
                 errs.append(mp_error(sk, t, length, res))
         rows.append((label, statistics.median(times), min(times), max(times),
-                     statistics.median(errs), max(errs), ok, len(problems),
-                     float(np.mean(iters))))
+                     statistics.median(cpus), statistics.median(errs), max(errs), ok,
+                     len(problems), float(np.mean(iters))))
     load_end = os.getloadavg()
 
-    base = rows[0][1]
+    base, base_cpu = rows[0][1], rows[0][4]
     print(f'load average (1 min) at start {load_start[0]:.2f}, at end {load_end[0]:.2f}; '
           f'{len(problems)} problems ({", ".join(NAMES)} at 20/40/60 mm where reachable), '
           f'{reps} repeats each')
     print()
-    print('| level | median time | range over problems | x idealised | converged | '
-          'Newton iterations (mean) | error vs reference: median / max (mm) |')
-    print('| --- | ---: | ---: | ---: | ---: | ---: | ---: |')
-    for label, med, lo_t, hi_t, e_med, e_max, ok, n, it in rows:
+    print('| level | median wall time | range over problems | x idealised | median CPU '
+          'time | x idealised (CPU) | converged | Newton iterations (mean) | '
+          'error vs reference: median / max (mm) |')
+    print('| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |')
+    for label, med, lo_t, hi_t, cpu, e_med, e_max, ok, n, it in rows:
         print(f'| {label} | {med * 1e3:.2f} ms | {lo_t * 1e3:.2f}-{hi_t * 1e3:.2f} ms | '
-              f'{med / base:.1f} | {ok}/{n} | {it:.1f} | {e_med:.1e} / {e_max:.1e} |')
+              f'{med / base:.1f} | {cpu * 1e3:.2f} ms | {cpu / base_cpu:.1f} | {ok}/{n} | '
+              f'{it:.1f} | {e_med:.1e} / {e_max:.1e} |')
 
     # How far apart the levels are: largest rib-centre distance (mm) between consecutive
     # levels, per threading and contraction ("-": the level cannot reach that length).

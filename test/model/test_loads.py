@@ -246,3 +246,17 @@ def test_idealised_skeleton_also_solved():
     assert_contract(res, length)
     ref_a, _ = reference_solve(sk, t, length, loads, solve_forward(sk, t, length).angles)
     assert np.max(np.abs(res.angles - ref_a)) < 1e-6
+
+
+def test_slack_cable_stays_slack_or_is_pulled_taut_by_the_sag():
+    t = PAPER_THREADINGS['yellow']
+    straight = SK.straight_length_mm(t)
+    # Sagging clockwise shortens the right-side path: the cable stays slack.
+    sag = solve_loaded(SK, t, straight + 1.0, Loads(gravity_mps2=ON_RIGHT_SIDE))
+    assert sag.converged and sag.slack and sag.tension_n == 0.0
+    assert sag.cable_length_mm < straight + 1.0
+    # Sagging counter-clockwise lengthens it: 0.3 mm of slack is taken up, then the
+    # cable holds the module with a tension.
+    held = solve_loaded(SK, t, straight + 0.3, Loads(gravity_mps2=ON_LEFT_SIDE))
+    assert held.converged and not held.slack and held.tension_n > 0.0
+    assert held.cable_length_mm == pytest.approx(straight + 0.3, abs=1e-9)
