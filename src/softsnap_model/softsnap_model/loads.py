@@ -78,8 +78,8 @@ DEFAULT_RIB_MASS_KG = 1.187e-3
 DEFAULT_END_RIB_MASS_KG = 0.967e-3
 #: Motor box (motor, PCB, battery, PLA shell): estimate ~25 g (N20 gear motor ~10 g,
 #: 200 mAh cell ~5 g, PCB ~3 g, shell 3.4 cm^3 of PLA at 20-30 % infill plus walls ~5 g).
-#: It sits at the clamped base (paper Fig. 3a), so it does not enter the shape; kept for
-#: documentation and for mount loads.
+#: It sits at the clamped base (the paper's experiments fix the skeleton's end attached
+#: to the body case), so it does not enter the shape; kept for documentation.
 MOTOR_BOX_MASS_KG_ESTIMATE = 25e-3
 
 # A step that would move any angle by more than this (rad) is shortened: Newton from far
