@@ -260,3 +260,35 @@ def test_slack_cable_stays_slack_or_is_pulled_taut_by_the_sag():
     held = solve_loaded(SK, t, straight + 0.3, Loads(gravity_mps2=ON_LEFT_SIDE))
     assert held.converged and not held.slack and held.tension_n > 0.0
     assert held.cable_length_mm == pytest.approx(straight + 0.3, abs=1e-9)
+
+
+def test_random_problems_meet_the_contract_or_say_why():
+    # Random threadings, lengths (down to the reachable minimum, up to slack), gravity
+    # directions, stiffness 3-80 N mm/rad^2 and loads: every answer meets the contract,
+    # every refusal says why (near full contact a soft module can pass a fold and
+    # snap; SLSQP finds no minimum there either), nothing raises.
+    rng = np.random.default_rng(1)
+    names = list(SK.holes_mm)
+    converged = 0
+    for k in range(60):
+        t = [names[i] for i in rng.integers(0, 8, 12)]
+        lo, hi = reachable_range(SK, t)
+        length = lo + (hi - lo) * rng.uniform(0.002, 1.02)
+        g = rng.normal(size=3)
+        loads = Loads(gravity_mps2=g / np.linalg.norm(g) * G,
+                      bending_stiffness_nmm=float(np.exp(rng.uniform(np.log(3), np.log(80)))),
+                      load_n=rng.normal(size=3) * rng.choice([0.0, 0.1, 0.5]),
+                      load_rib=int(rng.choice([-1, 3, 7])))
+        res = solve_loaded(SK, t, length, loads)
+        if not res.converged:
+            assert 'fold or buckling' in res.message
+            continue
+        converged += 1
+        assert_contract(res, length)
+        assert np.all(np.abs(res.angles) <= SK.contact_angle_rad)
+        if k % 6 == 0:
+            ref_a, ref_e = reference_solve(SK, t, length, loads,
+                                           solve_forward(SK, t, length).angles)
+            assert np.max(np.abs(res.angles - ref_a)) < 1e-6
+            assert res.energy_nmm <= ref_e + 1e-9 * max(1.0, abs(ref_e))
+    assert converged >= 55
