@@ -12,8 +12,9 @@ Topics (relative to the node's namespace; SI units):
   skipped).
 Services: ``~/forward_shape`` (ForwardShape), ``~/inverse_design`` (InverseDesign).
 
-All science lives in :mod:`softsnap_model.predictor`, :mod:`.forward`, :mod:`.loads` and :mod:`.inverse`;
-this node only converts messages and parameters (metres) to core calls (millimetres).
+All science lives in :mod:`softsnap_model.predictor`, :mod:`.forward`, :mod:`.loads` and
+:mod:`.inverse`; this node only converts messages and parameters (metres) to core calls
+(millimetres).
 """
 from __future__ import annotations
 
