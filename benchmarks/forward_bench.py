@@ -40,7 +40,7 @@ from softsnap_model.reference import BRITTLE_STAR_MODULES, PAPER_THREADINGS  # n
 from softsnap_model import (Skeleton, reachable_range, rib_centers, segment_length,  # noqa: E402
                             solve_forward, solve_forward_batch, sweep)
 
-SK = Skeleton()
+SK = Skeleton(rib_thickness_mm=0.0)   # the idealised model (docs/bench-forward.md)
 # The brittle star's five modules and a spread of the paper's threadings (FACTS.md).
 BRITTLE_STAR = [' '.join(PAPER_THREADINGS[name]) for name in BRITTLE_STAR_MODULES]
 THREADINGS = {name: ' '.join(PAPER_THREADINGS[name])

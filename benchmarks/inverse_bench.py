@@ -71,7 +71,7 @@ import numpy as np
 from softsnap_model import Skeleton, design_threading
 t1 = time.perf_counter()
 holes = json.loads(sys.argv[1])
-sk = Skeleton(holes_mm=holes) if holes else Skeleton()
+sk = Skeleton(holes_mm=holes, rib_thickness_mm=0.0) if holes else Skeleton(rib_thickness_mm=0.0)
 res = design_threading(sk, target_angles=np.array([0.3, -0.3] * 6)[:11], k=3)
 t2 = time.perf_counter()
 print(json.dumps([t1 - t0, t2 - t1]))
@@ -92,7 +92,8 @@ def main():
     args = parser.parse_args()
     rng = np.random.default_rng(0)
     rows = []
-    for label, skeleton in (('8 holes', Skeleton()), ('16 holes', Skeleton(holes_mm=HOLES_16))):
+    for label, skeleton in (('8 holes', Skeleton(rib_thickness_mm=0.0)),
+                             ('16 holes', Skeleton(holes_mm=HOLES_16, rib_thickness_mm=0.0))):
         for name, target in targets(skeleton, rng).items():
             times = []
             for _ in range(args.repeat):

@@ -18,7 +18,7 @@ from mp_reference import kkt_reference, rib_centers_mp  # noqa: E402
 
 from softsnap_model.reference import PAPER_THREADINGS  # noqa: E402
 
-SK = Skeleton()
+SK = Skeleton(rib_thickness_mm=0.0)   # the paper's idealised model (thin ribs)
 PAPER = {name: ' '.join(PAPER_THREADINGS[name])
          for name in ('yellow', 'blue', 'red', 'gripper', 'snake', 's', 'w')}
 PAPER['alternating'] = 'R3 L3 R3 L3 R3 L3 R3 L3 R3 L3 R3 L3'
@@ -282,12 +282,12 @@ def test_result_is_a_constrained_minimum_by_perturbation():
 def test_stiffness_scaling_and_stiff_segment():
     t = threading('yellow')
     base = solve_forward(SK, t, 170.0)
-    scaled = solve_forward(Skeleton(stiffness=[3.0] * 11), t, 170.0)
+    scaled = solve_forward(Skeleton(stiffness=[3.0] * 11, rib_thickness_mm=0.0), t, 170.0)
     assert np.allclose(scaled.angles, base.angles, atol=1e-12)
     assert scaled.tension == pytest.approx(3.0 * base.tension, rel=1e-12)
     k = [1.0] * 11
     k[0] = 10.0
-    stiff = solve_forward(Skeleton(stiffness=k), t, 170.0)
+    stiff = solve_forward(Skeleton(stiffness=k, rib_thickness_mm=0.0), t, 170.0)
     assert stiff.converged and abs(stiff.angles[0]) < abs(base.angles[0])
     assert stiff.energy == pytest.approx(float(np.sum(np.array(k) * stiff.angles ** 2)))
 

@@ -11,7 +11,7 @@ from softsnap_model import forward, geometry, inverse, reference
 from softsnap_model.inverse import design_threading, fit_angles_to_points
 from softsnap_model.skeleton import Skeleton
 
-AUTHORS = Skeleton()
+AUTHORS = Skeleton(rib_thickness_mm=0.0)   # the paper's idealised model (Figure S4)
 
 # Threadings of the paper's robots (FACTS.md), rib 0 first, as text.
 PAPER_THREADINGS = {name: ' '.join(holes) for name, holes in reference.PAPER_THREADINGS.items()}

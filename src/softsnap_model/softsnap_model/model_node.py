@@ -12,8 +12,9 @@ Topics (relative to the node's namespace; SI units):
   skipped).
 Services: ``~/forward_shape`` (ForwardShape), ``~/inverse_design`` (InverseDesign).
 
-All science lives in :mod:`softsnap_model.predictor`, :mod:`.forward` and :mod:`.inverse`;
-this node only converts messages and parameters (metres) to core calls (millimetres).
+All science lives in :mod:`softsnap_model.predictor`, :mod:`.forward`, :mod:`.loads` and
+:mod:`.inverse`; this node only converts messages and parameters (metres) to core calls
+(millimetres).
 """
 from __future__ import annotations
 
@@ -36,6 +37,7 @@ from softsnap_interfaces.srv import ForwardShape, InverseDesign
 
 from .forward import solve_forward
 from .inverse import design_threading
+from .loads import DEFAULT_BENDING_STIFFNESS_NMM, Loads, solve_loaded
 from .predictor import SOURCES, RobotPredictor
 from .scene import SceneError, load_scene
 
@@ -74,6 +76,13 @@ class ModelNode(Node):
         self.declare_parameter('diagnostics_period', 1.0, ParameterDescriptor(
             description='Period of model/diagnostics messages (s)',
             floating_point_range=[FloatingPointRange(from_value=0.05, to_value=60.0)]))
+        self.declare_parameter(
+            'bending_stiffness', DEFAULT_BENDING_STIFFNESS_NMM / MM_PER_M, ParameterDescriptor(
+                description='Bending stiffness K of one segment (energy K a^2) for forward '
+                            'solves with gravity or a load, and for cable_tension (N m/rad^2); '
+                            'default: the estimate for the authors\' TPU skeleton '
+                            '(docs/model.md, Physics levels)',
+                floating_point_range=[FloatingPointRange(from_value=1e-6, to_value=10.0)]))
         self.add_on_set_parameters_callback(self.parameters_callback)
 
         self.scene = load_scene(self.get_parameter('scene').value)
@@ -285,9 +294,14 @@ class ModelNode(Node):
         try:
             threading = self._threading_mm(request.holes, request.threading)
             initial = np.asarray(request.initial_angles, dtype=float) if len(request.initial_angles) else None
+            loads = self._request_loads(request)
             start = time.perf_counter()
-            result = solve_forward(self.skeleton, threading, request.cable_length * MM_PER_M,
-                                   initial=initial)
+            if loads.is_zero:
+                result = solve_forward(self.skeleton, threading, request.cable_length * MM_PER_M,
+                                       initial=initial)
+            else:
+                result = solve_loaded(self.skeleton, threading,
+                                      request.cable_length * MM_PER_M, loads)
             response.solve_time = time.perf_counter() - start
         except (ValueError, TypeError) as error:
             self.service_failures += 1
@@ -308,12 +322,37 @@ class ModelNode(Node):
         response.angles = np.asarray(result.angles, dtype=float).tolist()
         response.rib_centers = _points_m(result.rib_centers)
         response.cable_path = _points_m(result.cable_path)
-        response.energy = float(result.energy)
-        response.tension = float(result.tension) * MM_PER_M
+        k_nmm = loads.bending_stiffness_nmm
+        if loads.is_zero:
+            response.energy = float(result.energy)
+            response.tension = float(result.tension) * MM_PER_M
+            response.residual = float(result.residual)
+        else:
+            # Unit-stiffness fields stay comparable with the unloaded solve's.
+            response.energy = float(np.sum(self.skeleton.stiffness_array * result.angles ** 2))
+            response.tension = float(result.tension_n) / k_nmm * MM_PER_M
+            response.residual = max(float(result.constraint_residual_mm) / MM_PER_M,
+                                    float(result.stationarity_residual_rad))
+        response.cable_tension = float(response.tension) / MM_PER_M * k_nmm
         response.converged = bool(result.converged)
-        response.residual = float(result.residual)
         response.iterations = int(result.iterations)
         return response
+
+    def _request_loads(self, request) -> Loads:
+        """Loads of a ForwardShape request (SI) in the core's units (ValueError if bad)."""
+        k_si = float(request.bending_stiffness)
+        if k_si == 0.0:
+            k_si = float(self.get_parameter('bending_stiffness').value)
+        rib = int(request.load_rib)
+        if not (math.isfinite(k_si) and k_si > 0.0):
+            raise ValueError(f'bending_stiffness must be finite and > 0 N m/rad^2 (0: the '
+                             f'node parameter), got {request.bending_stiffness!r}')
+        if rib > self.skeleton.n_ribs - 1 or rib < -1:
+            raise ValueError(f'load_rib must be 1..{self.skeleton.n_ribs - 1}, or -1 or 0 '
+                             f'for the tip; got {rib}')
+        g, f = request.gravity, request.load
+        return Loads(gravity_mps2=(g.x, g.y, g.z), bending_stiffness_nmm=k_si * MM_PER_M,
+                     load_n=(f.x, f.y, f.z), load_rib=-1 if rib == 0 else rib)
 
     async def inverse_design_callback(self, request, response):
         self.service_calls += 1

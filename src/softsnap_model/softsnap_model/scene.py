@@ -403,7 +403,8 @@ _MODULE_REQUIRED = {'name', 'threading', 'port', 'base'}
 _MODULE_OPTIONAL = {'host', 'counts_per_mm', 'max_contraction_mm', 'color', 'parent',
                     'parent_offset'}
 _POSE_ORIENTATIONS = ('axes', 'rpy_deg', 'orientation_xyzw')
-_SKELETON_KEYS = {'n_ribs', 'spacing_mm', 'rib_length_mm', 'holes_mm', 'stiffness'}
+_SKELETON_KEYS = {'n_ribs', 'spacing_mm', 'rib_length_mm', 'holes_mm', 'stiffness',
+                  'rib_thickness_mm'}
 
 
 def _orientation(chk: _Checker, pose: Mapping, key: str) -> tuple[float, float, float, float]:

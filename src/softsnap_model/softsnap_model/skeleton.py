@@ -6,6 +6,7 @@ Every public entry point that takes a threading goes through
 """
 from __future__ import annotations
 
+import functools
 import math
 import numbers
 from dataclasses import dataclass, field
@@ -15,13 +16,17 @@ from typing import Any, Mapping
 
 import numpy as np
 
-__all__ = ['Skeleton', 'DEFAULT_HOLES_MM']
+__all__ = ['Skeleton', 'DEFAULT_HOLES_MM', 'DEFAULT_RIB_THICKNESS_MM', 'contact_angle']
 
 #: Hole offsets of the authors' module (mm, positive = right of the spine), FACTS.md.
 DEFAULT_HOLES_MM: Mapping[str, float] = MappingProxyType({
     'L0': -0.5, 'L1': -3.0, 'L2': -6.5, 'L3': -10.0,
     'R0': 0.5, 'R1': 3.0, 'R2': 6.5, 'R3': 10.0,
 })
+
+#: Rib thickness along the spine (mm) in the authors' CAD (``Passive skeleton.stl``:
+#: 3.0 mm ribs at an 18 mm pitch, total length 201 mm = 11 x 18 + 3; FACTS.md).
+DEFAULT_RIB_THICKNESS_MM = 3.0
 
 # Offsets closer than this (mm) are the same hole when mapping offsets back to names.
 _HOLE_MATCH_TOL_MM = 1e-9
@@ -53,12 +58,20 @@ class Skeleton:
     stiffness : sequence of float, optional
         Relative bending stiffness ``k_i`` per segment (energy ``sum k_i a_i^2``).
         None means all equal to 1, the paper's model.
+    rib_thickness_mm : float
+        Thickness of each rib along the spine (mm), ``0 <= t < spacing_mm``. The
+        default 3.0 mm is the authors' CAD (``Passive skeleton.stl``: 3.0 mm ribs at an
+        18 mm pitch, 201 mm = 11 x 18 + 3). It only sets the rib-contact angle
+        (:attr:`contact_angle_rad`); ``rib_thickness_mm=0`` is the paper's idealised
+        model (thin ribs).
 
     Examples
     --------
     >>> sk = Skeleton()
     >>> sk.n_segments, sk.straight_length_mm(['R3'] * 12)
     (11, 198.0)
+    >>> round(sk.contact_angle_rad, 4), Skeleton(rib_thickness_mm=0).contact_angle_rad
+    (1.2311, 1.44)
     """
 
     n_ribs: int = 12
@@ -66,6 +79,7 @@ class Skeleton:
     rib_length_mm: float = 25.0
     holes_mm: Mapping[str, float] = field(default_factory=lambda: DEFAULT_HOLES_MM)
     stiffness: tuple[float, ...] | None = None
+    rib_thickness_mm: float = DEFAULT_RIB_THICKNESS_MM
 
     def __post_init__(self):
         n = self.n_ribs
@@ -75,6 +89,12 @@ class Skeleton:
         object.__setattr__(self, 'spacing_mm', _finite_positive('spacing_mm', self.spacing_mm))
         object.__setattr__(self, 'rib_length_mm',
                            _finite_positive('rib_length_mm', self.rib_length_mm))
+        t = self.rib_thickness_mm
+        if isinstance(t, bool) or not isinstance(t, numbers.Real) or not math.isfinite(t) \
+                or not 0.0 <= t < self.spacing_mm:
+            raise ValueError(f'rib_thickness_mm must be a finite number in '
+                             f'[0, spacing_mm = {self.spacing_mm}) mm, got {t!r}')
+        object.__setattr__(self, 'rib_thickness_mm', float(t))
         if not isinstance(self.holes_mm, Mapping) or len(self.holes_mm) == 0:
             raise ValueError(f'holes_mm must be a non-empty mapping name -> offset mm, '
                              f'got {self.holes_mm!r}')
@@ -106,14 +126,15 @@ class Skeleton:
 
     def __hash__(self):
         return hash((self.n_ribs, self.spacing_mm, self.rib_length_mm,
-                     tuple(self.holes_mm.items()), self.stiffness))
+                     tuple(self.holes_mm.items()), self.stiffness, self.rib_thickness_mm))
 
     def __eq__(self, other):
         if not isinstance(other, Skeleton):
             return NotImplemented
         return (self.n_ribs, self.spacing_mm, self.rib_length_mm, dict(self.holes_mm),
-                self.stiffness) == (other.n_ribs, other.spacing_mm, other.rib_length_mm,
-                                    dict(other.holes_mm), other.stiffness)
+                self.stiffness, self.rib_thickness_mm) == (
+                    other.n_ribs, other.spacing_mm, other.rib_length_mm,
+                    dict(other.holes_mm), other.stiffness, other.rib_thickness_mm)
 
     # -- derived quantities -------------------------------------------------------------
     @property
@@ -132,11 +153,10 @@ class Skeleton:
     def contact_angle_rad(self) -> float:
         """Largest bending angle magnitude (rad) of one segment before the ribs touch.
 
-        Ribs are lines normal to the spine; they meet at the centre of curvature when
-        the bend radius ``s/|a|`` equals half the rib length, i.e. at
-        ``|a| = 2 s / rib_length`` (1.44 rad for the authors' module), capped at pi.
+        See :func:`contact_angle`: 1.2311 rad for the authors' 3.0 mm ribs,
+        ``2 s / rib_length`` = 1.44 rad for thin ribs (``rib_thickness_mm=0``).
         """
-        return min(2.0 * self.spacing_mm / self.rib_length_mm, math.pi)
+        return contact_angle(self.spacing_mm, self.rib_length_mm, self.rib_thickness_mm)
 
     # -- threading conversion -------------------------------------------------------------
     def threading_mm(self, threading) -> np.ndarray:
@@ -233,7 +253,8 @@ class Skeleton:
         """
         if not isinstance(data, Mapping):
             raise ValueError(f'skeleton description must be a mapping, got {type(data).__name__}')
-        allowed = {'n_ribs', 'spacing_mm', 'rib_length_mm', 'holes_mm', 'stiffness'}
+        allowed = {'n_ribs', 'spacing_mm', 'rib_length_mm', 'holes_mm', 'stiffness',
+                   'rib_thickness_mm'}
         unknown = set(data) - allowed
         if unknown:
             raise ValueError(f'unknown skeleton keys {sorted(unknown)}; '
@@ -258,4 +279,75 @@ class Skeleton:
         """Plain-data form accepted by :meth:`from_dict`."""
         return {'n_ribs': self.n_ribs, 'spacing_mm': self.spacing_mm,
                 'rib_length_mm': self.rib_length_mm, 'holes_mm': dict(self.holes_mm),
-                'stiffness': None if self.stiffness is None else list(self.stiffness)}
+                'stiffness': None if self.stiffness is None else list(self.stiffness),
+                'rib_thickness_mm': self.rib_thickness_mm}
+
+
+@functools.lru_cache(maxsize=64)
+def contact_angle(spacing_mm: float, rib_length_mm: float, rib_thickness_mm: float) -> float:
+    """Bending angle magnitude (rad) at which the inner edges of two adjacent ribs meet.
+
+    Geometry (the paper's Figure S1, FACTS.md): the spine between two rib centre lines
+    is an arc of length ``s`` and radius ``R = s/|a|``, each rib's centre line is normal
+    to it, and a rib is a rigid slab of thickness ``t`` along the spine (faces at
+    ``+-t/2`` from its centre line) and length ``l`` across it. The two facing faces are
+    the centre lines, each moved ``t/2`` towards the other; they converge towards the
+    centre of curvature and, by the mirror symmetry about the bisector of the two
+    centre lines, the inner corners (at ``l/2`` on the concave side) touch first, on the
+    bisector, when::
+
+        R - l/2 = (t/2) cot(|a|/2),   i.e.   s - (t/2) |a| cot(|a|/2) = (l/2) |a|
+
+    For ``t = 0`` this is ``|a| = 2 s / l`` (1.44 rad for the authors' module: thin ribs
+    meet at the centre of curvature). To first order ``|a| cot(|a|/2) = 2``, giving
+    ``|a| = (s - t) / (l/2)`` (1.20 rad for 3.0 mm ribs): that value is exact only if
+    the spine inside each rib stayed straight and the free part ``s - t`` alone bent,
+    which is not the model's kinematics; within the model's own geometry the drawn
+    ribs touch at the root of the equation above, 1.2311 rad (the first-order value
+    leaves a 0.35 mm gap between the drawn inner corners). The result is capped at pi.
+
+    Parameters
+    ----------
+    spacing_mm, rib_length_mm : float
+        Spine arc length ``s`` between rib centre lines and rib length ``l`` (mm, > 0).
+    rib_thickness_mm : float
+        Rib thickness ``t`` along the spine (mm), ``0 <= t < s``.
+
+    Examples
+    --------
+    >>> contact_angle(18.0, 25.0, 0.0)
+    1.44
+    >>> round(contact_angle(18.0, 25.0, 3.0), 6)
+    1.231107
+    """
+    s, half, t = float(spacing_mm), 0.5 * float(rib_length_mm), float(rib_thickness_mm)
+    if not (s > 0.0 and half > 0.0 and 0.0 <= t < s):
+        raise ValueError(f'contact_angle needs spacing_mm > 0, rib_length_mm > 0 and '
+                         f'0 <= rib_thickness_mm < spacing_mm; got {s!r}, {2 * half!r}, {t!r}')
+    if t == 0.0:
+        return min(s / half, math.pi)     # exactly the idealised value, no root finding
+
+    def gap(a):
+        # s - (t/2) a cot(a/2) - (l/2) a; finite on (0, pi] (cot(pi/2) = 0).
+        x = 0.5 * a
+        return s - t * x * math.cos(x) / math.sin(x) - half * a
+
+    if gap(math.pi) >= 0.0:
+        return math.pi
+    # gap(0+) = s - t > 0: bracket the first sign change on a fine grid, then bisect to
+    # rounding (64 halvings of a bracket shorter than pi/256).
+    lo = hi = 0.0
+    for j in range(1, 257):
+        hi = math.pi * j / 256
+        if gap(hi) < 0.0:
+            break
+        lo = hi
+    for _ in range(64):
+        mid = 0.5 * (lo + hi)
+        if mid in (lo, hi):
+            break
+        if gap(mid) >= 0.0:
+            lo = mid
+        else:
+            hi = mid
+    return lo
