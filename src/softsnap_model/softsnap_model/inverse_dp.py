@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 
-def kbest_chain(edge_cost, allowed, k=1):
+def kbest_chain(edge_cost, allowed, k=1, check=None):
     """Return the k cheapest distinct hole sequences of a chain, for each batch entry.
 
     Parameters
@@ -23,6 +23,9 @@ def kbest_chain(edge_cost, allowed, k=1):
         Holes each rib may use.
     k : int
         Number of ranked sequences wanted (>= 1).
+    check : callable, optional
+        Called with no argument before each segment's step; it may raise to abandon the
+        pass (how a cancelled or timed-out design stops within one step).
 
     Returns
     -------
@@ -51,6 +54,8 @@ def kbest_chain(edge_cost, allowed, k=1):
     value[:, allowed[0], 0] = 0.0
     back = np.empty((n_seg, n_batch, m, k), dtype=np.int64)
     for i in range(n_seg):
+        if check is not None:
+            check()
         # cand[b, q, p * k + r] = value[b, p, r] + cost[b, i, p, q]
         cand = value[:, :, None, :] + edge_cost[:, i, :, :, None]
         cand = cand.transpose(0, 2, 1, 3).reshape(n_batch, m, m * k)
