@@ -418,16 +418,16 @@ class ModelNode(Node):
                                        for p in request.target_points]
         return kwargs
 
-    def _design_job(self, kwargs, deadline, should_stop, done: Future, progress=None):
+    def _design_job(self, kwargs, arrived, timeout, should_stop, done: Future, progress=None):
         """A worker's job: run one design, never raise, fill ``done`` with
         (outcome, DesignResult or reason) and wake the executor.
 
+        The design must end by ``arrived + timeout`` (monotonic s), waiting included.
         outcome is 'succeeded', 'refused', 'cancelled', 'timed out' or 'failed'."""
         def job():
             try:
-                remaining = deadline - time.monotonic()
+                remaining = arrived + timeout - time.monotonic()
                 if remaining <= 0.0:
-                    timeout = self.get_parameter('design_timeout').value
                     answer = ('timed out', f'design_timeout {timeout:g} s passed while the '
                                            'request waited behind another design')
                 else:
@@ -437,7 +437,6 @@ class ModelNode(Node):
             except DesignCancelled as error:
                 answer = ('cancelled', str(error))
             except DesignTimedOut as error:
-                timeout = self.get_parameter('design_timeout').value
                 answer = ('timed out', f'design_timeout {timeout:g} s exceeded: {error}')
             except (ValueError, TypeError) as error:
                 answer = ('refused', str(error))
@@ -471,9 +470,9 @@ class ModelNode(Node):
             outcome, answer = 'refused', str(error)
         else:
             done = Future()
-            deadline = arrived + self.get_parameter('design_timeout').value
-            self._service_worker.submit(
-                self._design_job(kwargs, deadline, self._stopping.is_set, done))
+            self._service_worker.submit(self._design_job(
+                kwargs, arrived, self.get_parameter('design_timeout').value,
+                self._stopping.is_set, done))
             outcome, answer = await done
         response = self._fill_design(outcome, answer, InverseDesign.Response())
         response.solve_time = time.monotonic() - arrived
@@ -504,15 +503,16 @@ class ModelNode(Node):
         accepted = self._active_goal[1] if self._active_goal else time.monotonic()
         self._active_goal = (goal_handle, accepted)
         self.service_calls += 1
-        progress = [0.0, 'queued']  # written by the worker, read by the feedback timer
+        # (fraction, stage): replaced whole by the worker, read by the feedback timer.
+        progress = [(0.0, 'queued')]
 
         def report(fraction, stage):
-            progress[:] = fraction, stage
+            progress[0] = (fraction, stage)
 
         def feedback_callback():
+            fraction, stage = progress[0]
             goal_handle.publish_feedback(DesignThreading.Feedback(
-                fraction=float(progress[0]), stage=progress[1],
-                elapsed=time.monotonic() - accepted))
+                fraction=float(fraction), stage=stage, elapsed=time.monotonic() - accepted))
 
         feedback_timer = None
         try:
@@ -522,11 +522,10 @@ class ModelNode(Node):
                 outcome, answer = 'refused', str(error)
             else:
                 done = Future()
-                deadline = accepted + self.get_parameter('design_timeout').value
                 feedback_timer = self.create_timer(FEEDBACK_PERIOD_S, feedback_callback,
                                                    callback_group=self._design_group)
                 self._action_worker.submit(self._design_job(
-                    kwargs, deadline,
+                    kwargs, accepted, self.get_parameter('design_timeout').value,
                     lambda: self._stopping.is_set() or goal_handle.is_cancel_requested,
                     done, report))
                 outcome, answer = await done
