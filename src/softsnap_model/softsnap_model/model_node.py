@@ -117,7 +117,7 @@ class ModelNode(Node):
         self.declare_parameter('max_alternatives', 20, ParameterDescriptor(
             description='Most alternatives an inverse design may ask for (count); more are '
                         'refused. Memory and time grow about linearly with it (docs/inverse.md)',
-            integer_range=[IntegerRange(from_value=0, to_value=5000, step=1)]))
+            integer_range=[IntegerRange(from_value=0, to_value=1000, step=1)]))
         self.declare_parameter('design_timeout', 30.0, ParameterDescriptor(
             description='Longest an inverse design may take from its arrival, waiting in the '
                         'queue included; then it is stopped and answered as timed out (s)',
