@@ -254,3 +254,8 @@ def test_sigint_stops_the_node_within_2_s_during_a_long_design(start_node, ros_n
     assert code == 0, proc.output()
     assert exit_s < 2.0, f'{exit_s:.2f} s\n{proc.output()}'
     assert 'Traceback' not in proc.output()
+    # It closed ROS before leaving: its nodes leave the graph at once, not after the
+    # DDS lease of a killed process (20 s).
+    assert ros_node.spin_until(
+        lambda: not [n for n, ns in ros_node.get_node_names_and_namespaces() if ns == NS],
+        10.0), ros_node.get_node_names_and_namespaces()

@@ -22,8 +22,11 @@ this node only converts messages and parameters (metres) to core calls (millimet
 """
 from __future__ import annotations
 
+import gc
 import math
+import os
 import queue
+import sys
 import threading
 import time
 
@@ -33,7 +36,7 @@ from geometry_msgs.msg import Point, Pose
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 SetParametersResult)
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
-from rclpy.executors import ExternalShutdownException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.qos import QoSProfile
@@ -586,13 +589,33 @@ def main(args=None):
     # One thread runs every callback (no locks needed around the predictor; lower latency
     # than the multi-threaded executor); inverse designs run on the node's worker threads,
     # which destroy_node stops within DESIGN_STOP_WAIT_S.
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
     try:
-        rclpy.spin(node)
+        executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown()
+    _exit_now(node.context)
+
+
+def _exit_now(context) -> None:
+    """Close the ROS context, then end the process without Python's interpreter teardown.
+
+    SIGINT must end the node within 2 s. With ROS closed (the node's entities and the DDS
+    participant gone, so peers see it leave at once), what remains is the interpreter's
+    teardown of numpy, rclpy and the message modules: 0.3 s on an idle machine but up to
+    2.4 s measured on the loaded 2-core machine, with nothing left in it that anyone
+    outside the process could notice. Output is flushed first.
+    """
+    gc.collect()  # drop the last references to ROS handles so the context can go
+    context.destroy()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(0)
 
 
 if __name__ == '__main__':
