@@ -79,8 +79,8 @@ PTH
 # 3. colcon build into the venv. Python packages are symlinked (editable), so only changes
 # to build files, interfaces or the file list need a rebuild.
 ws_hash="$( { find src -type f \( -name '*.py' -o -name '*.yaml' -o -name '*.msg' -o -name '*.srv' \
-  -o -name 'package.xml' -o -name 'setup.*' -o -name 'CMakeLists.txt' -o -name '*.launch.py' \) | sort;
-  cat src/*/package.xml src/*/setup.py src/*/setup.cfg src/*/CMakeLists.txt src/*/msg/* src/*/srv/* 2>/dev/null; } | sha256sum | cut -d' ' -f1)"
+  -o -name '*.action' -o -name 'package.xml' -o -name 'setup.*' -o -name 'CMakeLists.txt' -o -name '*.launch.py' \) | sort;
+  cat src/*/package.xml src/*/setup.py src/*/setup.cfg src/*/CMakeLists.txt src/*/msg/* src/*/srv/* src/*/action/* 2>/dev/null; } | sha256sum | cut -d' ' -f1)"
 if [ "$(cat "$stamp_dir/workspace" 2>/dev/null)" != "$ws_hash" ]; then
   log "building the workspace with colcon (install base: .venv)"
   # The venv's bin must come first so CMake finds the venv's Python (rosidl generators).

@@ -30,13 +30,20 @@ returned one minus ``GLOBAL_TOL_RAD`` (``lower_bound`` reports the certified bou
 The forward solver is the truth: every returned design is re-solved with
 ``forward.solve_forward`` at its cable length and the reported angles, points and errors
 are those of that solve.
+
+Bounded work. A design can be stopped from outside: ``should_stop`` (a callable, e.g.
+``threading.Event().is_set``) and ``time_limit_s`` are checked between the steps of the
+search (each step of the dynamic programme, each tension node, each refinement round and
+each forward solve), so a stopped design ends within one step (milliseconds to tens of
+milliseconds at the node's alternative cap) by raising :class:`DesignCancelled` or
+:class:`DesignTimedOut`. ``progress(fraction, stage)`` reports how far the design got.
 """
 from __future__ import annotations
 
 import dataclasses
 import math
 import time
-from typing import Mapping
+from typing import Callable, Mapping
 
 import numpy as np
 
@@ -45,6 +52,9 @@ from .inverse_dp import kbest_chain
 
 __all__ = [
     'DesignResult',
+    'DesignStopped',
+    'DesignCancelled',
+    'DesignTimedOut',
     'design_threading',
     'fit_angles_to_points',
     'GLOBAL_TOL_RAD',
@@ -69,6 +79,81 @@ MAX_BB_ROUNDS = 40
 MAX_BB_INTERVALS = 4096
 #: Distance (mm) the first target point may lie from the base rib centre (the origin).
 ORIGIN_TOL_MM = 1e-6
+
+
+class DesignStopped(ValueError):
+    """A design stopped before it finished (base of the two reasons below).
+
+    Attributes
+    ----------
+    stage : str
+        Step of the design that was running (see :data:`DESIGN_STAGES`).
+    fraction : float
+        Progress reached, 0 to 1.
+    elapsed_s : float
+        Wall time from the start of the design to the stop, s.
+    """
+
+    def __init__(self, message, stage, fraction, elapsed_s):
+        super().__init__(message)
+        self.stage = stage
+        self.fraction = fraction
+        self.elapsed_s = elapsed_s
+
+
+class DesignCancelled(DesignStopped):
+    """``should_stop()`` returned true: the caller cancelled the design."""
+
+
+class DesignTimedOut(DesignStopped):
+    """The design ran past ``time_limit_s`` (attribute ``time_limit_s``, s)."""
+
+    def __init__(self, message, stage, fraction, elapsed_s, time_limit_s):
+        super().__init__(message, stage, fraction, elapsed_s)
+        self.time_limit_s = time_limit_s
+
+
+#: Stages reported to ``progress`` in order (``fraction`` never decreases).
+DESIGN_STAGES = ('fit target', 'tension tables', 'branch and bound', 'polish', 'verify', 'done')
+
+
+class _Monitor:
+    """Cancel and time-limit checks and progress reports of one design."""
+
+    def __init__(self, should_stop, time_limit_s, progress, started):
+        self.should_stop = should_stop
+        self.time_limit_s = time_limit_s
+        self.deadline = None if time_limit_s is None else started + time_limit_s
+        self.progress = progress
+        self.started = started
+        self.fraction = 0.0
+        self.stage = DESIGN_STAGES[0]
+
+    def check(self):
+        """Raise DesignCancelled / DesignTimedOut when the design must stop now."""
+        if self.should_stop is not None and self.should_stop():
+            elapsed = time.perf_counter() - self.started
+            raise DesignCancelled(
+                f'design cancelled after {elapsed:.3g} s during {self.stage} '
+                f'({100 * self.fraction:.0f} % done)', self.stage, self.fraction, elapsed)
+        if self.deadline is not None and (now := time.perf_counter()) > self.deadline:
+            elapsed = now - self.started
+            raise DesignTimedOut(
+                f'design exceeded its time limit of {self.time_limit_s:g} s (stopped after '
+                f'{elapsed:.3g} s during {self.stage}, {100 * self.fraction:.0f} % done)',
+                self.stage, self.fraction, elapsed, self.time_limit_s)
+
+    def report(self, fraction, stage):
+        """Record progress (kept monotone), tell the caller, then check for a stop."""
+        self.fraction = min(max(float(fraction), self.fraction), 1.0)
+        self.stage = stage
+        if self.progress is not None:
+            self.progress(self.fraction, stage)
+        self.check()
+
+
+def _no_check():
+    pass
 
 
 @dataclasses.dataclass(frozen=True)
@@ -334,6 +419,10 @@ class _Problem:
 
     def __init__(self, skeleton, target, mask, length_range, n_best):
         self.skeleton = skeleton
+        #: Called between steps of the search; raises to stop the design.
+        self.check = _no_check
+        #: report(fraction, stage): progress, then a check.
+        self.report = lambda fraction, stage: None
         self.names, self.offsets = _hole_table(skeleton)
         self.spacing = skeleton.spacing_mm
         self.stiffness = skeleton.stiffness_array
@@ -439,6 +528,7 @@ def _refine(prob, paths, lam_lo, lam_hi, rounds=_REFINE_ROUNDS):
         return cost, a
 
     for _ in range(rounds):
+        prob.check()
         geometric = lo > 0.0
         lam = np.where(geometric[:, None],
                        np.exp(np.log(np.where(geometric, lo, 1.0))[:, None]
@@ -459,6 +549,7 @@ def _refine(prob, paths, lam_lo, lam_hi, rounds=_REFINE_ROUNDS):
     d = prob.offsets[paths]
     lam = best_lam.copy()
     for _ in range(_GAUSS_NEWTON_STEPS):
+        prob.check()
         a = prob.path_angles(paths, lam)
         _, dl, d2l = geometry.segment_length_derivatives(a, d[:, :-1], d[:, 1:], prob.spacing)
         denom = 2.0 * prob.stiffness + lam[:, None] * d2l
@@ -514,9 +605,10 @@ class _Candidates:
             excess = (np.maximum(seg_len - hi / n_seg, 0.0)
                       + np.maximum(lo / n_seg - seg_len, 0.0))
             cost = cost + 1e-3 * excess
-        values, paths = kbest_chain(cost, prob.mask, prob.n_best)
+        values, paths = kbest_chain(cost, prob.mask, prob.n_best, check=prob.check)
         seg = np.arange(prob.target.size)
         for j in np.nonzero(finite)[0]:
+            prob.check()
             for r in range(prob.n_best):
                 if not np.isfinite(values[j, r]):
                     break
@@ -580,6 +672,7 @@ def _finite_bracket(lam_lo, lam_hi):
 def _branch_and_bound(prob, tol_rad):
     n_best = prob.n_best
     cands = _Candidates(prob)
+    prob.report(0.05, 'tension tables')
     lam = _tension_nodes(prob)
     a, seg_len = prob.table(lam)
     n_nodes = lam.size
@@ -593,6 +686,8 @@ def _branch_and_bound(prob, tol_rad):
     rounds = 0
     while iv['lo'].size:
         rounds += 1
+        # Rounds are capped, so their count is an honest (pessimistic) measure of progress.
+        prob.report(0.1 + 0.7 * (rounds - 1) / MAX_BB_ROUNDS, 'branch and bound')
         bounds = _interval_bounds(prob, iv)
         thresholds = cands.thresholds(n_best, tol_rad)
         # Prune an interval once, for every rank r, its r-th bound reaches the r-th best
@@ -631,7 +726,7 @@ def _interval_bounds(prob, iv):
     t = prob.target[None, :, None, None]
     gap = np.maximum(lo - t, 0.0) + np.maximum(t - hi, 0.0)
     cost = gap * gap
-    bounds, _ = kbest_chain(cost, prob.mask, prob.n_best)
+    bounds, _ = kbest_chain(cost, prob.mask, prob.n_best, check=prob.check)
     if prob.length_range is None:
         return bounds
     # Lagrangian relaxation of  sum len_hi <= L_max  and  sum len_lo >= L_min (segment
@@ -639,9 +734,10 @@ def _interval_bounds(prob, iv):
     # minus the constant is a valid lower bound of the length-feasible k-best value.
     l_min, l_max = prob.length_range
     for mu in _LENGTH_MULTIPLIERS:
-        up, _ = kbest_chain(cost + mu * iv['len_hi'], prob.mask, prob.n_best)
+        up, _ = kbest_chain(cost + mu * iv['len_hi'], prob.mask, prob.n_best, check=prob.check)
         bounds = np.maximum(bounds, up - mu * l_max)
-        down, _ = kbest_chain(cost - mu * iv['len_lo'], prob.mask, prob.n_best)
+        down, _ = kbest_chain(cost - mu * iv['len_lo'], prob.mask, prob.n_best,
+                              check=prob.check)
         bounds = np.maximum(bounds, down + mu * l_min)
     return bounds
 
@@ -651,7 +747,10 @@ def _interval_bounds(prob, iv):
 
 def design_threading(skeleton, target_angles=None, target_points=None, *, k=3,
                      fixed_holes=None, forbidden_holes=(), allowed_holes=None,
-                     cable_length_range=None, tol_rad=GLOBAL_TOL_RAD):
+                     cable_length_range=None, tol_rad=GLOBAL_TOL_RAD,
+                     should_stop: Callable[[], bool] | None = None,
+                     time_limit_s: float | None = None,
+                     progress: Callable[[float, str], None] | None = None):
     """Globally best threading and cable length for a desired module shape.
 
     Parameters
@@ -676,6 +775,15 @@ def design_threading(skeleton, target_angles=None, target_points=None, *, k=3,
         Allowed cable lengths ``(min_mm, max_mm)``.
     tol_rad : float
         Global optimality tolerance on the L2 angle error, rad.
+    should_stop : callable, optional
+        Polled between the steps of the search; once it returns true the design stops
+        and raises :class:`DesignCancelled` (e.g. ``threading.Event().is_set``).
+    time_limit_s : float, optional
+        Wall-time budget of the design from this call, s; past it the design stops at
+        the next step and raises :class:`DesignTimedOut`.
+    progress : callable, optional
+        ``progress(fraction, stage)``: fraction done (0 to 1, never decreasing; 1 once
+        the result is ready) and the step running, one of :data:`DESIGN_STAGES`.
 
     Returns
     -------
@@ -687,6 +795,10 @@ def design_threading(skeleton, target_angles=None, target_points=None, *, k=3,
     ValueError
         Bad target (NaN, wrong length, not starting at the origin), unknown or
         over-constrained holes, bad length range, or no threading meets the constraints.
+    DesignCancelled, DesignTimedOut
+        (subclasses of :class:`DesignStopped`, itself a ValueError) the design was
+        stopped by ``should_stop`` or ``time_limit_s``; no partial result is returned,
+        since designs are not verified (forward-solved) before the end.
 
     Examples
     --------
@@ -707,6 +819,14 @@ def design_threading(skeleton, target_angles=None, target_points=None, *, k=3,
     if isinstance(tol_rad, bool) or not isinstance(tol_rad, (int, float)) \
             or not math.isfinite(tol_rad) or tol_rad < 0:
         raise ValueError(f'tol_rad must be finite and >= 0, got {tol_rad!r}')
+    if time_limit_s is not None and (
+            isinstance(time_limit_s, bool) or not isinstance(time_limit_s, (int, float))
+            or not time_limit_s > 0 or not math.isfinite(time_limit_s)):
+        raise ValueError(f'time_limit_s must be a finite number > 0 s, got {time_limit_s!r}')
+    if should_stop is not None and not callable(should_stop):
+        raise ValueError(f'should_stop must be callable, got {type(should_stop).__name__}')
+    monitor = _Monitor(should_stop, time_limit_s, progress, started)
+    monitor.report(0.0, 'fit target')
     fit_error = 0.0
     if target_points is not None:
         target, fit_error = fit_angles_to_points(target_points, n_seg, skeleton.spacing_mm)
@@ -716,6 +836,7 @@ def design_threading(skeleton, target_angles=None, target_points=None, *, k=3,
     mask = _allowed_mask(names, skeleton.n_ribs, fixed_holes, forbidden_holes, allowed_holes)
     length_range = _as_length_range(cable_length_range)
     prob = _Problem(skeleton, target, mask, length_range, int(k) + 1)
+    prob.check, prob.report = monitor.check, monitor.report
     if length_range is not None:
         _check_length_range(prob)
 
@@ -723,6 +844,7 @@ def design_threading(skeleton, target_angles=None, target_points=None, *, k=3,
     if not cands.best:
         raise ValueError('no threading allowed by the constraints reaches a cable length in '
                          f'[{length_range[0]}, {length_range[1]}] mm')
+    monitor.report(0.8, 'polish')
     cands.polish(prob.n_best, final=True)
     designs, n_solves, off_branch = _verify(prob, cands.ranked(), prob.n_best, fit_error)
     notes = [f'global to {tol_rad:g} rad: no allowed design has an angle error below '
@@ -734,11 +856,14 @@ def design_threading(skeleton, target_angles=None, target_points=None, *, k=3,
                      'branch; their forward-solved error is reported')
     if target_points is not None:
         notes.append(f'target curve fitted to angles within {fit_error:.3g} mm')
-    return dataclasses.replace(
+    result = dataclasses.replace(
         designs[0], alternatives=tuple(designs[1:]), lower_bound=stats['lower_bound'],
         n_forward_solves=n_solves, n_tension_nodes=stats['n_nodes'],
         n_candidates=stats['n_candidates'], converged=stats['converged'],
         message='; '.join(notes), solve_time=time.perf_counter() - started)
+    if progress is not None:  # done: no check any more, the result is complete
+        progress(1.0, 'done')
+    return result
 
 
 def _check_length_range(prob):
@@ -760,7 +885,9 @@ def _verify(prob, ranked, n_wanted, fit_error):
     designs = []
     n_solves = 0
     off_branch = 0
-    for path, (_, lam) in ranked[:3 * n_wanted]:
+    todo = ranked[:3 * n_wanted]
+    for i, (path, (_, lam)) in enumerate(todo):
+        prob.report(0.85 + 0.15 * i / len(todo), 'verify')
         path = np.asarray(path)
         offsets = prob.offsets[path]
         a_table = prob.path_angles(path, lam)

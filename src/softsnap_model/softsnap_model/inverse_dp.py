@@ -10,8 +10,13 @@ from __future__ import annotations
 
 import numpy as np
 
+#: Largest candidate array (elements, 8 bytes each) one step of the pass builds: larger
+#: batches are split into chunks of independent entries. This bounds the memory of a
+#: step and the time between two ``check`` calls, whatever k and the batch size.
+CHUNK_ELEMENTS = 1 << 20
 
-def kbest_chain(edge_cost, allowed, k=1):
+
+def kbest_chain(edge_cost, allowed, k=1, check=None):
     """Return the k cheapest distinct hole sequences of a chain, for each batch entry.
 
     Parameters
@@ -23,6 +28,9 @@ def kbest_chain(edge_cost, allowed, k=1):
         Holes each rib may use.
     k : int
         Number of ranked sequences wanted (>= 1).
+    check : callable, optional
+        Called with no argument before each segment's step; it may raise to abandon the
+        pass (how a cancelled or timed-out design stops within one step).
 
     Returns
     -------
@@ -45,12 +53,20 @@ def kbest_chain(edge_cost, allowed, k=1):
         raise ValueError(f'allowed must have shape {(n_seg + 1, m)}, got {allowed.shape}')
     if k < 1:
         raise ValueError(f'k must be at least 1, got {k}')
+    chunk = max(1, CHUNK_ELEMENTS // (m * m * k))
+    if n_batch > chunk:
+        parts = [kbest_chain(edge_cost[start:start + chunk], allowed, k, check)
+                 for start in range(0, n_batch, chunk)]
+        return (np.concatenate([v for v, _ in parts]),
+                np.concatenate([p for _, p in parts]))
 
     # value[b, p, r]: cost of the r-th best partial threading ending in hole p.
     value = np.full((n_batch, m, k), np.inf)
     value[:, allowed[0], 0] = 0.0
     back = np.empty((n_seg, n_batch, m, k), dtype=np.int64)
     for i in range(n_seg):
+        if check is not None:
+            check()
         # cand[b, q, p * k + r] = value[b, p, r] + cost[b, i, p, q]
         cand = value[:, :, None, :] + edge_cost[:, i, :, :, None]
         cand = cand.transpose(0, 2, 1, 3).reshape(n_batch, m, m * k)

@@ -11,6 +11,11 @@ Topics (relative to the node's namespace; SI units):
   their base poses) and ``model/diagnostics`` (ModelDiagnostics, what was solved and
   skipped).
 Services: ``~/forward_shape`` (ForwardShape), ``~/inverse_design`` (InverseDesign).
+Action: ``~/design_threading`` (DesignThreading: the inverse design with progress feedback
+and cancel; one goal at a time, further goals are rejected while one runs).
+Inverse designs are bounded: at most ``max_alternatives`` alternatives, at most
+``design_timeout`` seconds from the request's arrival (queueing included), and they stop
+within one step of the search on cancel or shutdown.
 
 All science lives in :mod:`softsnap_model.predictor`, :mod:`.forward`, :mod:`.loads` and
 :mod:`.inverse`; this node only converts messages and parameters (metres) to core calls
@@ -18,31 +23,69 @@ All science lives in :mod:`softsnap_model.predictor`, :mod:`.forward`, :mod:`.lo
 """
 from __future__ import annotations
 
+import gc
 import math
+import os
+import queue
+import sys
+import threading
 import time
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import rclpy
 from geometry_msgs.msg import Point, Pose
-from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParametersResult
-from rclpy.executors import ExternalShutdownException
+from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
+                                SetParametersResult)
+from rclpy.action import ActionServer, CancelResponse, GoalResponse
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.qos import QoSProfile
 from rclpy.task import Future
 
 from softsnap_interfaces.msg import CableLength, Design, ModelDiagnostics, ModuleShape, RobotShape
+from softsnap_interfaces.action import DesignThreading
 from softsnap_interfaces.srv import ForwardShape, InverseDesign
 
 from .forward import solve_forward
-from .inverse import design_threading
+from .inverse import DesignCancelled, DesignTimedOut, design_threading
 from .loads import DEFAULT_BENDING_STIFFNESS_NMM, Loads, solve_loaded
 from .predictor import SOURCES, RobotPredictor
 from .scene import SceneError, load_scene
 
 MM_PER_M = 1000.0
 LENGTH_TOPIC = {'commanded': 'cable_length/command', 'predicted': 'cable_length/measured'}
+#: On shutdown, how long a running design may take to notice the stop before the node
+#: exits without it (s); the design's worker thread is a daemon and dies with the process.
+DESIGN_STOP_WAIT_S = 0.5
+#: Period of DesignThreading feedback while a goal runs (s).
+FEEDBACK_PERIOD_S = 0.1
+
+
+class DesignWorker:
+    """One daemon thread running inverse designs in arrival order.
+
+    A daemon (unlike a ThreadPoolExecutor's worker, which the interpreter joins at exit)
+    so that a design can never hold the process up after SIGINT.
+    """
+
+    def __init__(self, name: str):
+        self._jobs: queue.SimpleQueue = queue.SimpleQueue()
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+        self._thread.start()
+
+    def submit(self, job) -> None:
+        self._jobs.put(job)
+
+    def _run(self) -> None:
+        while (job := self._jobs.get()) is not None:
+            job()  # jobs catch their own exceptions (see ModelNode._design_job)
+
+    def stop(self, timeout: float) -> bool:
+        """Ask the thread to end after its current job; True if it ended within timeout (s)."""
+        self._jobs.put(None)
+        self._thread.join(timeout)
+        return not self._thread.is_alive()
 
 
 def _points_m(points_mm) -> list[Point]:
@@ -83,6 +126,14 @@ class ModelNode(Node):
                             'default: the estimate for the authors\' TPU skeleton '
                             '(docs/model.md, Physics levels)',
                 floating_point_range=[FloatingPointRange(from_value=1e-6, to_value=10.0)]))
+        self.declare_parameter('max_alternatives', 20, ParameterDescriptor(
+            description='Most alternatives an inverse design may ask for (count); more are '
+                        'refused. Memory and time grow about linearly with it (docs/inverse.md)',
+            integer_range=[IntegerRange(from_value=0, to_value=1000, step=1)]))
+        self.declare_parameter('design_timeout', 30.0, ParameterDescriptor(
+            description='Longest an inverse design may take from its arrival, waiting in the '
+                        'queue included; then it is stopped and answered as timed out (s)',
+            floating_point_range=[FloatingPointRange(from_value=0.1, to_value=3600.0)]))
         self.add_on_set_parameters_callback(self.parameters_callback)
 
         self.scene = load_scene(self.get_parameter('scene').value)
@@ -123,17 +174,28 @@ class ModelNode(Node):
                                  for s in SOURCES}
         self.diagnostics_publisher = self.create_publisher(ModelDiagnostics, 'model/diagnostics', qos)
         self.create_service(ForwardShape, '~/forward_shape', self.forward_shape_callback)
-        # An inverse design can take up to ~1 s: it runs on a worker thread (one at a time)
-        # so that predictions and forward solves go on meanwhile; the guard condition wakes
-        # the executor when the answer is ready.
-        # While its coroutine awaits, a callback keeps its group busy: the service and the
-        # guard get a reentrant group of their own, so neither they nor the default group
-        # (lengths, timers, forward service) are blocked by a design in progress.
-        design_group = ReentrantCallbackGroup()
-        self._design_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix='inverse_design')
-        self._design_done = self.create_guard_condition(lambda: None, callback_group=design_group)
+        # An inverse design takes 0.1 s to design_timeout: it runs on a worker thread so
+        # that predictions and forward solves go on meanwhile; the guard condition wakes
+        # the executor when the answer is ready. The service and the action have a worker
+        # each, so a long action never holds up a quick service call; service calls queue
+        # in arrival order, each answered within design_timeout of its arrival.
+        # While its coroutine awaits, a callback keeps its group busy: the service, the
+        # action and the guard get a reentrant group of their own, so neither they nor the
+        # default group (lengths, timers, forward service) are blocked by a design.
+        self._stopping = threading.Event()  # set on shutdown: every design stops
+        self._design_group = ReentrantCallbackGroup()
+        self._service_worker = DesignWorker('inverse_design')
+        self._action_worker = DesignWorker('design_threading')
+        self._design_done = self.create_guard_condition(lambda: None,
+                                                        callback_group=self._design_group)
         self.create_service(InverseDesign, '~/inverse_design', self.inverse_design_callback,
-                            callback_group=design_group)
+                            callback_group=self._design_group)
+        self._active_goal = None  # (goal handle, accepted at monotonic s) while one runs
+        self._design_action = ActionServer(
+            self, DesignThreading, '~/design_threading', self.design_execute_callback,
+            goal_callback=self.design_goal_callback,
+            cancel_callback=self.design_cancel_callback,
+            callback_group=self._design_group)
         self.tick_timer = self.create_timer(1.0 / self.get_parameter('rate').value, self.tick_callback)
         self.diagnostics_timer = self.create_timer(
             self.get_parameter('diagnostics_period').value, self.diagnostics_callback)
@@ -153,6 +215,11 @@ class ModelNode(Node):
                 if not isinstance(value, (int, float)) or not math.isfinite(value):
                     return SetParametersResult(successful=False,
                                                reason=f'{param.name} must be a finite number')
+            if param.name == 'design_timeout' and not (
+                    isinstance(param.value, (int, float)) and math.isfinite(param.value)):
+                return SetParametersResult(successful=False,
+                                           reason=f'design_timeout must be a finite number of '
+                                                  f'seconds, got {param.value!r}')
         # Apply after validation (ranges are enforced by the descriptors).
         for param in params:
             if param.name == 'rib_centers':
@@ -354,38 +421,28 @@ class ModelNode(Node):
         return Loads(gravity_mps2=(g.x, g.y, g.z), bending_stiffness_nmm=k_si * MM_PER_M,
                      load_n=(f.x, f.y, f.z), load_rib=-1 if rib == 0 else rib)
 
-    async def inverse_design_callback(self, request, response):
-        self.service_calls += 1
-        start = time.perf_counter()
-        done = Future()
-
-        def work():
-            try:
-                answer = self._inverse_design(request, InverseDesign.Response())
-            except (ValueError, TypeError) as error:
-                answer = InverseDesign.Response(success=False, message=str(error))
-            except Exception as error:  # a solver bug must not take the node down
-                answer = InverseDesign.Response(success=False, message=f'internal error: {error!r}')
-            done.set_result(answer)
-            self._design_done.trigger()
-
-        self._design_pool.submit(work)
-        response = await done
-        if not response.success:
-            self.service_failures += 1
-            self.get_logger().warning(f'inverse_design refused: {response.message}')
-        response.solve_time = time.perf_counter() - start
-        return response
-
-    def destroy_node(self):
-        self._design_pool.shutdown(wait=False, cancel_futures=True)
-        self._inbox.destroy_node()
-        return super().destroy_node()
-
-    def _inverse_design(self, request, response):
+    # ------------------------------------------------------------------ inverse design
+    def _design_kwargs(self, request) -> dict:
+        """Validate an InverseDesign request or DesignThreading goal (same fields) and
+        convert it to design_threading arguments (mm); ValueError quoting the bad value."""
+        cap = self.get_parameter('max_alternatives').value
+        if request.alternatives > cap:
+            raise ValueError(f'alternatives {request.alternatives} is above max_alternatives '
+                             f'{cap}: ask for at most {cap} (memory and time grow about '
+                             'linearly with the alternatives, see docs/inverse.md)')
         has_angles, has_points = len(request.target_angles) > 0, len(request.target_points) > 0
         if has_angles == has_points:
             raise ValueError('give exactly one of target_angles and target_points')
+        # 0 means "no bound"; anything else must be a finite, non-negative length.
+        bounds = {'min_cable_length': request.min_cable_length,
+                  'max_cable_length': request.max_cable_length}
+        for name, value in bounds.items():
+            if not math.isfinite(value) or value < 0.0:
+                raise ValueError(f'{name} must be a finite length >= 0 m (0 for no bound), '
+                                 f'got {value!r} m')
+        low, high = request.min_cable_length, request.max_cable_length
+        if low > 0.0 and high > 0.0 and low > high:
+            raise ValueError(f'min_cable_length {low!r} m is above max_cable_length {high!r} m')
         kwargs = {'k': int(request.alternatives)}
         if request.allowed_holes:
             kwargs['allowed_holes'] = list(request.allowed_holes)
@@ -393,21 +450,158 @@ class ModelNode(Node):
             kwargs['forbidden_holes'] = list(request.forbidden_holes)
         if request.fixed_holes:
             kwargs['fixed_holes'] = [h or None for h in request.fixed_holes]
-        if request.min_cable_length > 0.0 or request.max_cable_length > 0.0:
-            high = request.max_cable_length if request.max_cable_length > 0.0 else math.inf
-            kwargs['cable_length_range'] = (request.min_cable_length * MM_PER_M, high * MM_PER_M)
+        if low > 0.0 or high > 0.0:
+            kwargs['cable_length_range'] = (low * MM_PER_M,
+                                            (high if high > 0.0 else math.inf) * MM_PER_M)
         if has_angles:
-            result = design_threading(self.skeleton, target_angles=list(request.target_angles),
-                                      **kwargs)
+            kwargs['target_angles'] = list(request.target_angles)
         else:
-            points = [(p.x * MM_PER_M, p.y * MM_PER_M) for p in request.target_points]
-            result = design_threading(self.skeleton, target_points=points, **kwargs)
-        response.success = True
-        response.message = getattr(result, 'message', '') or 'ok'
-        response.best = self._design_msg(result)
-        response.alternatives = [self._design_msg(alt) for alt in result.alternatives]
-        response.fit_error = float(getattr(result, 'fit_error', 0.0) or 0.0) / MM_PER_M
+            kwargs['target_points'] = [(p.x * MM_PER_M, p.y * MM_PER_M)
+                                       for p in request.target_points]
+        return kwargs
+
+    def _design_job(self, kwargs, arrived, timeout, should_stop, done: Future, progress=None):
+        """A worker's job: run one design, never raise, fill ``done`` with
+        (outcome, DesignResult or reason) and wake the executor.
+
+        The design must end by ``arrived + timeout`` (monotonic s), waiting included.
+        outcome is 'succeeded', 'refused', 'cancelled', 'timed out' or 'failed'."""
+        def job():
+            try:
+                remaining = arrived + timeout - time.monotonic()
+                if remaining <= 0.0:
+                    answer = ('timed out', f'design_timeout {timeout:g} s passed while the '
+                                           'request waited behind another design')
+                else:
+                    answer = ('succeeded', design_threading(
+                        self.skeleton, should_stop=should_stop, time_limit_s=remaining,
+                        progress=progress, **kwargs))
+            except DesignCancelled as error:
+                answer = ('cancelled', str(error))
+            except DesignTimedOut as error:
+                answer = ('timed out', f'design_timeout {timeout:g} s exceeded: {error}')
+            except (ValueError, TypeError) as error:
+                answer = ('refused', str(error))
+            except Exception as error:  # a solver bug must not kill the worker thread
+                answer = ('failed', f'internal error: {error!r}')
+            done.set_result(answer)
+            try:
+                self._design_done.trigger()
+            except Exception:  # the node was destroyed meanwhile (shutdown): nobody waits
+                pass
+        return job
+
+    def _fill_design(self, outcome, answer, out):
+        """Fill an InverseDesign.Response or DesignThreading.Result (same fields)."""
+        out.success = outcome == 'succeeded'
+        if not out.success:
+            out.message = f'{outcome}: {answer}'
+            return out
+        out.message = answer.message or 'ok'
+        out.best = self._design_msg(answer)
+        out.alternatives = [self._design_msg(alt) for alt in answer.alternatives]
+        out.fit_error = float(answer.fit_error) / MM_PER_M
+        return out
+
+    async def inverse_design_callback(self, request, response):
+        self.service_calls += 1
+        arrived = time.monotonic()
+        try:
+            kwargs = self._design_kwargs(request)
+        except (ValueError, TypeError) as error:
+            outcome, answer = 'refused', str(error)
+        else:
+            done = Future()
+            self._service_worker.submit(self._design_job(
+                kwargs, arrived, self.get_parameter('design_timeout').value,
+                self._stopping.is_set, done))
+            outcome, answer = await done
+        response = self._fill_design(outcome, answer, InverseDesign.Response())
+        response.solve_time = time.monotonic() - arrived
+        if not response.success:
+            self.service_failures += 1
+            self.get_logger().warning(f'inverse_design {response.message}')
         return response
+
+    def design_goal_callback(self, goal_request) -> GoalResponse:
+        # One goal at a time: a second would only compete for the CPU with the first.
+        # Bad goals are accepted and then aborted with the reason (a rejection has none).
+        if self._stopping.is_set():
+            return GoalResponse.REJECT
+        if self._active_goal is not None:
+            self.get_logger().warning(
+                'design_threading goal rejected: busy with a goal accepted '
+                f'{time.monotonic() - self._active_goal[1]:.1f} s ago (one goal at a time; '
+                'cancel it, wait, or call ~/inverse_design)')
+            return GoalResponse.REJECT
+        self._active_goal = (None, time.monotonic())  # reserved until execute runs
+        return GoalResponse.ACCEPT
+
+    def design_cancel_callback(self, goal_handle) -> CancelResponse:
+        # The design polls the goal's cancel flag between steps of the search.
+        return CancelResponse.ACCEPT
+
+    async def design_execute_callback(self, goal_handle):
+        accepted = self._active_goal[1] if self._active_goal else time.monotonic()
+        self._active_goal = (goal_handle, accepted)
+        self.service_calls += 1
+        # (fraction, stage): replaced whole by the worker, read by the feedback timer.
+        progress = [(0.0, 'queued')]
+
+        def report(fraction, stage):
+            progress[0] = (fraction, stage)
+
+        def feedback_callback():
+            fraction, stage = progress[0]
+            goal_handle.publish_feedback(DesignThreading.Feedback(
+                fraction=float(fraction), stage=stage, elapsed=time.monotonic() - accepted))
+
+        feedback_timer = None
+        try:
+            try:
+                kwargs = self._design_kwargs(goal_handle.request)
+            except (ValueError, TypeError) as error:
+                outcome, answer = 'refused', str(error)
+            else:
+                done = Future()
+                feedback_timer = self.create_timer(FEEDBACK_PERIOD_S, feedback_callback,
+                                                   callback_group=self._design_group)
+                self._action_worker.submit(self._design_job(
+                    kwargs, accepted, self.get_parameter('design_timeout').value,
+                    lambda: self._stopping.is_set() or goal_handle.is_cancel_requested,
+                    done, report))
+                outcome, answer = await done
+                if outcome == 'succeeded':
+                    feedback_callback()  # the final 'done' at fraction 1
+            result = self._fill_design(outcome, answer, DesignThreading.Result())
+            result.solve_time = time.monotonic() - accepted
+            if outcome == 'succeeded':
+                goal_handle.succeed()
+            elif outcome == 'cancelled' and goal_handle.is_cancel_requested:
+                goal_handle.canceled()
+                self.get_logger().info(f'design_threading {result.message}')
+            else:  # refused, timed out, failed, or stopped by shutdown
+                goal_handle.abort()
+                self.get_logger().warning(f'design_threading aborted: {result.message}')
+            if not result.success:
+                self.service_failures += 1
+            return result
+        finally:
+            if feedback_timer is not None:
+                self.destroy_timer(feedback_timer)
+            self._active_goal = None
+
+    def destroy_node(self):
+        # Stop every design (they poll this between steps), then give the workers a
+        # bounded moment: SIGINT must end the node within 2 s whatever it is doing.
+        self._stopping.set()
+        end = time.monotonic() + DESIGN_STOP_WAIT_S
+        for worker in (self._service_worker, self._action_worker):
+            if not worker.stop(max(0.0, end - time.monotonic())):
+                self.get_logger().warning('a design did not stop in time; exiting without it')
+        self._design_action.destroy()
+        self._inbox.destroy_node()
+        return super().destroy_node()
 
     @staticmethod
     def _design_msg(result) -> Design:
@@ -432,14 +626,35 @@ def main(args=None):
         rclpy.try_shutdown()
         raise SystemExit(2)
     # One thread runs every callback (no locks needed around the predictor; lower latency
-    # than the multi-threaded executor); inverse designs run on the node's worker thread.
+    # than the multi-threaded executor); inverse designs run on the node's worker threads,
+    # which destroy_node stops within DESIGN_STOP_WAIT_S.
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
     try:
-        rclpy.spin(node)
+        executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown()
+    _exit_now(node.context)
+
+
+def _exit_now(context) -> None:
+    """Close the ROS context, then end the process without Python's interpreter teardown.
+
+    SIGINT must end the node within 2 s. With ROS closed (the node's entities and the DDS
+    participant gone, so peers see it leave at once), what remains is the interpreter's
+    teardown of numpy, rclpy and the message modules: 0.3 s on an idle machine but up to
+    2.4 s measured on the loaded 2-core machine, with nothing left in it that anyone
+    outside the process could notice. Output is flushed first.
+    """
+    gc.collect()  # drop the last references to ROS handles so the context can go
+    context.destroy()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(0)
 
 
 if __name__ == '__main__':
