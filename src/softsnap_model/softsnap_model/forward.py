@@ -9,7 +9,9 @@ so each segment's angle is a function of ``lambda`` and of its two holes only, a
 shape reached by shortening the cable quasi-statically from straight is the family
 ``a_i(lambda)``, ``lambda`` rising from 0. A forward solve is one scalar equation
 ``T(lambda) = sum_i L_i(a_i(lambda)) = L_target``, with ``T`` non-increasing, so the
-answer is unique and a cold solve equals path following.
+answer is unique along the path and a cold solve equals path following. (The energy can
+have other, higher local minima off the path, e.g. a segment held at rib contact on
+the side against its holes' pull; docs/model.md.)
 
 Units and conventions
 ---------------------
