@@ -171,3 +171,20 @@ def test_quantile_ranking_reports_the_quantile():
 def test_bad_tolerance_input_is_refused(kwargs, match):
     with pytest.raises(ValueError, match=match):
         design_threading(SK, target_angles=S4_C, k=0, **kwargs)
+
+
+def test_command_line_reports_the_sensitivity(capsys):
+    import json
+
+    from softsnap_model.cli import main
+    angles = ' '.join(f'{a:.6f}' for a in S4_C)
+    code = main(['inverse', '--angles', angles, '--k', '0', '--hole-tolerance', '0.2',
+                 '--length-tolerance', '0.1'])
+    out = capsys.readouterr()
+    assert code == 0, out.err
+    data = json.loads(out.out)
+    sens = data['sensitivity']
+    assert sens['hole_tolerance_mm'] == 0.2 and sens['length_tolerance_mm'] == 0.1
+    assert sens['p90_error'] >= sens['median_error'] > data['error_rad']
+    code = main(['inverse', '--angles', angles, '--hole-tolerance', '-1'])
+    assert code == 2 and 'hole_tolerance_mm' in capsys.readouterr().err
