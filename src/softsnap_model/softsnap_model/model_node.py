@@ -357,6 +357,9 @@ class ModelNode(Node):
         if request.min_cable_length > 0.0 or request.max_cable_length > 0.0:
             high = request.max_cable_length if request.max_cable_length > 0.0 else math.inf
             kwargs['cable_length_range'] = (request.min_cable_length * MM_PER_M, high * MM_PER_M)
+        # Tolerances in m on the interface, mm in the core (which checks the range).
+        kwargs['hole_tolerance_mm'] = float(request.hole_tolerance) * MM_PER_M
+        kwargs['length_tolerance_mm'] = float(request.length_tolerance) * MM_PER_M
         if has_angles:
             result = design_threading(self.skeleton, target_angles=list(request.target_angles),
                                       **kwargs)
@@ -372,6 +375,7 @@ class ModelNode(Node):
 
     @staticmethod
     def _design_msg(result) -> Design:
+        sens = getattr(result, 'sensitivity', None)
         return Design(
             holes=list(result.holes),
             threading=(np.asarray(result.threading, dtype=float) / MM_PER_M).tolist(),
@@ -379,7 +383,9 @@ class ModelNode(Node):
             angles=np.asarray(result.angles, dtype=float).tolist(),
             rib_centers=_points_m(result.rib_centers),
             error=float(result.error),
-            position_error=float(result.position_error) / MM_PER_M)
+            position_error=float(result.position_error) / MM_PER_M,
+            tolerance_median_error=sens.median_error if sens is not None else math.nan,
+            tolerance_p90_error=sens.p90_error if sens is not None else math.nan)
 
 
 def main(args=None):
