@@ -1007,8 +1007,9 @@ def design_sensitivity(skeleton, threading, cable_length_mm, target_angles, *,
     -----
     Cost: one vectorised solve of all samples (branch tables of ``n_samples x
     n_segments`` new hole pairs, then a safeguarded Newton on the tension of each
-    sample), about 0.5 ms per sample of the authors' module (70 ms for 128 samples, measured on an idle core); each sample agrees
-    with ``forward.solve_forward`` of the perturbed threading to the solver's contract.
+    sample), roughly 1-3 ms per sample of the authors' module with both cores busy
+    (``benchmarks/inverse_robust_bench.py``); each sample agrees with
+    ``forward.solve_forward`` of the perturbed threading to 1e-8 rad (tested).
     A first-order (linearised) estimate would be cheaper but wrong here: a mirror
     segment's response to a hole offset is not differentiable at the straight state.
 
