@@ -69,6 +69,37 @@ def test_inverse_service_agrees_with_the_core(brittle_star_node, ros_node):
     assert response.alternatives[0].error >= response.best.error
 
 
+def test_inverse_service_reports_sensitivity_under_tolerance(brittle_star_node, ros_node):
+    from softsnap_interfaces.srv import InverseDesign
+    scene = load_scene('brittle_star')
+    target = np.radians([0, 0, 0, 10, 15, 0, 10, 30, 0, 0, 0])   # paper Figure S4 (c)
+    client = ros_node.create_client(InverseDesign, f'{NS}/model_node/inverse_design')
+    # 0.2 mm hole tolerance and 0.1 mm cable tolerance, in metres on the interface.
+    response = ros_node.call(client, InverseDesign.Request(
+        target_angles=list(target), alternatives=1, hole_tolerance=0.0002,
+        length_tolerance=0.0001), 180.0)
+    assert response.success, response.message
+    core = design_threading(scene.skeleton, target_angles=target, k=1, hole_tolerance_mm=0.2,
+                            length_tolerance_mm=0.1)
+    assert list(response.best.holes) == list(core.holes)
+    for got, want in zip([response.best] + list(response.alternatives),
+                         (core,) + core.alternatives):
+        assert got.tolerance_median_error == pytest.approx(want.sensitivity.median_error,
+                                                           abs=1e-9)
+        assert got.tolerance_p90_error == pytest.approx(want.sensitivity.p90_error, abs=1e-9)
+        assert got.tolerance_p90_error >= got.tolerance_median_error > got.error
+    assert 'under tolerance' in response.message
+    # No tolerance: nominal ranking, figures NaN.
+    plain = ros_node.call(client, InverseDesign.Request(target_angles=list(target),
+                                                        alternatives=0), 120.0)
+    assert plain.success and math.isnan(plain.best.tolerance_median_error)
+    # An impossible tolerance is refused with the reason, and the node carries on.
+    bad = ros_node.call(client, InverseDesign.Request(target_angles=list(target),
+                                                      hole_tolerance=-0.001), 60.0)
+    assert not bad.success and 'hole_tolerance' in bad.message
+    assert brittle_star_node.alive()
+
+
 def test_bad_requests_fail_with_reasons_and_the_node_survives(brittle_star_node, ros_node):
     from softsnap_interfaces.srv import ForwardShape, InverseDesign
     client = forward_client(ros_node)

@@ -9,7 +9,9 @@ so each segment's angle is a function of ``lambda`` and of its two holes only, a
 shape reached by shortening the cable quasi-statically from straight is the family
 ``a_i(lambda)``, ``lambda`` rising from 0. A forward solve is one scalar equation
 ``T(lambda) = sum_i L_i(a_i(lambda)) = L_target``, with ``T`` non-increasing, so the
-answer is unique and a cold solve equals path following.
+answer is unique along the path and a cold solve equals path following. (The energy can
+have other, higher local minima off the path, e.g. a segment held at rib contact on
+the side against its holes' pull; docs/model.md.)
 
 Units and conventions
 ---------------------
@@ -23,7 +25,10 @@ Branch rule (per segment, so segments stay independent)
 * Bend direction: ``-sign(d1 + d2)`` (right-side holes bend clockwise). A mirror
   segment (``d1 + d2 == 0``) has no first-order preference; it bends clockwise when
   ``d1 >= 0`` and counter-clockwise when ``d1 < 0``: the way a cable through only its
-  proximal (base-side) hole would pull it.
+  proximal (base-side) hole would pull it. Both directions are exact, equally good
+  answers (the segment length is even in the angle when ``d2 = -d1``): a result lists
+  the bent mirror segments in ``tie_break_segments`` and ``solve_forward(...,
+  mirror_flip=...)`` gives the other branch.
 * A mirror segment stays straight until ``lambda`` reaches its buckling tension
   ``lambda_c = 2 k / |L''(0)|`` (pitchfork), then follows the branch in its direction.
   For the authors' hole set every mirror pitchfork is supercritical (verified in the
@@ -650,6 +655,13 @@ class ForwardResult:
     cable_length_mm : float
         Requested length.
     message : str
+    tie_break_segments : tuple of int
+        Mirror segments (``d2 = -d1``) that are bent: their direction was a tie-break
+        (the rule in the module docstring), and bending them the other way is an equally
+        good answer (same length, energy and tension; ``solve_forward(...,
+        mirror_flip=...)``). Mirror segments still straight are not listed.
+    mirror_flip : tuple of int
+        Mirror segments bent against the tie-break rule on request (``mirror_flip``).
     """
 
     angles: np.ndarray
@@ -668,6 +680,8 @@ class ForwardResult:
     at_contact: np.ndarray
     cable_length_mm: float
     message: str
+    tie_break_segments: tuple = ()
+    mirror_flip: tuple = ()
 
     @property
     def success(self) -> bool:
@@ -680,7 +694,8 @@ class BatchResult:
     """Result of :func:`solve_forward_batch`: the ForwardResult fields as arrays.
 
     ``angles`` (B, n_segments), ``rib_centers`` and ``cable_path`` (B, n_ribs, 2), the
-    scalar fields of :class:`ForwardResult` as (B,) arrays, ``at_contact`` (B, n).
+    scalar fields of :class:`ForwardResult` as (B,) arrays, ``at_contact`` (B, n),
+    ``tie_break`` (B, n): bent mirror segments (``ForwardResult.tie_break_segments``).
     """
 
     angles: np.ndarray
@@ -698,6 +713,7 @@ class BatchResult:
     slack: np.ndarray
     at_contact: np.ndarray
     cable_length_mm: np.ndarray
+    tie_break: np.ndarray = None
 
     def __len__(self):
         return self.angles.shape[0]
@@ -713,7 +729,9 @@ class BatchResult:
             stationarity_residual=float(self.stationarity_residual[i]),
             is_minimum=bool(self.is_minimum[i]), min_curvature=float(self.min_curvature[i]),
             slack=bool(self.slack[i]), at_contact=self.at_contact[i],
-            cable_length_mm=float(self.cable_length_mm[i]), message=message)
+            cable_length_mm=float(self.cable_length_mm[i]), message=message,
+            tie_break_segments=(() if self.tie_break is None else
+                                tuple(int(j) for j in np.nonzero(self.tie_break[i])[0])))
 
 
 @dataclass(frozen=True)
@@ -1237,7 +1255,7 @@ def _initial_state(initial, n_segments):
 
 
 def solve_forward(skeleton: Skeleton, threading, cable_length_mm, initial=None, *,
-                  max_iter: int = MAX_ITER) -> ForwardResult:
+                  max_iter: int = MAX_ITER, mirror_flip=()) -> ForwardResult:
     """Quasi-static shape of a module for a given cable length.
 
     Parameters
@@ -1257,6 +1275,12 @@ def solve_forward(skeleton: Skeleton, threading, cable_length_mm, initial=None, 
         otherwise the solve is the cold one, for about 1 us more.
     max_iter : int, optional
         Cap on bordered-Newton iterations before the robust fallback.
+    mirror_flip : sequence of int, optional
+        Mirror segments (``d2 = -d1``, see ``tie_break_segments``) to bend against the
+        tie-break rule: the other exact branch. A mirror segment's length is even in its
+        angle, so the flipped shape has the same lengths, energy, tension and
+        residuals, and is a constrained minimum too. A listed segment that is still
+        straight at this length stays straight.
 
     Returns
     -------
@@ -1272,7 +1296,8 @@ def solve_forward(skeleton: Skeleton, threading, cable_length_mm, initial=None, 
     SnapThroughError
         The path folds before the requested length (custom skeletons only).
     ValueError
-        Bad skeleton, threading, length (NaN, inf, <= 0) or initial guess.
+        Bad skeleton, threading, length (NaN, inf, <= 0) or initial guess, or a
+        ``mirror_flip`` index that is not a mirror segment.
 
     Examples
     --------
@@ -1287,6 +1312,7 @@ def solve_forward(skeleton: Skeleton, threading, cable_length_mm, initial=None, 
             or max_iter < 0:
         raise ValueError(f'max_iter must be an integer >= 0, got {max_iter!r}')
     prob, P, S = _single(skeleton, d)
+    flip = _mirror_flip_indices(mirror_flip, S['mirror'])
     if not (math.isfinite(L) and L > prob.min_mm):
         _check_length(prob, np.array([L]), skeleton, _describe(skeleton, prob.d))
     lam0 = a0 = None
@@ -1303,6 +1329,12 @@ def solve_forward(skeleton: Skeleton, threading, cable_length_mm, initial=None, 
     else:
         out = _solve_single(S, L, lam0, a0, max_iter=int(max_iter))
     angles = out['angles']
+    tie_break = S['mirror'] & (angles != 0.0)
+    if flip:
+        # The mirror image of those segments: L(-a) = L(a) when d2 = -d1, so every
+        # residual and the second-order check carry over unchanged.
+        angles = angles.copy()
+        angles[list(flip)] *= -1.0
     centers, holes = _frames_single(angles, prob.s, prob.d)
     slack = bool(out['slack'])
     converged = bool(out['converged'])
@@ -1323,7 +1355,32 @@ def solve_forward(skeleton: Skeleton, threading, cable_length_mm, initial=None, 
         constraint_residual=float(out['constraint_residual']),
         stationarity_residual=float(out['stationarity_residual']),
         is_minimum=bool(out['is_minimum']), min_curvature=float(out['min_curvature']),
-        slack=slack, at_contact=out['at_contact'], cable_length_mm=L, message=message)
+        slack=slack, at_contact=out['at_contact'], cable_length_mm=L, message=message,
+        tie_break_segments=tuple(int(j) for j in np.nonzero(tie_break)[0]),
+        mirror_flip=flip)
+
+
+def _mirror_flip_indices(mirror_flip, mirror) -> tuple:
+    """Validated, sorted distinct segment indices of ``mirror_flip`` (mirror segments)."""
+    if mirror_flip is None:
+        return ()
+    try:
+        items = list(mirror_flip)
+    except TypeError:
+        raise ValueError(f'mirror_flip must be a sequence of segment indices, '
+                         f'got {mirror_flip!r}') from None
+    n = mirror.shape[0]
+    out = set()
+    for j in items:
+        if isinstance(j, bool) or not isinstance(j, numbers.Integral) or not 0 <= j < n:
+            raise ValueError(f'mirror_flip: segment index must be an integer in '
+                             f'[0, {n - 1}], got {j!r}')
+        if not mirror[int(j)]:
+            raise ValueError(f'mirror_flip: segment {int(j)} is not a mirror segment '
+                             f'(d2 = -d1); mirror segments: '
+                             f'{np.nonzero(mirror)[0].tolist()}')
+        out.add(int(j))
+    return tuple(sorted(out))
 
 
 @functools.lru_cache(maxsize=1024)
@@ -1411,7 +1468,7 @@ def _batch_result(cls, P, out, lengths, **extra):
                stationarity_residual=out['stationarity_residual'],
                is_minimum=out['is_minimum'], min_curvature=out['min_curvature'],
                slack=out['slack'], at_contact=out['at_contact'], cable_length_mm=lengths,
-               **extra)
+               tie_break=P['mirror'] & (out['angles'] != 0.0), **extra)
 
 
 def _is_single_threading(threadings) -> bool:

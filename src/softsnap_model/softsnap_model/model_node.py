@@ -453,6 +453,9 @@ class ModelNode(Node):
         if low > 0.0 or high > 0.0:
             kwargs['cable_length_range'] = (low * MM_PER_M,
                                             (high if high > 0.0 else math.inf) * MM_PER_M)
+        # Tolerances in m on the interface, mm in the core (which checks the range).
+        kwargs['hole_tolerance_mm'] = float(request.hole_tolerance) * MM_PER_M
+        kwargs['length_tolerance_mm'] = float(request.length_tolerance) * MM_PER_M
         if has_angles:
             kwargs['target_angles'] = list(request.target_angles)
         else:
@@ -605,6 +608,7 @@ class ModelNode(Node):
 
     @staticmethod
     def _design_msg(result) -> Design:
+        sens = getattr(result, 'sensitivity', None)
         return Design(
             holes=list(result.holes),
             threading=(np.asarray(result.threading, dtype=float) / MM_PER_M).tolist(),
@@ -612,7 +616,9 @@ class ModelNode(Node):
             angles=np.asarray(result.angles, dtype=float).tolist(),
             rib_centers=_points_m(result.rib_centers),
             error=float(result.error),
-            position_error=float(result.position_error) / MM_PER_M)
+            position_error=float(result.position_error) / MM_PER_M,
+            tolerance_median_error=sens.median_error if sens is not None else math.nan,
+            tolerance_p90_error=sens.p90_error if sens is not None else math.nan)
 
 
 def main(args=None):
