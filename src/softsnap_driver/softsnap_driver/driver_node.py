@@ -23,13 +23,13 @@ import rclpy
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 SetParametersResult)
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
-from rclpy.node import Node
 from rclpy.parameter import Parameter
 from softsnap_interfaces.msg import CableLength, ModuleState
 from std_srvs.srv import Trigger
 
 from softsnap_driver.core import CableCalibration
 from softsnap_driver.link import LinkConfig, LinkReport, ModuleLink
+from softsnap_driver.ros_parameters import SoftSnapNode
 
 #: Default winch: 2800 counts per output revolution (N20 encoder, 7 PPR x4, 1:100) on a
 #: 10 mm diameter spool. Calibrate it per module (docs/driver.md).
@@ -78,7 +78,7 @@ PARAMETERS = {
 }
 
 
-class DriverNode(Node):
+class DriverNode(SoftSnapNode):
     """One module: parameters and ROS interfaces around a :class:`ModuleLink`."""
 
     def __init__(self, node_name: str = 'driver_node', **kwargs):

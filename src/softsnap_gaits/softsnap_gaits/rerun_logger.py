@@ -36,10 +36,10 @@ from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescr
                                  SetParametersResult)
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.logging import get_logger
-from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
+from softsnap_driver.ros_parameters import SoftSnapNode
 from softsnap_interfaces.msg import CableLength, ModuleState, RobotShape
 from softsnap_model import recording
 
@@ -62,7 +62,7 @@ def default_output(robot: str, now: dt.datetime | None = None) -> Path:
     return Path('runs') / f'{robot}-{now.strftime("%Y%m%dT%H%M%SZ")}.rrd'
 
 
-class RerunLoggerNode(Node):
+class RerunLoggerNode(SoftSnapNode):
     """Adapts shape, cable length and state messages to a recording.RobotRecorder."""
 
     def __init__(self):
