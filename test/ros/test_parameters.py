@@ -75,6 +75,7 @@ def start_with_integers(start_node, tmp_path, package, executable, name, cli: di
 
 def assert_doubles(client, expected: dict, proc):
     from rcl_interfaces.msg import ParameterType
+    assert proc.alive(), proc.output()[-2000:]
     got = client.get(*expected)
     for name, value in expected.items():
         assert got[name] == (ParameterType.PARAMETER_DOUBLE, float(value)), (name, got, proc.output()[-2000:])
@@ -113,22 +114,35 @@ def test_gait_node_integer_doubles(start_node, ros_node, tmp_path):
 
 
 def test_model_node_integer_doubles(start_node, ros_node, tmp_path):
-    from softsnap_interfaces.msg import ModelDiagnostics
+    from softsnap_interfaces.msg import CableLength, ModuleShape
+    from softsnap_model.scene import load_scene
     proc, fqn = start_with_integers(
         start_node, tmp_path, 'softsnap_model', 'model_node', 'model_node',
         cli={'rate': 50}, in_file={'scene': 'brittle_star', 'diagnostics_period': 3,
                                    'length_tolerance': 0})
-    diagnostics = []
-    ros_node.create_subscription(ModelDiagnostics, f'{NS}/model/diagnostics', diagnostics.append, 50)
+    shapes = []
+    ros_node.create_subscription(ModuleShape, f'{NS}/yellow/shape/commanded', shapes.append, 100)
+    publisher = ros_node.create_publisher(CableLength, f'{NS}/yellow/cable_length/command', 10)
+    straight_mm = load_scene('brittle_star').module('yellow').straight_length_mm
+    sent = [0]
+
+    def command():  # a new length every 20 ms: the model solves one per tick
+        sent[0] += 1
+        msg = CableLength(cable_length=(straight_mm - 10.0 - (sent[0] % 20)) / 1000.0)
+        msg.header.stamp = ros_node.get_clock().now().to_msg()
+        publisher.publish(msg)
+
+    ros_node.create_timer(0.02, command)
     client = ParameterClient(ros_node, fqn)
     assert_doubles(client, {'rate': 50, 'diagnostics_period': 3, 'length_tolerance': 0}, proc)
-    assert client.set('diagnostics_period', integer_value=1).successful
-    assert client.set('rate', integer_value=20).successful
-    assert_doubles(client, {'diagnostics_period': 1, 'rate': 20}, proc)
-    diagnostics.clear()
-    assert ros_node.spin_until(lambda: len(diagnostics) >= 4, 40), proc.output()[-2000:]
-    # Every 1 s now (it was 3 s): by the node's own stamps.
-    assert statistics.median(stamp_intervals_s(diagnostics)) < 2.0
+    assert ros_node.spin_until(lambda: len(shapes) > 20, 40), proc.output()[-2000:]
+    assert client.set('rate', integer_value=2).successful      # ros2 param set ... rate 2
+    assert_doubles(client, {'rate': 2}, proc)
+    ros_node.spin_until(lambda: False, 1.0)                     # the old tick's shapes pass
+    shapes.clear()
+    assert ros_node.spin_until(lambda: len(shapes) >= 4, 40), proc.output()[-2000:]
+    # At 2 Hz each shape is solved from a length 0.5 s after the last one's (its stamp).
+    assert statistics.median(stamp_intervals_s(shapes)) > 0.3
     assert_non_number_refused(client, 'rate')
     assert proc.alive()
 
@@ -160,7 +174,7 @@ def test_driver_node_integer_doubles(start_node, ros_node, tmp_path):
 def test_rerun_logger_integer_doubles(start_node, ros_node, tmp_path):
     proc, fqn = start_with_integers(
         start_node, tmp_path, 'softsnap_gaits', 'rerun_logger', 'rerun_logger',
-        cli={'rate': 10}, in_file={'scene': 'brittle_star', 'output': 'none'})
+        cli={'rate': 10}, in_file={'scene': 'brittle_star', 'output': str(tmp_path / 'p.rrd')})
     client = ParameterClient(ros_node, fqn)
     assert_doubles(client, {'rate': 10}, proc)
     assert client.set('rate', integer_value=0).successful      # 0: log every message
@@ -193,7 +207,7 @@ def test_sim_module_integer_doubles(start_node, ros_node, tmp_path, slot_port):
     ('softsnap_model', 'model_node', ['-p', 'scene:=brittle_star']),
     ('softsnap_driver', 'driver_node', ['-p', 'module:=yellow']),
     ('softsnap_gaits', 'gait_node', ['-p', 'scene:=brittle_star']),
-    ('softsnap_gaits', 'rerun_logger', ['-p', 'output:=none']),
+    ('softsnap_gaits', 'rerun_logger', ['-p', 'output:=/tmp/never-written.rrd']),
     ('softsnap_driver', 'sim_module', ['-p', 'port:=0']),
 ])
 def test_a_non_number_for_a_double_stops_the_node_with_the_reason(start_node, package, executable,
