@@ -78,11 +78,25 @@ def wait_for_graph(ros_node, started, scene, need_shapes: bool, timeout=120.0):
             n >= 2 for n in shapes.values()))
 
     ok = ros_node.spin_until(up, timeout)
+    in_ns = [n for n in ros_node.get_node_names_and_namespaces() if n[1] == ns]
+    # `-r __node:=NAME` renames every node of a process: no two may end up with one name.
+    assert len(in_ns) == len(set(in_ns)), sorted(in_ns)
     report = {'missing nodes': sorted(wanted - set(ros_node.get_node_names_and_namespaces())),
               'online': online, 'shapes': shapes}
     for sub in subs:
         ros_node.destroy_subscription(sub)
     assert ok, report
+
+
+def assert_sims_serve_their_ports(started):
+    """Each simulated module answers on the port its params file gave it (not the default)."""
+    from softsnap_driver.protocol import ModuleClient
+    for spec, _, proc in started:
+        if spec.executable == 'sim_module':
+            port = spec.parameters['port']
+            assert port != 8101
+            status = ModuleClient('127.0.0.1', port, timeout_s=5.0).status()
+            assert status.encoder_count is not None, proc.output()[-1000:]
 
 
 def test_launch_commands_match_launch_ros(tmp_path, slot_port):
@@ -105,9 +119,7 @@ def test_brittle_star_launch_graph_comes_up_whole(start_node, ros_node, tmp_path
     assert {s.executable for s, _, _ in started} == {
         'sim_module', 'driver_node', 'model_node', 'gait_node', 'rerun_logger'}
     wait_for_graph(ros_node, started, 'brittle_star', need_shapes=True)
-    for spec, _, proc in started:
-        if spec.executable == 'sim_module':  # each bound its own port from the params file
-            assert f'127.0.0.1:{spec.parameters["port"]}' in proc.output()
+    assert_sims_serve_their_ports(started)
 
 
 @pytest.mark.parametrize('scene', [s for s in SCENES if s != 'brittle_star'])
@@ -119,9 +131,7 @@ def test_launch_graph_modules_come_up(scene, start_node, ros_node, tmp_path, slo
     ports = [s.parameters['port'] for s, _, _ in started if s.executable == 'sim_module']
     assert len(ports) == len(set(ports)) >= 4
     wait_for_graph(ros_node, started, scene, need_shapes=False)
-    for spec, _, proc in started:
-        if spec.executable == 'sim_module':
-            assert f'127.0.0.1:{spec.parameters["port"]}' in proc.output()
+    assert_sims_serve_their_ports(started)
 
 
 def test_launch_files_import_only_softsnap_launching():
