@@ -100,6 +100,33 @@ def test_a_port_in_use_stops_the_demo_with_the_log_and_no_table(tmp_path):
     assert demo_children(tmp_path / 'run') == []
 
 
+def test_a_module_that_never_comes_online_stops_the_demo_with_what_is_missing(tmp_path, slot_port):
+    import yaml
+
+    from softsnap_model.scene import load_scene
+    # Real modules (--real) at loopback ports where nothing listens: the drivers run, the
+    # modules never answer.
+    scene = yaml.safe_load(load_scene('gripper').path.read_text())
+    base = slot_port(4)
+    for i, module in enumerate(scene['modules']):
+        module['host'], module['port'] = '127.0.0.1', base + i
+    path = tmp_path / 'offline_gripper.yaml'
+    path.write_text(yaml.safe_dump(scene))
+    proc = subprocess.run(
+        [sys.executable, '-m', 'softsnap_gaits.demo', '--scene', str(path), '--real', '--seconds', '2',
+         '--ready-timeout', '8', '--no-rerun', '--run-dir', str(tmp_path / 'run'), '--json'],
+        capture_output=True, text=True, timeout=240, stdin=subprocess.DEVNULL, env=demo_env())
+    assert proc.returncode == 1, proc.stdout[-2000:] + proc.stderr[-3000:]
+    assert 'did not start within 8 s' in proc.stderr
+    assert 'front_left: ' in proc.stderr and 'module online' in proc.stderr, proc.stderr[-3000:]
+    assert 'driver_front_left (still running); its last output' in proc.stderr
+    assert 'SoftSnap demo' not in proc.stdout
+    report = json.loads(proc.stdout[proc.stdout.index('{'):])
+    assert report['started'] is False and set(report['not_seen']) == {
+        'front_left', 'back_left', 'back_right', 'front_right'}
+    assert demo_children(tmp_path / 'run') == []
+
+
 def test_two_demos_at_once_both_report_real_numbers(tmp_path):
     runs = [tmp_path / 'a', tmp_path / 'b']
     demos = [subprocess.Popen(

@@ -43,20 +43,25 @@ def wait_output(proc, text, timeout=60.0):
 
 
 def test_gait_node_and_rerun_logger_stop_within_2_s_mid_work(start_node, ros_node, tmp_path):
-    from softsnap_interfaces.msg import CableLength
+    from softsnap_interfaces.msg import CableLength, ModuleShape
     ns = ['--ros-args', '-r', '__ns:=/sigint']
     gait = start_node('softsnap_gaits', 'gait_node', *ns, '-p', 'scene:=brittle_star',
                       '-p', 'rate:=100')
+    # The model node turns the commands into shapes: the logger records 3D spines and ribs.
+    model = start_node('softsnap_model', 'model_node', *ns, '-p', 'scene:=brittle_star')
     output = tmp_path / 'sigint.rrd'
     logger = start_node('softsnap_gaits', 'rerun_logger', *ns, '-p', 'scene:=brittle_star',
                         '-p', f'output:={output}', '-p', 'rate:=0')
-    commands = []
+    commands, shapes = [], []
     ros_node.create_subscription(CableLength, '/sigint/yellow/cable_length/command', commands.append, 100)
-    assert ros_node.spin_until(lambda: len(commands) > 50, 60), gait.output()[-2000:]
+    ros_node.create_subscription(ModuleShape, '/sigint/yellow/shape/commanded', shapes.append, 100)
+    assert ros_node.spin_until(lambda: len(commands) > 50 and len(shapes) > 20, 60), \
+        gait.output()[-2000:] + model.output()[-2000:]
     wait_output(logger, 'recording')
-    ros_node.spin_until(lambda: False, 2.0)  # let the logger record a while
+    ros_node.spin_until(lambda: False, 3.0)  # let the logger record a while
     logger_s = sigint_exit_time(logger)
     gait_s = sigint_exit_time(gait)
+    model.stop()
     print(f'\nSIGINT -> exit: rerun_logger {logger_s:.2f} s (recording '
           f'{output.stat().st_size // 1024} KiB), gait_node {gait_s:.2f} s')
     assert logger.proc.returncode == 0 and gait.proc.returncode == 0

@@ -79,6 +79,7 @@ class SoftSnapNode(Node):
         self.add_pre_set_parameters_callback(self._integers_as_doubles_callback)
 
     def declare_parameters(self, namespace, parameters, ignore_override: bool = False):
+        parameters = list(parameters)  # read twice: here and by rclpy
         overrides = getattr(self, '_parameter_overrides', None)
         if not ignore_override and isinstance(overrides, dict):
             for entry in parameters:

@@ -423,7 +423,7 @@ def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
                     crashed.append(p)
             return not crashed and not stop_requested
 
-        deadline = time.monotonic() + READY_TIMEOUT_S
+        deadline = time.monotonic() + args.ready_timeout
         while check_children() and not observer.ready() and time.monotonic() < deadline:
             observer.spin_for(0.1)
         if check_children() and not observer.ready():
@@ -495,7 +495,7 @@ def _report_start_failure(args, scene, processes, crashed, not_ready, exit_codes
     if observer is not None:
         observer.close()
     if not_ready and not crashed:
-        print(f'\n{scene.name} did not start within {READY_TIMEOUT_S:g} s; not seen:', file=sys.stderr)
+        print(f'\n{scene.name} did not start within {args.ready_timeout:g} s; not seen:', file=sys.stderr)
         for module, lacks in not_ready.items():
             print(f'  {module}: {", ".join(lacks)}', file=sys.stderr)
         # The logs of the processes those modules depend on.
@@ -526,6 +526,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--scene-ports', action='store_true',
                         help="simulated modules on the scene's fixed ports (default: free ports "
                              "of this demo's slot, so several demos can run at once)")
+    parser.add_argument('--ready-timeout', type=float, default=READY_TIMEOUT_S,
+                        help='how long the whole robot may take to come up, s (default '
+                             f'{READY_TIMEOUT_S:g}); then the demo stops and says what is missing')
     parser.add_argument('--output', default=None, help='.rrd path (default runs/<scene>-<time>/<scene>.rrd)')
     parser.add_argument('--run-dir', default=None, help='folder for logs and the recording')
     parser.add_argument('--no-rerun', action='store_true', help='do not record')
@@ -537,6 +540,8 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if not (args.seconds > 0 and math.isfinite(args.seconds)):
         build_parser().error(f'--seconds must be positive, got {args.seconds}')
+    if not (args.ready_timeout > 0 and math.isfinite(args.ready_timeout)):
+        build_parser().error(f'--ready-timeout must be positive, got {args.ready_timeout}')
     try:
         return run(args)
     except (SceneError, ValueError, RuntimeError) as error:  # bad scene, ROS_DOMAIN_ID, no slot
