@@ -78,40 +78,46 @@ def test_demo_reports_a_bad_scene_file(tmp_path):
     assert 'SoftSnap demo' not in proc.stdout
 
 
-def test_a_port_in_use_stops_the_demo_with_the_log_and_no_table(tmp_path):
+def gripper_scene_on_ports(tmp_path, base: int, **module_fields):
+    """The gripper scene as a file whose modules' ports are base, base + 1, ..."""
+    import yaml
+
+    from softsnap_model.scene import load_scene
+    scene = yaml.safe_load(load_scene('gripper').path.read_text())
+    for i, module in enumerate(scene['modules']):
+        module.update(port=base + i, **module_fields)
+    path = tmp_path / 'gripper_here.yaml'
+    path.write_text(yaml.safe_dump(scene))
+    return path
+
+
+def test_a_port_in_use_stops_the_demo_with_the_log_and_no_table(tmp_path, slot_port):
     import socket
-    # Something else listens on the gripper's first scene port (8131); the demo is told to
-    # use the scene's fixed ports, so that module cannot start.
+    # Something else listens on the first module's port; the demo is told to use the
+    # scene's fixed ports (--scene-ports), so that module cannot start. (The scene's
+    # ports are this session's own, so no other run on the machine is disturbed.)
+    base = slot_port(4)
+    scene = gripper_scene_on_ports(tmp_path, base)
     with socket.socket() as squatter:
-        try:
-            squatter.bind(('127.0.0.1', 8131))
-        except OSError:
-            pytest.skip('port 8131 is busy on this machine')
+        squatter.bind(('127.0.0.1', base))
         squatter.listen(1)
         proc = subprocess.run(
-            [sys.executable, '-m', 'softsnap_gaits.demo', '--scene', 'gripper', '--seconds', '2',
+            [sys.executable, '-m', 'softsnap_gaits.demo', '--scene', str(scene), '--seconds', '2',
              '--scene-ports', '--no-rerun', '--run-dir', str(tmp_path / 'run')],
             capture_output=True, text=True, timeout=240, stdin=subprocess.DEVNULL, env=demo_env())
     assert proc.returncode == 1, proc.stdout[-2000:] + proc.stderr[-3000:]
     assert 'sim_front_left exited early' in proc.stderr, proc.stderr[-3000:]
-    assert '127.0.0.1:8131' in proc.stderr and 'Address already in use' in proc.stderr, proc.stderr[-3000:]
+    assert f'127.0.0.1:{base}' in proc.stderr and 'Address already in use' in proc.stderr, \
+        proc.stderr[-3000:]
     assert 'failed to start' in proc.stderr
     assert 'SoftSnap demo' not in proc.stdout and 'nan' not in proc.stdout.lower()
     assert demo_children(tmp_path / 'run') == []
 
 
 def test_a_module_that_never_comes_online_stops_the_demo_with_what_is_missing(tmp_path, slot_port):
-    import yaml
-
-    from softsnap_model.scene import load_scene
     # Real modules (--real) at loopback ports where nothing listens: the drivers run, the
     # modules never answer.
-    scene = yaml.safe_load(load_scene('gripper').path.read_text())
-    base = slot_port(4)
-    for i, module in enumerate(scene['modules']):
-        module['host'], module['port'] = '127.0.0.1', base + i
-    path = tmp_path / 'offline_gripper.yaml'
-    path.write_text(yaml.safe_dump(scene))
+    path = gripper_scene_on_ports(tmp_path, slot_port(4), host='127.0.0.1')
     proc = subprocess.run(
         [sys.executable, '-m', 'softsnap_gaits.demo', '--scene', str(path), '--real', '--seconds', '2',
          '--ready-timeout', '8', '--no-rerun', '--run-dir', str(tmp_path / 'run'), '--json'],
