@@ -28,6 +28,7 @@ from rclpy.utilities import remove_ros_args
 
 from softsnap_driver.ros_parameters import SoftSnapNode
 from softsnap_driver.sim_module import OPTIONS, STOP_JOIN_S, build_parser, start_servers
+from softsnap_driver.spinning import spin_until_shutdown
 
 _NEVER_TO = 1e6  # largest "after" time of a fault, s (-1: never)
 #: Ranges of the options (inclusive); an option missing here is declared without one.
@@ -121,7 +122,7 @@ def main(argv: list[str] | None = None) -> int:
         # parameter services.
         executor = SingleThreadedExecutor()
         executor.add_node(node)
-        executor.spin()
+        spin_until_shutdown(executor)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except (ValueError, OSError) as exc:  # bad parameters, port in use: say why, exit 2

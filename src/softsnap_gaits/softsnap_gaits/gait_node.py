@@ -24,6 +24,7 @@ from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParam
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from softsnap_driver.ros_parameters import SoftSnapNode
+from softsnap_driver.spinning import spin_until_shutdown
 from softsnap_interfaces.msg import CableLength, GaitPhase
 from softsnap_interfaces.srv import SetGait
 from std_srvs.srv import Trigger
@@ -226,7 +227,7 @@ def main(args=None) -> int:
         # and serial execution keeps them consistent without locks.
         executor = SingleThreadedExecutor()
         executor.add_node(node)
-        executor.spin()
+        spin_until_shutdown(executor)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
