@@ -187,7 +187,11 @@ class Observer:
     def spin_for(self, seconds: float) -> None:
         deadline = time.monotonic() + seconds
         while time.monotonic() < deadline:
-            self.executor.spin_once(timeout_sec=min(0.05, max(0.0, deadline - time.monotonic())))
+            # The same timeout every call: rclpy keeps its list of ready callbacks across
+            # spin_once calls only while the arguments stay the same. A new timeout each
+            # call made it wait again and run the first ready subscription every time (the
+            # first module's), starving the other modules on a busy machine.
+            self.executor.spin_once(timeout_sec=0.05)
 
     def now_ns(self) -> int:
         return self.node.get_clock().now().nanoseconds
