@@ -7,7 +7,6 @@ runs on one machine (or a developer's other nodes) never see each other's topics
 from __future__ import annotations
 
 import os
-import random
 import signal
 import subprocess
 import sys
@@ -20,8 +19,15 @@ import pytest
 REPO = Path(__file__).resolve().parents[1]
 VENV = Path(sys.prefix)
 
+# A slot of our own (softsnap_gaits.isolation): a ROS domain id and a block of loopback
+# ports that no other test session or demo on this machine uses while this one runs.
 # Set before rclpy is imported anywhere in this process or its children.
-os.environ.setdefault('ROS_DOMAIN_ID', str(random.Random(os.getpid()).randint(1, 100)))
+from softsnap_gaits.isolation import claim_slot  # noqa: E402  (no ROS imports)
+
+SLOT, _slot_warning = claim_slot()
+if _slot_warning:
+    print(f'conftest: warning: {_slot_warning}', file=sys.stderr)
+os.environ['ROS_DOMAIN_ID'] = str(SLOT.domain_id)
 os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
 os.environ.setdefault('RCUTILS_COLORIZED_OUTPUT', '0')
 
@@ -78,6 +84,12 @@ def start_node(tmp_path):
     yield start
     for proc in started:
         proc.stop()
+
+
+@pytest.fixture
+def slot_port():
+    """Factory: a loopback TCP port of this session's slot that nothing listens on."""
+    return SLOT.free_port
 
 
 @pytest.fixture

@@ -29,11 +29,9 @@ def sim_server():
 
 
 @pytest.fixture
-def free_port():
-    """A loopback TCP port nobody listens on (bound, then released)."""
-    with socket.socket() as sock:
-        sock.bind(('127.0.0.1', 0))
-        return sock.getsockname()[1]
+def free_port(slot_port):
+    """A loopback TCP port nobody listens on, from this session's own block (conftest)."""
+    return slot_port()
 
 
 class RawServer:

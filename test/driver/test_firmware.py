@@ -219,9 +219,9 @@ def test_serves_one_client_at_a_time_and_closes(sim_server):
 
 
 def test_sim_module_command_line(tmp_path):
-    from softsnap_driver.sim_module import _ros_params, build_parser, module_from_options
-    argv = _ros_params(['--ros-args', '-r', '__ns:=/x', '-p', 'port:=8102', '-p', 'drop_probability:=0.5'])
-    opts = build_parser().parse_args(argv)
+    # (With --ros-args the options are ROS parameters: test/driver/test_sim_module_node.py.)
+    from softsnap_driver.sim_module import build_parser, module_from_options
+    opts = build_parser().parse_args(['--port', '8102', '--drop-probability', '0.5'])
     assert opts.port == 8102 and opts.drop_probability == 0.5
     assert build_parser().parse_args(['--reboot-after-s', '3']).reboot_after_s == 3.0
     opts = build_parser().parse_args(['--drop-first-reach', '2'])

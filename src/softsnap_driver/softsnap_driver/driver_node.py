@@ -23,14 +23,15 @@ import rclpy
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 SetParametersResult)
 from rclpy.duration import Duration
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
-from rclpy.node import Node
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from softsnap_interfaces.msg import CableLength, ModuleState
 from std_srvs.srv import Trigger
 
 from softsnap_driver.core import DEFAULT_CLAMP_MARGIN_M, CableCalibration
 from softsnap_driver.link import LinkConfig, LinkReport, ModuleLink
+from softsnap_driver.ros_parameters import SoftSnapNode
+from softsnap_driver.spinning import spin_until_shutdown
 
 #: Default winch: 2800 counts per output revolution (N20 encoder, 7 PPR x4, 1:100) on a
 #: 10 mm diameter spool. Calibrate it per module (docs/driver.md).
@@ -86,7 +87,7 @@ PARAMETERS = {
 }
 
 
-class DriverNode(Node):
+class DriverNode(SoftSnapNode):
     """One module: parameters and ROS interfaces around a :class:`ModuleLink`."""
 
     def __init__(self, node_name: str = 'driver_node', **kwargs):
@@ -250,8 +251,8 @@ def main(args=None):
         # does); a service waits for its own request only, bounded by request_timeout_s.
         executor = SingleThreadedExecutor()
         executor.add_node(node)
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
+        spin_until_shutdown(executor)
+    except KeyboardInterrupt:
         pass
     except ValueError as exc:
         print(f'driver_node: {exc}', file=sys.stderr)

@@ -1,12 +1,17 @@
 """Simulated module served over TCP, like the firmware: ``sim_module`` executable.
 
-Runs without ROS (nothing here imports rclpy)::
+Runs without ROS (this module imports no rclpy)::
 
     python -m softsnap_driver.sim_module --port 8101 --drop-probability 0.05
 
-and as ``ros2 run softsnap_driver sim_module --ros-args -p port:=8101 -p
-drop_probability:=0.05``: ``-p name:=value`` pairs after ``--ros-args`` set the same
-options (dashes or underscores), other ROS arguments (remaps, log levels) are ignored.
+and, when the command line holds ``--ros-args`` (as ``ros2 run`` and ``launch_ros``
+pass it), as an rclpy node (:mod:`softsnap_driver.sim_module_node`) whose parameters are
+the same options, so ``--params-file``, ``-p``, ``-r __node:=`` and ``-r __ns:=`` all work::
+
+    sim_module --ros-args -r __ns:=/brittle_star -r __node:=sim_yellow -p port:=8101
+
+The simulator itself (:class:`SimServer`, :class:`~softsnap_driver.firmware.SimModule`)
+shares no state with ROS: the node only reads its parameters and starts the servers.
 
 :class:`SimServer` serves one :class:`~softsnap_driver.firmware.SimModule` on a loopback
 port from one thread: it accepts one client at a time, reads the request head up to the
@@ -30,6 +35,10 @@ from softsnap_driver.firmware import MAX_HEAD_BYTES, BatteryModel, Faults, Motor
 HEAD_TIMEOUT_S = 2.0
 #: Poll interval of the accept loop and of held connections (reaction time to stop()), s.
 _LOOP_S = 0.05
+#: How long the executables wait for a server thread on shutdown, s. The thread is a
+#: daemon: one stuck reading a silent client's head (up to HEAD_TIMEOUT_S) must not hold
+#: the process past the 2 s a SIGINT may take.
+STOP_JOIN_S = 0.5
 
 
 class SimServer:
@@ -183,32 +192,6 @@ OPTIONS = {
 }
 
 
-def _ros_params(argv: list[str]) -> list[str]:
-    """Translate ``--ros-args -p name:=value`` pairs to ``--name value``; drop the rest."""
-    out: list[str] = []
-    plain: list[str] = []
-    in_ros = False
-    i = 0
-    while i < len(argv):
-        arg = argv[i]
-        if arg == '--ros-args':
-            in_ros = True
-        elif arg == '--':
-            in_ros = False
-        elif in_ros and arg in ('-p', '--param') and i + 1 < len(argv):
-            name, sep, value = argv[i + 1].partition(':=')
-            if sep:
-                out += [f'--{name.replace("_", "-")}', value]
-            i += 1
-        elif in_ros and arg in ('-r', '--remap', '--params-file', '--log-level', '-e',
-                                '--enclave') and i + 1 < len(argv):
-            i += 1
-        elif not in_ros:
-            plain.append(arg)
-        i += 1
-    return plain + out
-
-
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog='sim_module', description='Simulated SoftSnap module speaking the firmware HTTP protocol.')
@@ -236,22 +219,47 @@ def module_from_options(opts: argparse.Namespace, start_time: float) -> SimModul
                      power_sample_period_s=opts.power_sample_period_s)
 
 
-def main(argv: list[str] | None = None) -> int:
-    argv = sys.argv[1:] if argv is None else argv
-    parser = build_parser()
-    opts = parser.parse_args(_ros_params(argv))
+def start_servers(opts: argparse.Namespace) -> list[SimServer]:
+    """Start ``opts.count`` servers on ``opts.port``, ``opts.port + 1``, ... (0: free ports).
+
+    Raises ValueError for a bad option and OSError naming the address that cannot be
+    bound; servers already started are stopped first.
+    """
     if not 1 <= opts.count <= 64:
-        parser.error(f'--count must be in [1, 64], got {opts.count}')
+        raise ValueError(f'count must be in [1, 64], got {opts.count}')
     servers: list[SimServer] = []
     try:
         for i in range(opts.count):
             module = module_from_options(opts, time.monotonic())
             if opts.seed >= 0:
                 module.rng.seed(opts.seed + i)
-            servers.append(SimServer(module, host=opts.host, port=opts.port + i if opts.port else 0))
-    except (ValueError, OSError) as exc:
+            port = opts.port + i if opts.port else 0
+            try:
+                servers.append(SimServer(module, host=opts.host, port=port))
+            except OSError as exc:
+                raise OSError(exc.errno, f'cannot listen on {opts.host}:{port}: '
+                                         f'{exc.strerror or exc}') from exc
+    except BaseException:
         for server in servers:
-            server.stop()
+            server.stop(STOP_JOIN_S)
+        raise
+    for server in servers:
+        server.start()
+    return servers
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if '--ros-args' in argv:
+        # Started by ros2 run or launch_ros: parameters, remaps and params files go
+        # through rclpy (imported only here, so the plain simulator needs no ROS).
+        from softsnap_driver.sim_module_node import main as node_main
+        return node_main([sys.argv[0], *argv])
+    parser = build_parser()
+    opts = parser.parse_args(argv)
+    try:
+        servers = start_servers(opts)
+    except (ValueError, OSError) as exc:
         parser.error(str(exc))
     for server in servers:
         print(f'[sim_module] serving the firmware protocol on {server.host}:{server.port}', flush=True)
@@ -263,8 +271,6 @@ def main(argv: list[str] | None = None) -> int:
     # Explicit handlers: a shell starting us in the background may have ignored SIGINT.
     signal.signal(signal.SIGINT, stop)
     signal.signal(signal.SIGTERM, stop)
-    for server in servers:
-        server.start()
     try:
         while not stopping.wait(0.2):
             pass
@@ -272,7 +278,7 @@ def main(argv: list[str] | None = None) -> int:
         pass
     finally:
         for server in servers:
-            server.stop()
+            server.stop(STOP_JOIN_S)
         print(f'[sim_module] stopped after {sum(s.connections for s in servers)} connections', flush=True)
     return 0
 

@@ -9,6 +9,13 @@ each child runs in its own process group, which is signalled and reaped), and pr
 summary: commands sent, shapes predicted, tracking error between the commanded and the
 predicted shape, solver time, messages dropped, and the path of the ``.rrd`` recording.
 
+Each demo claims a private slot (:mod:`softsnap_gaits.isolation`): a ROS domain id no
+other demo or test on this machine uses (unless ``ROS_DOMAIN_ID`` is set) and free
+loopback ports for its simulated modules, so several demos can run at once. A robot that
+does not start (a process exits, a module never comes online) is reported with the
+failing process's log and exit code 1, never with a table of zeros; what the observer
+did not see of a module is shown as ``-`` (``null`` in JSON).
+
 The runner observes the robot with its own rclpy node; it holds no science itself (tip
 positions come from :func:`softsnap_model.geometry.rib_centers`).
 """
@@ -32,6 +39,7 @@ from softsnap_model.geometry import rib_centers
 from softsnap_model.scene import SceneError, load_scene
 
 from .graph import NodeSpec, robot_graph
+from .isolation import Slot, claim_slot
 
 STOP_TIMEOUT_S = 10.0  # per process, after SIGINT, before SIGKILL
 READY_TIMEOUT_S = 60.0  # the whole graph up: discovery + first predicted shapes
@@ -69,15 +77,16 @@ class ModuleStats:
 class Process:
     """A node in its own process group, with its output in a log file."""
 
-    def __init__(self, spec: NodeSpec, log_dir: Path, env: dict[str, str]):
+    def __init__(self, spec: NodeSpec, log_dir: Path, env: dict[str, str], pass_fds=()):
         from ament_index_python.packages import get_package_prefix
         self.spec = spec
         exe = Path(get_package_prefix(spec.package)) / 'lib' / spec.package / spec.executable
         self.log_path = log_dir / f'{spec.name}.log'
         self._log = open(self.log_path, 'wb')
+        # pass_fds: the slot's lock (isolation.py) stays held while any child lives.
         self.popen = subprocess.Popen([str(exe), *spec.ros_args()], stdout=self._log,
                                       stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                                      env=env, start_new_session=True)
+                                      env=env, start_new_session=True, pass_fds=pass_fds)
 
     def usage(self):
         """(cpu seconds, rss bytes) of the process now; None once it has exited."""
@@ -178,7 +187,11 @@ class Observer:
     def spin_for(self, seconds: float) -> None:
         deadline = time.monotonic() + seconds
         while time.monotonic() < deadline:
-            self.executor.spin_once(timeout_sec=min(0.05, max(0.0, deadline - time.monotonic())))
+            # The same timeout every call: rclpy keeps its list of ready callbacks across
+            # spin_once calls only while the arguments stay the same. A new timeout each
+            # call made it wait again and run the first ready subscription every time (the
+            # first module's), starving the other modules on a busy machine.
+            self.executor.spin_once(timeout_sec=0.05)
 
     def now_ns(self) -> int:
         return self.node.get_clock().now().nanoseconds
@@ -207,6 +220,25 @@ class Observer:
         may start seconds later on a loaded machine.)
         """
         return all(s.predicted_shapes > 0 and s.commanded_shapes > 0 for s in self.stats.values())
+
+    def missing(self) -> dict[str, list[str]]:
+        """What the observer has not seen yet, per module (empty when ready)."""
+        out = {}
+        for name, s in self.stats.items():
+            lacks = []
+            if s.state is None:
+                lacks.append('driver state')
+            elif not s.state.online:
+                lacks.append('module online')
+            if not s.command_stamps_ns and not s.commanded_shapes:
+                lacks.append('gait commands')
+            if not s.commanded_shapes:
+                lacks.append('commanded shapes')
+            if not s.predicted_shapes:
+                lacks.append('predicted shapes')
+            if lacks:
+                out[name] = lacks
+        return out
 
     def reset(self) -> None:
         """Start counting afresh (after the start-up phase)."""
@@ -249,23 +281,32 @@ def summarise(scene, observer: Observer, seconds: float, recording: Path | None,
     for name, s in observer.stats.items():
         commands = _in_window(s.command_stamps_ns, window_ns)
         span = (commands[-1] - commands[0]) * 1e-9 if len(commands) > 1 else 0.0
-        errors = np.asarray(s.tip_errors_mm) if s.tip_errors_mm else np.array([math.nan])
+        errors = np.asarray(s.tip_errors_mm) if s.tip_errors_mm else None
         state = s.state
+        measured = _in_window(s.measured_stamps_ns, window_ns)
+        # What the observer never saw is None ("not observed"), never a 0 or NaN that
+        # would read as a measurement.
+        unobserved = [what for what, seen in (
+            ('gait commands', s.command_stamps_ns), ('measured lengths', s.measured_stamps_ns),
+            ('commanded shapes', s.commanded_shapes), ('predicted shapes', s.predicted_shapes),
+            ('driver state', state is not None)) if not seen]
         modules[name] = {
-            'commands_received': len(commands),
-            'command_rate_hz': (len(commands) - 1) / span if span > 0 else 0.0,
+            'commands_received': len(commands) if s.command_stamps_ns else None,
+            'command_rate_hz': ((len(commands) - 1) / span if span > 0 else 0.0)
+                               if s.command_stamps_ns else None,
             'messages_lost': s.lost,
-            'measured_lengths': len(_in_window(s.measured_stamps_ns, window_ns)),
-            'commanded_shapes': s.commanded_shapes,
-            'predicted_shapes': s.predicted_shapes,
-            'tip_error_mm_mean': float(np.mean(errors)),
-            'tip_error_mm_max': float(np.max(errors)),
-            'solve_time_us_mean': float(np.mean(s.solve_times_s) * 1e6) if s.solve_times_s else math.nan,
+            'measured_lengths': len(measured) if s.measured_stamps_ns else None,
+            'commanded_shapes': s.commanded_shapes or None,
+            'predicted_shapes': s.predicted_shapes or None,
+            'tip_error_mm_mean': float(np.mean(errors)) if errors is not None else None,
+            'tip_error_mm_max': float(np.max(errors)) if errors is not None else None,
+            'solve_time_us_mean': float(np.mean(s.solve_times_s) * 1e6) if s.solve_times_s else None,
             'command_to_shape_ms': _percentiles(s.command_to_shape_ms),
             'measured_to_shape_ms': _percentiles(s.measured_to_shape_ms),
-            'online': bool(state.online) if state is not None else False,
-            'battery_v': float(state.battery_voltage) if state is not None else math.nan,
-            'request_failures': int(state.request_failures) if state is not None else 0,
+            'online': bool(state.online) if state is not None else None,
+            'battery_v': float(state.battery_voltage) if state is not None else None,
+            'request_failures': int(state.request_failures) if state is not None else None,
+            'not_observed': unobserved,
         }
     diag = observer.diagnostics
     return {
@@ -279,6 +320,14 @@ def summarise(scene, observer: Observer, seconds: float, recording: Path | None,
     }
 
 
+def _cell(value, spec: str) -> str:
+    """`value` formatted with `spec`, or '-' (right-aligned to its width) when None."""
+    if value is None:
+        width = int(''.join(c for c in spec.split('.')[0] if c.isdigit()) or 1)
+        return '-'.rjust(width) if not spec.startswith('<') else '-'.ljust(width)
+    return format(str(value) if spec.endswith('s') else value, spec)
+
+
 def print_summary(summary: dict) -> None:
     print(f"\nSoftSnap demo: {summary['scene']}, {summary['seconds']:g} s of gait "
           "(tip error: commanded shape versus the shape predicted from the measured length; "
@@ -288,16 +337,23 @@ def print_summary(summary: dict) -> None:
     print(header)
     print('-' * len(header))
     for name, m in summary['modules'].items():
-        print(f"{name:10s} {m['commands_received']:6d} {m['command_rate_hz']:5.1f} {m['messages_lost']:4d} "
-              f"{m['measured_lengths']:8d} {m['commanded_shapes']:5d}/{m['predicted_shapes']:<5d} "
-              f"{m['tip_error_mm_mean']:9.2f}/{m['tip_error_mm_max']:<9.2f} "
-              f"{m['solve_time_us_mean']:10.0f} {str(m['online']):>6s} {m['battery_v']:6.2f}")
+        print(f"{name:10s} {_cell(m['commands_received'], '6d')} {_cell(m['command_rate_hz'], '5.1f')} "
+              f"{m['messages_lost']:4d} {_cell(m['measured_lengths'], '8d')} "
+              f"{_cell(m['commanded_shapes'], '5d')}/{_cell(m['predicted_shapes'], '<5d')} "
+              f"{_cell(m['tip_error_mm_mean'], '9.2f')}/{_cell(m['tip_error_mm_max'], '<9.2f')} "
+              f"{_cell(m['solve_time_us_mean'], '10.0f')} {_cell(m['online'], '>6s')} "
+              f"{_cell(m['battery_v'], '6.2f')}")
+    for name, m in summary['modules'].items():
+        if m.get('not_observed'):
+            print(f"{name}: not observed (shown as -): {', '.join(m['not_observed'])}")
     if summary['model']:
         d = summary['model']
         print(f"model node: {d['solves']} solves, {d['skipped_unchanged']} unchanged lengths and "
               f"{d['skipped_duplicate']} duplicate modules skipped, {d['refused']} refused")
-    latency = [m['command_to_shape_ms']['median'] for m in summary['modules'].values()]
-    print(f"gait command -> commanded shape: median {np.nanmedian(latency):.2f} ms over modules")
+    latency = [m['command_to_shape_ms']['median'] for m in summary['modules'].values()
+               if m['command_to_shape_ms']['n']]
+    if latency:
+        print(f"gait command -> commanded shape: median {np.median(latency):.2f} ms over modules")
     if summary.get('processes'):
         usage = ', '.join(f"{name} {u['cpu_percent']:.0f}%" for name, u in summary['processes'].items()
                           if not name.startswith('sim_'))
@@ -311,14 +367,32 @@ def print_summary(summary: dict) -> None:
 
 def run(args: argparse.Namespace) -> int:
     scene = load_scene(args.scene)
+    # A private slot: ROS domain id and loopback ports no other demo or test here uses.
+    slot, warning = claim_slot()
+    if warning:
+        print(f'demo: warning: {warning}', file=sys.stderr)
+    try:
+        return _run(args, scene, slot)
+    finally:
+        slot.release()  # children that still live keep the lock (pass_fds)
+
+
+def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
     stamp = dt.datetime.now(dt.timezone.utc).strftime('%Y%m%dT%H%M%SZ')
     run_dir = Path(args.run_dir or Path('runs') / f'{scene.name}-{stamp}')
     run_dir.mkdir(parents=True, exist_ok=True)
     recording = None if args.no_rerun else (Path(args.output) if args.output
                                             else run_dir / f'{scene.name}.rrd').resolve()
+    # Simulated modules get free ports of the slot (their drivers the same ones); real
+    # modules, and --scene-ports, keep the scene's addresses.
+    sim_ports = None
+    if not args.real and not args.scene_ports:
+        sim_ports = {m.name: slot.free_port() for m in scene.modules}
     specs = robot_graph(scene, simulate=not args.real, gait=args.gait,
                         gait_rate_hz=args.gait_rate, model_rate_hz=args.model_rate,
-                        recording=recording, rerun=not args.no_rerun)
+                        recording=recording, rerun=not args.no_rerun, sim_ports=sim_ports)
+    # The observer in this process and every child use the slot's domain.
+    os.environ['ROS_DOMAIN_ID'] = str(slot.domain_id)
     env = dict(os.environ, PYTHONUNBUFFERED='1')
     env.setdefault('ROS_HOME', str(run_dir / 'ros_home'))
     if not args.real:  # a simulated robot needs no traffic beyond this machine
@@ -336,12 +410,16 @@ def run(args: argparse.Namespace) -> int:
     elapsed, usage_start, usage_end = 0.0, {}, {}
     window_ns = (0, 2**63)  # ROS time of the run: set below
     crashed: list[Process] = []
+    not_ready: dict[str, list[str]] = {}
+    started = False
     try:
-        print(f'starting {len(specs)} processes for {scene.name} '
-              f'({len(scene.modules)} modules; logs in {run_dir})', flush=True)
+        ports = (', '.join(f'{p.parameters["port"]}' for p in specs if p.executable == 'sim_module')
+                 or 'the scene\'s addresses')
+        print(f'starting {len(specs)} processes for {scene.name} ({len(scene.modules)} modules; '
+              f'ROS domain {slot.domain_id}; modules on {ports}; logs in {run_dir})', flush=True)
         observer = Observer(scene, f'/{scene.name}')
         for spec in specs:
-            processes.append(Process(spec, run_dir, env))
+            processes.append(Process(spec, run_dir, env, pass_fds=(slot.lock_fd,)))
 
         def check_children() -> bool:
             for p in processes:
@@ -349,25 +427,27 @@ def run(args: argparse.Namespace) -> int:
                     crashed.append(p)
             return not crashed and not stop_requested
 
-        deadline = time.monotonic() + READY_TIMEOUT_S
+        deadline = time.monotonic() + args.ready_timeout
         while check_children() and not observer.ready() and time.monotonic() < deadline:
             observer.spin_for(0.1)
         if check_children() and not observer.ready():
-            print(f'not every module produced a commanded and a predicted shape within '
-                  f'{READY_TIMEOUT_S:g} s',
-                  file=sys.stderr)
-        observer.reset()
-        start = time.monotonic()
-        window_start_ns = observer.now_ns()
-        usage_start = {p.spec.name: p.usage() for p in processes}
-        while check_children() and time.monotonic() - start < args.seconds:
-            observer.spin_for(0.1)
-        elapsed = time.monotonic() - start
-        window_ns = (window_start_ns, observer.now_ns())
-        usage_end = {p.spec.name: p.usage() for p in processes}
-        observer.spin_for(0.2)
-        if check_children():
-            observer.drain(window_ns[1])
+            not_ready = observer.missing()
+        # Started: every process alive and every module seen end to end. Otherwise stop
+        # here and say what failed; a table of a robot that never ran would be zeros.
+        started = check_children() and not not_ready
+        if started:
+            observer.reset()
+            start = time.monotonic()
+            window_start_ns = observer.now_ns()
+            usage_start = {p.spec.name: p.usage() for p in processes}
+            while check_children() and time.monotonic() - start < args.seconds:
+                observer.spin_for(0.1)
+            elapsed = time.monotonic() - start
+            window_ns = (window_start_ns, observer.now_ns())
+            usage_end = {p.spec.name: p.usage() for p in processes}
+            observer.spin_for(0.2)
+            if check_children():
+                observer.drain(window_ns[1])
     finally:
         # Stop the producers first (gait), the recorder last so it sees everything.
         order = sorted(processes, key=lambda p: {'gait_node': 0, 'rerun_logger': 2}.get(p.spec.name, 1))
@@ -390,9 +470,15 @@ def run(args: argparse.Namespace) -> int:
             signal.signal(sig, handler)
     exit_codes = {p.spec.name: p.popen.returncode for p in processes}
     for p in crashed:
-        print(f'\n{p.spec.name} exited early with code {p.popen.returncode}; its last output:\n'
+        print(f'\n{p.spec.name} exited early with code {p.popen.returncode}'
+              f'{"" if started else " (the robot did not start)"}; its last output:\n'
               f'{p.tail()}', file=sys.stderr)
+    if not started and not stop_requested:
+        return _report_start_failure(args, scene, processes, crashed, not_ready, exit_codes,
+                                     run_dir, observer)
     summary = summarise(scene, observer, round(elapsed, 2), recording, exit_codes, window_ns)
+    summary['started'] = started
+    summary['ros_domain_id'] = slot.domain_id
     summary['processes'] = {
         name: {'cpu_percent': 100.0 * (usage_end[name][0] - usage_start[name][0]) / elapsed,
                'rss_mib': usage_end[name][1] / 2**20}
@@ -407,6 +493,30 @@ def run(args: argparse.Namespace) -> int:
     return 130 if stop_requested else 0
 
 
+def _report_start_failure(args, scene, processes, crashed, not_ready, exit_codes, run_dir,
+                          observer) -> int:
+    """The robot never ran: say which process or module failed, with logs; exit 1."""
+    if observer is not None:
+        observer.close()
+    if not_ready and not crashed:
+        print(f'\n{scene.name} did not start within {args.ready_timeout:g} s; not seen:', file=sys.stderr)
+        for module, lacks in not_ready.items():
+            print(f'  {module}: {", ".join(lacks)}', file=sys.stderr)
+        # The logs of the processes those modules depend on.
+        names = {f'sim_{m}' for m in not_ready} | {f'driver_{m}' for m in not_ready} | {
+            'model_node', 'gait_node'}
+        for p in processes:
+            if p.spec.name in names:
+                print(f'\n{p.spec.name} (still running); its last output:\n{p.tail()}',
+                      file=sys.stderr)
+    print(f'\ndemo: {scene.name} failed to start: no summary (logs in {run_dir})', file=sys.stderr)
+    if args.json:
+        print(json.dumps({'scene': scene.name, 'started': False,
+                          'failed_processes': {p.spec.name: p.popen.returncode for p in crashed},
+                          'not_seen': not_ready, 'exit_codes': exit_codes}, indent=2))
+    return 1
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog='demo', description=__doc__.splitlines()[0])
     parser.add_argument('--scene', default='brittle_star',
@@ -417,6 +527,12 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--model-rate', type=float, default=100.0, help='prediction rate, Hz (default 100)')
     parser.add_argument('--real', action='store_true',
                         help="drive real modules at the scene's addresses instead of simulated ones")
+    parser.add_argument('--scene-ports', action='store_true',
+                        help="simulated modules on the scene's fixed ports (default: free ports "
+                             "of this demo's slot, so several demos can run at once)")
+    parser.add_argument('--ready-timeout', type=float, default=READY_TIMEOUT_S,
+                        help='how long the whole robot may take to come up, s (default '
+                             f'{READY_TIMEOUT_S:g}); then the demo stops and says what is missing')
     parser.add_argument('--output', default=None, help='.rrd path (default runs/<scene>-<time>/<scene>.rrd)')
     parser.add_argument('--run-dir', default=None, help='folder for logs and the recording')
     parser.add_argument('--no-rerun', action='store_true', help='do not record')
@@ -428,9 +544,11 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if not (args.seconds > 0 and math.isfinite(args.seconds)):
         build_parser().error(f'--seconds must be positive, got {args.seconds}')
+    if not (args.ready_timeout > 0 and math.isfinite(args.ready_timeout)):
+        build_parser().error(f'--ready-timeout must be positive, got {args.ready_timeout}')
     try:
         return run(args)
-    except SceneError as error:
+    except (SceneError, ValueError, RuntimeError) as error:  # bad scene, ROS_DOMAIN_ID, no slot
         print(f'demo: {error}', file=sys.stderr)
         return 2
 

@@ -22,15 +22,16 @@ import math
 import rclpy
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParametersResult
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
-from rclpy.node import Node
 from rclpy.parameter import Parameter
+from softsnap_driver.ros_parameters import SoftSnapNode
+from softsnap_driver.spinning import spin_until_shutdown
 from softsnap_interfaces.msg import CableLength, GaitPhase
 from softsnap_interfaces.srv import SetGait
 from std_srvs.srv import Trigger
 
 from softsnap_gaits.gaits import GaitError, make_gait
 from softsnap_gaits.player import PAUSED, RUNNING, GaitPlayer
-from softsnap_model.scene import SceneError, load_scene
+from softsnap_model.scene import load_scene
 
 #: Publishing rate limits (Hz).
 MIN_RATE_HZ, MAX_RATE_HZ = 1.0, 1000.0
@@ -43,12 +44,11 @@ def _float_range(low: float, high: float) -> list[FloatingPointRange]:
     return [FloatingPointRange(from_value=low, to_value=high, step=0.0)]
 
 
-class GaitNode(Node):
+class GaitNode(SoftSnapNode):
     """Publishes the commanded cable length of each module of a scene at a fixed rate."""
 
     def __init__(self, **kwargs):
         super().__init__('gait_node', **kwargs)
-        self._accept_integer_overrides(('rate', 'period', 'amplitude', 'transition_time'))
         self.declare_parameter('scene', 'brittle_star', ParameterDescriptor(
             description='Scene name (brittle_star, starfish, snake, gripper, ring) or path '
                         'to a scene YAML file; fixed at start-up.', read_only=True))
@@ -103,20 +103,6 @@ class GaitNode(Node):
             f'{"running" if self.player.state == RUNNING else "waiting for ~/start"}')
 
     # ------------------------------------------------------------------ helpers
-    def _accept_integer_overrides(self, names) -> None:
-        """Let ``-p rate:=100`` mean 100.0 for our double parameters.
-
-        The command line parser types ``100`` as an integer and declaring a double
-        parameter with an integer override fails; users should not have to type ``100.0``.
-        """
-        overrides = getattr(self, '_parameter_overrides', None)
-        if not isinstance(overrides, dict):
-            return
-        for name in names:
-            p = overrides.get(name)
-            if p is not None and p.type_ == Parameter.Type.INTEGER:
-                overrides[name] = Parameter(name, Parameter.Type.DOUBLE, float(p.value))
-
     def _now_s(self) -> float:
         return self.get_clock().now().nanoseconds * 1e-9
 
@@ -234,14 +220,14 @@ def main(args=None) -> int:
     try:
         try:
             node = GaitNode()
-        except (SceneError, GaitError) as exc:
+        except ValueError as exc:  # SceneError, GaitError, a bad parameter value
             rclpy.logging.get_logger('gait_node').fatal(f'cannot start: {exc}')
             return 2
         # One thread: the timer, services and parameter callbacks all touch the player,
         # and serial execution keeps them consistent without locks.
         executor = SingleThreadedExecutor()
         executor.add_node(node)
-        executor.spin()
+        spin_until_shutdown(executor)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import Any
+from typing import Any, Mapping
 
 from softsnap_model.forward import reachable_range
 from softsnap_model.scene import Scene
@@ -56,7 +56,8 @@ def robot_graph(scene: Scene, *, simulate: bool = True, gait: str | None = None,
                 gait_rate_hz: float = 50.0, model_rate_hz: float = 100.0,
                 poll_rate_hz: float = 20.0, recording: str | Path | None = None,
                 rerun_rate_hz: float = 30.0, rerun: bool = True,
-                autostart: bool = True) -> list[NodeSpec]:
+                autostart: bool = True,
+                sim_ports: Mapping[str, int] | None = None) -> list[NodeSpec]:
     """Nodes that run a scene's robot, in start order (modules and drivers first).
 
     Parameters
@@ -75,20 +76,24 @@ def robot_graph(scene: Scene, *, simulate: bool = True, gait: str | None = None,
         Include the rerun logger.
     autostart : bool
         Start the gait as soon as the gait node is up.
+    sim_ports : mapping, optional
+        Loopback port per module name for the simulated modules (and their drivers);
+        the scene's ports if None. Ignored with ``simulate=False``.
     """
     ns = f'/{scene.name}'
     scene_ref = str(scene.path)
     nodes: list[NodeSpec] = []
     for module in scene.modules:
         host = '127.0.0.1' if simulate else module.host
+        port = sim_ports[module.name] if simulate and sim_ports is not None else module.port
         if simulate:
             nodes.append(NodeSpec('softsnap_driver', 'sim_module', f'sim_{module.name}', ns,
-                                  {'host': host, 'port': module.port}))
+                                  {'host': host, 'port': port}))
         low_mm, straight_mm = reachable_range(scene.skeleton, module.threading_mm)
         # The driver never commands beyond what the model can reach or the scene allows.
         max_contraction_mm = min(module.max_contraction_mm, straight_mm - low_mm)
         nodes.append(NodeSpec('softsnap_driver', 'driver_node', f'driver_{module.name}', ns, {
-            'module': module.name, 'host': host, 'port': module.port,
+            'module': module.name, 'host': host, 'port': port,
             'counts_per_mm': float(module.counts_per_mm),
             'straight_length_m': straight_mm / 1000.0,
             'max_contraction_m': max_contraction_mm / 1000.0,

@@ -21,6 +21,8 @@ LAUNCH_ARGUMENTS = {
     'model_rate': ('100.0', 'prediction rate, Hz'),
     'recording': ('', ".rrd path ('' = runs/<robot>-<UTC time>.rrd)"),
     'rerun': ('true', 'start the rerun logger'),
+    'sim_port_base': ('0', "simulated modules (and their drivers) on consecutive loopback ports "
+                           "from this one; 0 = the scene's ports"),
 }
 
 
@@ -33,10 +35,17 @@ def _flag(text: str) -> bool:
 def graph_from_arguments(scene_name: str, arguments: dict[str, str]) -> list[NodeSpec]:
     """The robot graph for launch-argument strings (defaults from LAUNCH_ARGUMENTS)."""
     args = {key: arguments.get(key, default) for key, (default, _) in LAUNCH_ARGUMENTS.items()}
-    return robot_graph(load_scene(scene_name), simulate=_flag(args['simulate']),
+    scene = load_scene(scene_name)
+    base = int(args['sim_port_base'])
+    if not (base == 0 or 1024 <= base <= 65535 - len(scene.modules)):
+        raise ValueError(f'sim_port_base must be 0 or a port from 1024 to '
+                         f'{65535 - len(scene.modules)}, got {base}')
+    sim_ports = {m.name: base + i for i, m in enumerate(scene.modules)} if base else None
+    return robot_graph(scene, simulate=_flag(args['simulate']),
                        gait=args['gait'] or None, gait_rate_hz=float(args['gait_rate']),
                        model_rate_hz=float(args['model_rate']),
-                       recording=args['recording'] or None, rerun=_flag(args['rerun']))
+                       recording=args['recording'] or None, rerun=_flag(args['rerun']),
+                       sim_ports=sim_ports)
 
 
 def node_action_kwargs(spec: NodeSpec) -> dict[str, Any]:

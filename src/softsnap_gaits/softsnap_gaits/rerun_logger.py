@@ -28,6 +28,7 @@ Parameters (read-only except ``rate``):
 from __future__ import annotations
 
 import datetime as dt
+import os
 import sys
 from pathlib import Path
 
@@ -36,10 +37,11 @@ from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescr
                                  SetParametersResult)
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.logging import get_logger
-from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
+from softsnap_driver.ros_parameters import SoftSnapNode
+from softsnap_driver.spinning import spin_until_shutdown
 from softsnap_interfaces.msg import CableLength, ModuleState, RobotShape
 from softsnap_model import recording
 
@@ -62,7 +64,7 @@ def default_output(robot: str, now: dt.datetime | None = None) -> Path:
     return Path('runs') / f'{robot}-{now.strftime("%Y%m%dT%H%M%SZ")}.rrd'
 
 
-class RerunLoggerNode(Node):
+class RerunLoggerNode(SoftSnapNode):
     """Adapts shape, cable length and state messages to a recording.RobotRecorder."""
 
     def __init__(self):
@@ -266,6 +268,7 @@ class RerunLoggerNode(Node):
 
 
 def main(args=None):
+    """The ``rerun_logger`` executable; ends the process (status 0, or 2 on a bad setup)."""
     rclpy.init(args=args)
     node = None
     status = 0
@@ -275,7 +278,7 @@ def main(args=None):
         # state, so callbacks must not run concurrently.
         executor = SingleThreadedExecutor()
         executor.add_node(node)
-        executor.spin()
+        spin_until_shutdown(executor)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except ValueError as exc:  # bad parameters or scene: say why and exit non-zero
@@ -288,6 +291,12 @@ def main(args=None):
             node.destroy_node()
             logger.info(summary)
         rclpy.try_shutdown()
+    # The recording is closed (flushed, footer written) and ROS is shut down: nothing of
+    # ours is left to finish. Interpreter teardown of rerun's and pyarrow's runtime takes
+    # 0.5-2 s more on a busy machine, past the 2 s a SIGINT may take: skip it.
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(status)
     return status
 
 

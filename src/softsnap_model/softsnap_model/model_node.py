@@ -37,12 +37,14 @@ from geometry_msgs.msg import Point, Pose
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 SetParametersResult)
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.qos import QoSProfile
 from rclpy.task import Future
 
+from softsnap_driver.ros_parameters import SoftSnapNode
+from softsnap_driver.spinning import spin_until_shutdown
 from softsnap_interfaces.msg import CableLength, Design, ModelDiagnostics, ModuleShape, RobotShape
 from softsnap_interfaces.action import DesignThreading
 from softsnap_interfaces.srv import ForwardShape, InverseDesign
@@ -94,7 +96,7 @@ def _points_m(points_mm) -> list[Point]:
                   z=float(p[2]) / MM_PER_M if len(p) > 2 else 0.0) for p in points_mm]
 
 
-class ModelNode(Node):
+class ModelNode(SoftSnapNode):
     """Thin shell around :class:`RobotPredictor` and the forward/inverse solvers."""
 
     def __init__(self):
@@ -158,9 +160,12 @@ class ModelNode(Node):
         # per-message dispatch (~0.2 ms) would otherwise dominate the node's CPU at 100 Hz.
         # The subscriptions live on an inbox node that no executor spins; up to `depth`
         # messages per topic wait in DDS between two ticks.
+        # A `-r __node:=NAME` on the command line renames every node of the process: the
+        # inbox's own (node-local, so winning) remap keeps it from taking the model's name.
         self._inbox = Node('model_node_inbox', namespace=self.get_namespace(),
                            context=self.context, start_parameter_services=False,
-                           enable_rosout=False)
+                           enable_rosout=False,
+                           cli_args=['--ros-args', '-r', f'__node:={self.get_name()}_inbox'])
         self._length_subscriptions = []
         self.module_publishers = {}
         for module in self.scene.modules:
@@ -637,9 +642,7 @@ def main(args=None):
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     try:
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+        spin_until_shutdown(executor)
     finally:
         executor.shutdown()
         node.destroy_node()
