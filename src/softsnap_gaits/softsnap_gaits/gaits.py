@@ -30,7 +30,7 @@ Examples
 >>> gait.period_s, gait.module_names[:2]
 (3.0, ('yellow', 'blue'))
 >>> gait.contraction_mm(1.0).round(1).tolist()   # blue and orange step first
-[0.0, 25.0, 0.0, 0.0, 25.0]
+[0.0, 30.0, 0.0, 0.0, 30.0]
 """
 from __future__ import annotations
 
@@ -532,10 +532,10 @@ def make_gait(spec, scene, *, name: str | None = None, period_s: float | None = 
     ...         'amplitude_mm': 40.0, 'rise_time_s': 0.1}
     >>> make_gait(fast, scene)                                    # doctest: +ELLIPSIS
     Traceback (most recent call last):
-    GaitError: ... module 'blue' needs 628.3 mm/s of cable on its 40 mm pulse edges ...
+    softsnap_gaits.gaits.GaitError: ... module 'blue' needs 628.3 mm/s of cable on its 40 mm pulse edges ...
     >>> gait = make_gait(fast, scene, time_scale='auto')
     >>> round(gait.time_scale, 3), round(float(gait.peak_speed_mm_s.max()), 2)
-    (9.068, 69.29)
+    (9.067, 69.3)
     """
     source = f'scene {scene.name!r} ({scene.path})'
     if isinstance(spec, str):
