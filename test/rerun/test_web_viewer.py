@@ -35,6 +35,10 @@ CHROMIUM_ARGS = ['--no-sandbox', '--enable-unsafe-swiftshader', '--use-angle=swi
 RENDER_TIMEOUT_S = 90.0
 COLOR_TOLERANCE = 60   # sum of absolute RGB differences counted as "this colour"
 MIN_SPINE_PIXELS = 100
+STABLE_SHOTS = 5
+#: For the docs picture: the software-rendered viewer on a busy machine draws a frame
+#: every few seconds while it streams the file in, so wait for a long still period.
+DOCS_STABLE_SHOTS, DOCS_TIMEOUT_S = 30, 400.0
 #: Set to 1 to save the screenshot as docs/viewer.png (the README's picture).
 UPDATE_DOCS_ENV = 'SOFTSNAP_UPDATE_DOCS'
 DOCS_SHOT = REPO / 'docs' / 'viewer.png'
@@ -57,7 +61,7 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def write_walk(path: Path, ticks: int = 90) -> None:
+def write_walk(path: Path, ticks: int = 60) -> None:
     """The brittle star's walk (3 s cycle, 30 mm steps) solved by the model: the measured
     length lags the commanded one (a winch at 62.8 mm/s of cable), so the predicted legs
     trail the commanded ones on each ramp and meet them in each hold."""
@@ -76,7 +80,7 @@ def write_walk(path: Path, ticks: int = 90) -> None:
     recorder.base_poses(t0, {m.name: (m.base_position_m, m.base_orientation_xyzw)
                              for m in scene.modules})
     for tick in range(ticks):
-        t_s = 2.0 + tick / 30.0          # from the first group's ramp into the second's
+        t_s = 3.0 + tick / 30.0          # from the first group's ramp into the second's
         stamp = t0 + int(tick * 33_333_333)
         commanded = gait.cable_length_mm(t_s)
         measured = gait.cable_length_mm(max(t_s - 0.25, 0.0))   # the winch 0.25 s behind
@@ -154,23 +158,27 @@ def test_web_viewer_shows_the_robot_offline(chromium, served_recording, tmp_path
         try:
             page = browser.new_page(viewport=VIEWPORT)
             page.goto(served_recording)
-            deadline = time.monotonic() + RENDER_TIMEOUT_S
-            previous = None
+            docs = os.environ.get(UPDATE_DOCS_ENV) == '1'
+            stable = DOCS_STABLE_SHOTS if docs else STABLE_SHOTS
+            deadline = time.monotonic() + (DOCS_TIMEOUT_S if docs else RENDER_TIMEOUT_S)
             # Poll until the 3D view has drawn every module (software WebGL takes ~6-15 s)
-            # and the page has settled: two screenshots a second apart are identical.
+            # and the page has settled: STABLE_SHOTS screenshots a second apart are identical
+            # (the viewer streams the file in; on a loaded machine it pauses between chunks).
+            history = []
             while True:
                 png = page.screenshot(path=str(shot))
                 image = np.asarray(Image.open(BytesIO(png)).convert('RGB'))
                 counts = {key: colour_pixels(image, rgb) for key, rgb in targets.items()}
                 drawn = min(counts.values()) >= MIN_SPINE_PIXELS
-                if (drawn and png == previous) or time.monotonic() > deadline:
+                history = history[1 - stable:] + [png]
+                if (drawn and len(history) == stable and len(set(history)) == 1) \
+                        or time.monotonic() > deadline:
                     break
-                previous = png
                 page.wait_for_timeout(1000)
         finally:
             browser.close()
 
-    if os.environ.get(UPDATE_DOCS_ENV) == '1':
+    if docs:
         DOCS_SHOT.write_bytes(shot.read_bytes())
     assert image.std() > 15.0, f'screenshot is nearly uniform (blank or loading): {shot}'
     assert min(counts.values()) >= MIN_SPINE_PIXELS, (

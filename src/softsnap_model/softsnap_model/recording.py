@@ -64,8 +64,8 @@ RIB_HALF_LENGTH_MM = Skeleton().rib_length_mm / 2.0
 # Colour is identity, style is role. Each module keeps one hue everywhere (3D shapes and
 # every plot): its scene colour (the paper's module colours), else its name when that
 # is a colour, else the next free colour of MODULE_PALETTE. What a line is (commanded,
-# predicted, measured) is shown by brightness and width, never by hue: the commanded
-# shape (the target) is a thin dim "ghost" of the module's colour, the predicted shape
+# predicted, measured) is shown by saturation and width, never by hue: the commanded
+# shape (the target) is a thin muted "ghost" of the module's colour, the predicted shape
 # (from the measured length: where the module is) is bold in its full colour. So a
 # module called "blue" is blue and nothing else is.
 NAMED_COLORS = {
@@ -76,14 +76,15 @@ NAMED_COLORS = {
 }
 MODULE_PALETTE = ('blue', 'orange', 'green', 'red', 'purple', 'yellow', 'cyan', 'magenta',
                   'brown', 'grey')
-#: Share of the module colour kept in a commanded (target) line; the rest is the dark
-#: background grey, so the target reads as a ghost behind the bold predicted shape.
-COMMANDED_BRIGHTNESS = 0.5
-GHOST_BASE = (45, 45, 45)
+#: Share of the module colour kept in a commanded (target) line; the rest is a middle
+#: grey, so the target reads as a muted ghost of the bold predicted shape on the light
+#: and on the dark viewer theme alike.
+COMMANDED_BRIGHTNESS = 0.55
+GHOST_BASE = (128, 128, 128)
 #: Role styles: width factor of each role's lines (1 = bold). Plots use the same rule:
 #: a commanded series is dim and thin, a measured or predicted series full and thick.
 ROLE_WIDTH = {'commanded': 0.45, 'predicted': 1.0, 'measured': 1.0}
-ROLE_DESCRIPTION = {'commanded': 'thin, dim: the commanded shape or length (the target)',
+ROLE_DESCRIPTION = {'commanded': 'thin, muted: the commanded shape or length (the target)',
                     'predicted': 'bold, full colour: the shape predicted from the measured '
                                  'length (where the module is)',
                     'measured': 'bold, full colour: the measured length'}
@@ -166,7 +167,7 @@ def color_name(rgb: RGB) -> str:
 
 
 def role_color(rgb: RGB, role: str) -> RGB:
-    """The colour a role draws a module in: full colour, or a dim ghost for commanded."""
+    """The colour a role draws a module in: full colour, or a muted ghost for commanded."""
     if role not in ROLE_WIDTH:
         raise ValueError(f'role must be one of {tuple(ROLE_WIDTH)}, got {role!r}')
     if role != 'commanded':
@@ -204,7 +205,7 @@ def scene_style(scene) -> tuple[dict[str, RGB], tuple[tuple[float, float, float]
 #: The default camera looks down on the robot from this far above the centre of its
 #: bounds, in bound radii (the 3D view is about as wide as tall; 55 degree field of view),
 #: tilted this far from the vertical so the orbit keeps z up.
-CAMERA_HEIGHT_RADII = 2.6
+CAMERA_HEIGHT_RADII = 2.1
 CAMERA_TILT_RAD = math.radians(12.0)
 LEGEND_ROOT = 'legend'
 
@@ -239,10 +240,9 @@ def build_blueprint(colors: Mapping[str, RGB] | None = None,
         plot('Battery (V)', 'battery_v'),
     )
     scene = rrb.Spatial3DView(
-        name='Robot from above: commanded thin and dim, predicted bold',
+        name='Robot from above: commanded thin and muted, predicted bold',
         origin=ROBOT_ROOT, eye_controls=None if bounds is None else top_down_eye(bounds))
-    legend = rrb.Spatial2DView(name='Legend: colour = module, style = role',
-                               origin=LEGEND_ROOT)
+    legend = rrb.TextDocumentView(name='Legend', origin=LEGEND_ROOT)
     left = rrb.Vertical(scene, legend, row_shares=[5, 1])
     return rrb.Blueprint(rrb.Horizontal(left, plots, column_shares=[3, 2]),
                          collapse_panels=True)
@@ -411,33 +411,24 @@ def log_series_styles(rec: rr.RecordingStream, module: str, color: RGB) -> None:
                 static=True)
 
 
-def log_legend(rec: rr.RecordingStream, colors: Mapping[str, RGB]) -> None:
-    """Static legend drawn in its own 2D view: one row per module, in its colour, with
-    a commanded (thin, dim) and a predicted/measured (bold) line sample.
+def legend_markdown(colors: Mapping[str, RGB]) -> str:
+    """The legend's text: which colour is which module, which style is which role, and
+    the series of every plot (the plots draw no legend of their own)."""
+    modules = ', '.join(f'**{name}** {color_name(rgb) or "rgb" + str(tuple(rgb))}'
+                        if color_name(rgb) != name else f'**{name}**'
+                        for name, rgb in colors.items())
+    return (f'**Colour = module** (named at its base in 3D): {modules}.  \n'
+            '**Style = role:** thin, muted = commanded (the target); bold, full colour = '
+            'predicted from the measured length (3D, solver time) or measured (cable length).'
+            '  \n**Plots:** one per quantity, a line per module and role; hover a line for '
+            'its name.')
 
-    2D view coordinates: x right, y down; one row per module, 1 unit apart.
-    """
-    names = list(colors)
-    if not names:
-        return
-    # Row 0 is the header; module k on row k + 1. Samples at x 0-1 and 1.5-2.5, the
-    # name to the right of them (labels sit next to their point).
-    strips, strip_colors, radii = [], [], []
-    for k, name in enumerate(names, start=1):
-        for role, x0 in (('commanded', 0.0), ('predicted', 1.5)):
-            strips.append([[x0, k], [x0 + 1.0, k]])
-            strip_colors.append(role_color(colors[name], role))
-            radii.append(0.14 * ROLE_WIDTH[role])
-    rec.log(f'{LEGEND_ROOT}/samples', rr.LineStrips2D(strips, colors=strip_colors, radii=radii),
-            static=True)
-    label_points = [[0.5, 0.0], [2.0, 0.0]] + [[2.7, k] for k in range(1, len(names) + 1)]
-    labels = ['commanded', 'predicted / measured'] + [
-        f'{name} ({color_name(colors[name])})' if color_name(colors[name]) not in ('', name)
-        else name for name in names]
-    label_colors = [(200, 200, 200), (200, 200, 200)] + [colors[n] for n in names]
-    rec.log(f'{LEGEND_ROOT}/labels',
-            rr.Points2D(label_points, radii=0.02, colors=label_colors, labels=labels,
-                        show_labels=True), static=True)
+
+def log_legend(rec: rr.RecordingStream, colors: Mapping[str, RGB]) -> None:
+    """Static legend text (markdown) for the legend view; see `legend_markdown`."""
+    if colors:
+        rec.log(LEGEND_ROOT, rr.TextDocument(legend_markdown(colors),
+                                             media_type=rr.MediaType.MARKDOWN), static=True)
 
 
 def log_base_poses(rec: rr.RecordingStream,
