@@ -414,3 +414,42 @@ def test_player_blends_without_jumps_and_finishes_a_script(scenes):
     end = player.tick(11.0)
     assert end.state == STOPPED and player.finished and end.phase == 1.0
     assert end.contraction_mm == pytest.approx(np.zeros(5))
+
+
+# ------------------------------------------------- settled shapes of the default gaits
+
+#: The demo's target for the settled tip error (issue 14), mm.
+SETTLED_TIP_ERROR_MM = 5.0
+
+
+@pytest.mark.parametrize('scene_name', ['brittle_star', 'starfish', 'snake', 'gripper', 'ring'])
+def test_default_gait_holds_are_within_5_mm_of_tip_at_the_firmware_deadband(scenes, scene_name):
+    """Known answer for the demo's settled tip error.
+
+    A winch that follows stops within the firmware's deadband of its target (30 counts,
+    0.34 mm of cable); the settled error is then the tip displacement that cable error
+    makes at the held contraction. The demo measured exactly these values (e.g. yellow
+    of the brittle star at straight: 4.29 mm). Every hold of every default gait must
+    keep it within 5 mm.
+    """
+    from softsnap_driver.protocol import FIRMWARE_DEADBAND_COUNTS
+    from softsnap_model.forward import solve_forward
+
+    scene = scenes[scene_name]
+    gait = make_gait(scene.default_gait, scene)
+    t = np.arange(0.0, gait.period_s, 1e-3)
+    c = gait.contraction_mm(t)
+    for i, m in enumerate(scene.modules):
+        held = np.abs(np.diff(c[:, i])) == 0.0
+        holds = set(np.round(c[1:, i][held], 6))
+        assert holds, m.name
+        error_mm = FIRMWARE_DEADBAND_COUNTS / m.counts_per_mm
+        for contraction in holds:
+            length = m.straight_length_mm - contraction
+            # Contracting into a hold the winch stops short (less contracted); released to
+            # straight it stays a little contracted.
+            near = length + error_mm if contraction > 0 else length - error_mm
+            tip = solve_forward(scene.skeleton, m.threading_mm, length).rib_centers[-1]
+            off = solve_forward(scene.skeleton, m.threading_mm, near).rib_centers[-1]
+            assert np.linalg.norm(np.asarray(tip) - np.asarray(off)) < SETTLED_TIP_ERROR_MM, \
+                (m.name, contraction)
