@@ -4,7 +4,7 @@ import math
 import numpy as np
 import pytest
 
-from softsnap_gaits.demo import ModuleStats, settled_tip_errors_mm
+from softsnap_gaits.demo import ModuleStats, running_tip_errors_mm, settled_tip_errors_mm
 
 MS = 1_000_000  # ns
 
@@ -75,3 +75,28 @@ def test_a_continuous_ease_has_no_hold_and_arrival_order_does_not_matter():
     s.command_stamps_ns = [s.command_stamps_ns[i] for i in order]
     s.command_lengths_m = [s.command_lengths_m[i] for i in order]
     assert settled_tip_errors_mm(s, (0, 10**12)) == pytest.approx([0.0, 5.0])
+
+
+def test_running_error_pairs_each_prediction_with_the_command_in_force():
+    s = ModuleStats()
+    s.commanded_tips = [(0, 0.2, np.array([0.0, 0.0, 0.0])), (10, 0.19, np.array([10.0, 0.0, 0.0]))]
+    s.predicted_tips = [(5, 0.2, np.array([0.0, 3.0, 0.0])), (12, 0.195, np.array([10.0, 4.0, 0.0]))]
+    s.tip_error_pairs = [(0, 0), (1, 1)]
+    assert running_tip_errors_mm(s) == pytest.approx([3.0, 4.0])
+
+
+def test_shapes_stored_as_angles_are_measured_at_their_tips():
+    from softsnap_model.geometry import rib_centers
+    straight, bent = np.zeros(11), np.full(11, -0.05)
+
+    def tip(angles):
+        return rib_centers(angles, 18.0)[-1]
+
+    s = stats_with(LENGTHS, [(0, 0.2, straight), (180, 0.17, bent)],
+                   [(0, 0.2, straight), (240, 0.17, bent)])
+    assert settled_tip_errors_mm(s, (0, 10**12), tip) == pytest.approx([0.0, 0.0])
+    s = stats_with(LENGTHS, [(0, 0.2, straight), (180, 0.17, bent)],
+                   [(0, 0.2, bent), (240, 0.17, bent)])
+    gap = float(np.linalg.norm(tip(straight) - tip(bent)))
+    assert gap > 10.0
+    assert settled_tip_errors_mm(s, (0, 10**12), tip) == pytest.approx([gap, 0.0])

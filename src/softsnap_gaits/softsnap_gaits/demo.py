@@ -62,14 +62,17 @@ class ModuleStats:
     measured_stamps_ns: list = dataclasses.field(default_factory=list)
     commanded_shapes: int = 0
     predicted_shapes: int = 0
-    tip_errors_mm: list = dataclasses.field(default_factory=list)
+    # Running tip error: (index into predicted_tips, index into commanded_tips) of each
+    # predicted shape and the commanded shape in force when it came; the distances are
+    # computed after the run (running_tip_errors_mm), keeping the callbacks cheap.
+    tip_error_pairs: list = dataclasses.field(default_factory=list)
     solve_times_s: list = dataclasses.field(default_factory=list)
     command_to_shape_ms: list = dataclasses.field(default_factory=list)
     measured_to_shape_ms: list = dataclasses.field(default_factory=list)
     last_commanded_angles: np.ndarray | None = None
     state: object = None
     # For the settled tip error: commanded lengths (m, parallel to command_stamps_ns),
-    # and (stamp ns, cable length m, tip mm) of every commanded / predicted shape.
+    # and (stamp ns, cable length m, angles rad) of every commanded / predicted shape.
     command_lengths_m: list = dataclasses.field(default_factory=list)
     commanded_tips: list = dataclasses.field(default_factory=list)
     predicted_tips: list = dataclasses.field(default_factory=list)
@@ -175,7 +178,7 @@ class Observer:
         s.last_commanded_angles = np.asarray(msg.angles, dtype=float)
         if len(msg.angles):
             s.commanded_tips.append((_stamp_ns(msg), float(msg.cable_length),
-                                     self._tip_mm(msg.angles)))
+                                     s.last_commanded_angles))
         if msg.solve_time > 0.0:
             s.solve_times_s.append(msg.solve_time)
 
@@ -185,12 +188,10 @@ class Observer:
         if msg.solve_time > 0.0:
             s.solve_times_s.append(msg.solve_time)
         if len(msg.angles):
-            tip = self._tip_mm(msg.angles)
-            s.predicted_tips.append((_stamp_ns(msg), float(msg.cable_length), tip))
-        if s.commanded_tips and len(msg.angles):
-            # The last commanded shape's tip (computed once, when it came).
-            error = np.linalg.norm(tip - s.commanded_tips[-1][2])
-            s.tip_errors_mm.append(float(error))
+            s.predicted_tips.append((_stamp_ns(msg), float(msg.cable_length),
+                                     np.asarray(msg.angles, dtype=float)))
+            if s.commanded_tips:
+                s.tip_error_pairs.append((len(s.predicted_tips) - 1, len(s.commanded_tips) - 1))
 
     def spin_for(self, seconds: float) -> None:
         deadline = time.monotonic() + seconds
@@ -230,7 +231,8 @@ class Observer:
         # In place: the subscription callbacks hold these very objects.
         for stats in self.stats.values():
             kept = stats.last_commanded_angles, stats.state
-            # The shapes in force when counting starts: a hold may end before the next solve.
+            # The shapes in force when counting starts: a hold may end before the next solve
+            # (the running error pairs start afresh with them).
             tips = stats.commanded_tips[-1:], stats.predicted_tips[-1:]
             stats.__init__()
             stats.last_commanded_angles, stats.state = kept
@@ -251,7 +253,22 @@ def _in_window(stamps_ns, window_ns) -> list:
     return sorted(t for t in stamps_ns if window_ns[0] <= t <= window_ns[1])
 
 
-def settled_tip_errors_mm(s: ModuleStats, window_ns) -> list:
+def running_tip_errors_mm(s: ModuleStats, tip_mm=lambda x: x) -> list:
+    """Tip error at every predicted shape, mm: its tip against the tip of the commanded
+    shape that was the latest when it arrived. `tip_mm` maps a stored shape (angles) to
+    its tip point."""
+    c_tips, p_tips = {}, {}
+    errors = []
+    for p, c in s.tip_error_pairs:
+        if c not in c_tips:
+            c_tips[c] = tip_mm(s.commanded_tips[c][2])
+        if p not in p_tips:
+            p_tips[p] = tip_mm(s.predicted_tips[p][2])
+        errors.append(float(np.linalg.norm(p_tips[p] - c_tips[c])))
+    return errors
+
+
+def settled_tip_errors_mm(s: ModuleStats, window_ns, tip_mm=lambda x: x) -> list:
     """Tip error at the end of every step the gait held, mm (the "settled" error).
 
     A step ends at the last command of a hold: a command equal (within
@@ -262,6 +279,7 @@ def settled_tip_errors_mm(s: ModuleStats, window_ns) -> list:
     solved for the held length) and the tip of the predicted shape (the latest predicted
     shape whose measured length was stamped at or before it). The winch has had the whole
     hold to get there, so this measures the model and the motor at rest, not the lag.
+    `tip_mm` maps a stored shape (the observer stores angles) to its tip point.
     """
     if len(s.command_stamps_ns) < 3:
         return []
@@ -282,7 +300,7 @@ def settled_tip_errors_mm(s: ModuleStats, window_ns) -> list:
         p = np.searchsorted(p_stamps, t[i], side='right') - 1
         if c < 0 or p < 0 or abs(commanded[c][1] - length[i]) > SETTLED_HOLD_TOL_M:
             continue   # no shape solved for this hold (model node starved): no sample
-        errors.append(float(np.linalg.norm(commanded[c][2] - predicted[p][2])))
+        errors.append(float(np.linalg.norm(tip_mm(commanded[c][2]) - tip_mm(predicted[p][2]))))
     return errors
 
 
@@ -304,8 +322,9 @@ def summarise(scene, observer: Observer, seconds: float, recording: Path | None,
     for name, s in observer.stats.items():
         commands = _in_window(s.command_stamps_ns, window_ns)
         span = (commands[-1] - commands[0]) * 1e-9 if len(commands) > 1 else 0.0
-        errors = np.asarray(s.tip_errors_mm) if s.tip_errors_mm else np.array([math.nan])
-        settled = settled_tip_errors_mm(s, window_ns)
+        running = running_tip_errors_mm(s, observer._tip_mm)
+        errors = np.asarray(running) if running else np.array([math.nan])
+        settled = settled_tip_errors_mm(s, window_ns, observer._tip_mm)
         state = s.state
         modules[name] = {
             'commands_received': len(commands),
