@@ -236,7 +236,8 @@ def test_gait_too_fast_for_the_winch_refused_with_the_numbers(scenes):
 
 def test_an_amplitude_override_is_held_to_the_winch_speed_too(scenes):
     # walk: 30 mm on 0.75 s ramps = 62.8 mm/s; 40 mm would need 83.8 mm/s.
-    with pytest.raises(GaitError, match=r"needs 83\.8 mm/s"):
+    with pytest.raises(GaitError, match=r"needs 83\.8 mm/s of cable on its 30 mm pulse edges "
+                       r"\(0\.75 s cosine ramps, rise_time_s\) scaled by 1\.33 \(amplitude override\)"):
         make_gait('walk', scenes['brittle_star'], amplitude_mm=40.0)
 
 

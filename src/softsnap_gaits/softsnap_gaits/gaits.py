@@ -62,6 +62,8 @@ LIMIT_TOL_MM = 1e-6
 WINCH_SPEED_MARGIN = 0.75
 #: Largest time scale a gait accepts (an explicit one or the one ``auto`` finds).
 MAX_TIME_SCALE = 100.0
+#: Relative tolerance on the speed check: a gait tuned to exactly the limit passes.
+SPEED_TOL = 1e-9
 #: Shortest period a gait accepts (s); also the lower bound of the node's overrides.
 MIN_PERIOD_S = 0.05
 #: Longest period a gait accepts (s).
@@ -625,10 +627,6 @@ def make_gait(spec, scene, *, name: str | None = None, period_s: float | None = 
                 time_scale=scale, _profile=profile)
 
 
-#: Relative tolerance on the speed check: a gait tuned to exactly the limit passes.
-SPEED_TOL = 1e-9
-
-
 def _build(spec: dict, name: str, scene, source: str, amplitude_mm: float | None):
     """Run the type's builder and the amplitude override: (period, loop, profile, peak,
     speed, params, edges)."""
@@ -642,6 +640,7 @@ def _build(spec: dict, name: str, scene, source: str, amplitude_mm: float | None
         profile = lambda t, f=factor, p=base_profile: f * p(t)  # noqa: E731
         peak, speed = peak * factor, speed * factor
         params = dict(params, amplitude_scale=factor)
+        edges = [f'{e} scaled by {factor:.3g} (amplitude override)' for e in edges]
     return period, loop, profile, peak, speed, params, edges
 
 
