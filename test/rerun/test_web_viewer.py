@@ -33,6 +33,9 @@ VIEWPORT = {'width': 1280, 'height': 800}
 CHROMIUM_ARGS = ['--no-sandbox', '--enable-unsafe-swiftshader', '--use-angle=swiftshader',
                  '--ignore-gpu-blocklist', '--disable-dev-shm-usage']
 RENDER_TIMEOUT_S = 90.0
+#: Playwright's own deadline per page load and per screenshot (ms). Its default, 30 s, is
+#: too short for a software-rendered frame when other processes keep both cores busy.
+PAGE_TIMEOUT_MS = 180_000
 COLOR_TOLERANCE = 60   # sum of absolute RGB differences counted as "this colour"
 MIN_SPINE_PIXELS = 100
 STABLE_SHOTS = 5
@@ -157,6 +160,7 @@ def test_web_viewer_shows_the_robot_offline(chromium, served_recording, tmp_path
                                              args=CHROMIUM_ARGS)
         try:
             page = browser.new_page(viewport=VIEWPORT)
+            page.set_default_timeout(PAGE_TIMEOUT_MS)
             page.goto(served_recording)
             docs = os.environ.get(UPDATE_DOCS_ENV) == '1'
             stable = DOCS_STABLE_SHOTS if docs else STABLE_SHOTS
