@@ -165,6 +165,7 @@ def test_robot_recording_entity_tree_frames_and_values(tmp_path, read_rrd):
     # The legend names every module and role.
     text = rrd.static['legend']['TextDocument:text'][0]
     assert '**yellow**' in text and '**blue**' in text and 'thin, muted = commanded' in text
+    assert 'commanded and measured of each module (4 lines)' in text   # every series counted
 
     # One frame per tick and entity, on the ros_time timeline at the message stamps.
     stamps = [STAMP0 + i * PERIOD for i in range(10)]

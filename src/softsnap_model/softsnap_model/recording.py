@@ -420,8 +420,9 @@ def legend_markdown(colors: Mapping[str, RGB]) -> str:
     return (f'**Colour = module** (named at its base in 3D): {modules}.  \n'
             '**Style = role:** thin, muted = commanded (the target); bold, full colour = '
             'predicted from the measured length (3D, solver time) or measured (cable length).'
-            '  \n**Plots:** one per quantity, a line per module and role; hover a line for '
-            'its name.')
+            f'  \n**Plots** (hover a line for its name): cable length, commanded and measured '
+            f'of each module ({2 * len(colors)} lines); tip error ({len(colors)}); solver '
+            f'time, commanded and predicted ({2 * len(colors)}); battery ({len(colors)}).')
 
 
 def log_legend(rec: rr.RecordingStream, colors: Mapping[str, RGB]) -> None:
