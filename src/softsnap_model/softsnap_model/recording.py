@@ -243,7 +243,7 @@ def build_blueprint(colors: Mapping[str, RGB] | None = None,
         name='Robot from above: commanded thin and muted, predicted bold',
         origin=ROBOT_ROOT, eye_controls=None if bounds is None else top_down_eye(bounds))
     legend = rrb.TextDocumentView(name='Legend', origin=LEGEND_ROOT)
-    left = rrb.Vertical(scene, legend, row_shares=[5, 1])
+    left = rrb.Vertical(scene, legend, row_shares=[4, 1])
     return rrb.Blueprint(rrb.Horizontal(left, plots, column_shares=[3, 2]),
                          collapse_panels=True)
 
