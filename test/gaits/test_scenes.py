@@ -201,6 +201,9 @@ INVALID = [
     ('counts-negative', ['modules', 0, 'counts_per_mm'], -5, 'modules[0].counts_per_mm', '> 0'),
     ('contraction-limit-nan', ['defaults', 'max_contraction_mm'], float('nan'),
      'defaults.max_contraction_mm', 'finite'),
+    ('winch-speed-zero', ['defaults', 'winch_speed_mm_s'], 0.0, 'defaults.winch_speed_mm_s', '> 0'),
+    ('winch-speed-in-counts', ['modules', 2, 'winch_speed_mm_s'], 8235.0 * 89.13,
+     'modules[2].winch_speed_mm_s', '<= 10000'),
     ('connector-no-unit', ['connector', 'side'], 40, 'connector.side', 'unit'),
     ('connector-no-source', ['connector', 'source'], _DELETE, 'connector.source', 'non-empty string'),
     ('default-gait-unknown', ['default_gait'], 'fly', 'default_gait', 'one of the gaits'),
@@ -263,3 +266,26 @@ def test_scene_is_frozen():
         scene.gaits['grasp']['amplitude_mm'] = 80
     with pytest.raises(TypeError):
         scene.connector['side_mm'] = 1
+
+
+def test_winch_speed_matches_the_driver_motor_model():
+    """The scenes' winch_speed_mm_s is the simulated winch's speed at the driver's PWM.
+
+    softsnap_model cannot import the driver, so the number is written down twice: this
+    test keeps the two from drifting apart (a changed motor model, PWM or drum fails here).
+    """
+    from softsnap_driver.driver_node import PARAMETERS
+    from softsnap_driver.firmware import MotorModel
+    from softsnap_model.scene import DEFAULT_COUNTS_PER_MM, DEFAULT_WINCH_SPEED_MM_S
+
+    motor = MotorModel()
+    pwm = PARAMETERS['pwm_power'][0]
+    # Beyond 60 counts from its target the firmware boosts the motor to its rated voltage.
+    counts_per_s = motor.speed_counts_per_s(pwm, motor.rated_voltage_v)
+    assert DEFAULT_WINCH_SPEED_MM_S == pytest.approx(counts_per_s / DEFAULT_COUNTS_PER_MM, rel=1e-9)
+    assert DEFAULT_WINCH_SPEED_MM_S == pytest.approx(92.39, abs=0.01)
+    for name in SCENES:
+        for m in load_scene(name).modules:
+            # The files round to 0.1 mm/s and counts_per_mm to 0.01 counts/mm.
+            assert m.winch_speed_mm_s == pytest.approx(counts_per_s / m.counts_per_mm, abs=0.06), \
+                (name, m.name)

@@ -142,13 +142,30 @@ def test_robot_recording_entity_tree_frames_and_values(tmp_path, read_rrd):
     assert 'robot/blue/commanded/cable' not in rrd.entities  # no threading given for blue
     assert rrd.blueprints, 'the blueprint was not stored in the file'
 
-    # Commanded and predicted in distinct colours, logged once (static), packed RGBA.
+    # Colour is the module, style the role; logged once (static), packed RGBA. The module
+    # called "blue" is blue (predicted: full colour, bold; commanded: dim and thin).
     def rgba(rgb):
         return (rgb[0] << 24) | (rgb[1] << 16) | (rgb[2] << 8) | 0xFF
-    for source in ('commanded', 'predicted'):
-        style = rrd.static[f'robot/blue/{source}/spine']
-        assert style['LineStrips3D:colors'] == [rgba(rec_mod.SPINE_COLORS[source])]
-    assert rec_mod.SPINE_COLORS['commanded'] != rec_mod.SPINE_COLORS['predicted']
+    blue, yellow = rec_mod.NAMED_COLORS['blue'], rec_mod.NAMED_COLORS['yellow']
+    predicted = rrd.static['robot/blue/predicted/spine']
+    commanded = rrd.static['robot/blue/commanded/spine']
+    assert predicted['LineStrips3D:colors'] == [rgba(blue)]
+    assert commanded['LineStrips3D:colors'] == [rgba(rec_mod.role_color(blue, 'commanded'))]
+    assert commanded['LineStrips3D:radii'][0] < 0.5 * predicted['LineStrips3D:radii'][0]
+    assert rrd.static['robot/yellow/predicted/spine']['LineStrips3D:colors'] == [rgba(yellow)]
+    # Plots: the same colours, named per module and series, thin dim commanded series.
+    series = rrd.static['plots/cable_length_mm/blue/measured']
+    assert series['SeriesLines:colors'] == [rgba(blue)]
+    assert series['SeriesLines:names'] == ['blue measured']
+    series = rrd.static['plots/cable_length_mm/blue/commanded']
+    assert series['SeriesLines:colors'] == [rgba(rec_mod.role_color(blue, 'commanded'))]
+    assert series['SeriesLines:widths'][0] < rrd.static['plots/tip_error_mm/blue'][
+        'SeriesLines:widths'][0]
+    assert rrd.static['plots/tip_error_mm/yellow']['SeriesLines:colors'] == [rgba(yellow)]
+    # The legend names every module and role.
+    text = rrd.static['legend']['TextDocument:text'][0]
+    assert '**yellow**' in text and '**blue**' in text and 'thin, muted = commanded' in text
+    assert 'commanded and measured of each module (4 lines)' in text   # every series counted
 
     # One frame per tick and entity, on the ros_time timeline at the message stamps.
     stamps = [STAMP0 + i * PERIOD for i in range(10)]
@@ -298,3 +315,67 @@ def test_record_command_line_writes_a_threading_comparison(tmp_path, read_rrd):
     assert rrd.times('robot/s/predicted/spine', 'step') == [0, 1, 2]
     np.testing.assert_allclose(rrd.scalars('plots/contraction_mm/w'), [0.0, 15.0, 30.0])
     assert rec_mod.main(['sweep', '--threading', 'R3x11', '--out', str(out)]) == 2
+
+
+# --- legibility: colours are modules, styles are roles (issue 14) ------------------------
+
+def test_module_colours_match_names_and_never_repeat():
+    from softsnap_model.scene import load_scene
+    colors = rec_mod.module_colors([('yellow', 'yellow'), ('blue', 'blue'), ('green', 'green'),
+                                    ('red', 'red'), ('orange', 'orange')])
+    assert {m: rec_mod.color_name(c) for m, c in colors.items()} == {
+        'yellow': 'yellow', 'blue': 'blue', 'green': 'green', 'red': 'red', 'orange': 'orange'}
+    # Names that are no colour take free palette colours: none used twice, and a module
+    # named after a colour keeps it even when listed after the others.
+    colors = rec_mod.module_colors([('head', ''), ('body', ''), ('blue', '')])
+    assert colors['blue'] == rec_mod.NAMED_COLORS['blue']
+    assert len(set(colors.values())) == 3
+    for name in ('snake', 'gripper', 'ring', 'starfish', 'brittle_star'):
+        colors, _ = rec_mod.scene_style(load_scene(name))
+        assert len(set(colors.values())) == len(colors), name
+
+
+def test_roles_differ_by_brightness_and_width_not_by_hue():
+    for name, rgb in rec_mod.NAMED_COLORS.items():
+        dim = rec_mod.role_color(rgb, 'commanded')
+        assert rec_mod.role_color(rgb, 'predicted') == rgb == rec_mod.role_color(rgb, 'measured')
+        assert max(dim) - min(dim) < max(rgb) - min(rgb) or name == 'grey'   # less saturated
+        # Same hue: the muted colour lies between the module colour and the ghost grey.
+        a = rec_mod.COMMANDED_BRIGHTNESS
+        assert dim == pytest.approx([a * c + (1 - a) * g for c, g in zip(rgb, rec_mod.GHOST_BASE)],
+                                    abs=0.5)
+    # No module colour is another module's commanded ghost (identity is unambiguous).
+    ghosts = {rec_mod.role_color(c, 'commanded') for c in rec_mod.NAMED_COLORS.values()}
+    assert not ghosts & set(rec_mod.NAMED_COLORS.values())
+    assert rec_mod.ROLE_WIDTH['commanded'] < 0.5 * rec_mod.ROLE_WIDTH['predicted']
+    with pytest.raises(ValueError, match="role must be one of .* got 'target'"):
+        rec_mod.role_color((1, 2, 3), 'target')
+
+
+def test_blueprint_one_plot_per_quantity_no_covering_legends_top_down_camera():
+    from softsnap_model.scene import load_scene
+    colors, bounds = rec_mod.scene_style(load_scene('brittle_star'))
+    centre, radius = bounds
+    # The brittle star spans its five straight legs: tips 72.5 + 198 mm from the centre.
+    assert 0.26 < radius < 0.30 and abs(centre[2]) < 1e-9
+    blueprint = rec_mod.build_blueprint(colors, bounds)
+    left, plots = blueprint.root_container.contents
+    scene_view, legend_view = left.contents
+    assert str(legend_view.origin) == rec_mod.LEGEND_ROOT
+    origins = [str(view.origin) for view in plots.contents]
+    assert origins == [f'plots/{q}' for q in ('cable_length_mm', 'tip_error_mm',
+                                              'solve_time_ms', 'battery_v')]
+    for view in plots.contents:
+        legend = view.properties['PlotLegend']
+        assert legend.visible.as_arrow_array().to_pylist() == [False], view.name
+    eye = scene_view.properties['EyeControls3D']
+    position = np.array(eye.position.as_arrow_array().to_pylist()[0])
+    target = np.array(eye.look_target.as_arrow_array().to_pylist()[0])
+    assert target == pytest.approx(centre)
+    down = (target - position) / np.linalg.norm(target - position)
+    assert down[2] < -0.95                                  # looking (nearly) straight down
+    # Far enough that a 55 degree field of view holds the whole robot.
+    assert np.linalg.norm(position - target) * math.tan(math.radians(27.5)) > radius
+    # Without bounds (no scene) the viewer picks its own camera.
+    assert 'EyeControls3D' not in rec_mod.build_blueprint().root_container.contents[0] \
+        .contents[0].properties

@@ -49,6 +49,10 @@ DRAIN_IDLE_S = 1.0  # ... and stops early once no command arrived for this long
 #: commands, so an observer that falls behind on a loaded machine catches up afterwards
 #: instead of having its queue overwritten (which DDS does not report as lost).
 STREAM_DEPTH = 1000
+#: Two commanded lengths closer than this (m) are the same length: the gait is holding.
+#: Holds are exact (the gait library computes a held value from the same numbers), so
+#: the tolerance only guards against float noise; a cosine ease moves far more per tick.
+SETTLED_HOLD_TOL_M = 1e-9
 
 
 @dataclasses.dataclass
@@ -66,12 +70,20 @@ class ModuleStats:
     measured_stamps_ns: list = dataclasses.field(default_factory=list)
     commanded_shapes: int = 0
     predicted_shapes: int = 0
-    tip_errors_mm: list = dataclasses.field(default_factory=list)
+    # Running tip error: (index into predicted_tips, index into commanded_tips) of each
+    # predicted shape and the commanded shape in force when it came; the distances are
+    # computed after the run (running_tip_errors_mm), keeping the callbacks cheap.
+    tip_error_pairs: list = dataclasses.field(default_factory=list)
     solve_times_s: list = dataclasses.field(default_factory=list)
     command_to_shape_ms: list = dataclasses.field(default_factory=list)
     measured_to_shape_ms: list = dataclasses.field(default_factory=list)
     last_commanded_angles: np.ndarray | None = None
     state: object = None
+    # For the settled tip error: commanded lengths (m, parallel to command_stamps_ns),
+    # and (stamp ns, cable length m, angles rad) of every commanded / predicted shape.
+    command_lengths_m: list = dataclasses.field(default_factory=list)
+    commanded_tips: list = dataclasses.field(default_factory=list)
+    predicted_tips: list = dataclasses.field(default_factory=list)
 
 
 class Process:
@@ -158,6 +170,7 @@ class Observer:
 
     def _command(self, s: ModuleStats, msg) -> None:
         s.command_stamps_ns.append(_stamp_ns(msg))
+        s.command_lengths_m.append(float(msg.cable_length))
         s.last_command_arrival_s = time.monotonic()
 
     def _tip_mm(self, angles) -> np.ndarray:
@@ -172,6 +185,9 @@ class Observer:
         s.commanded_shapes += 1
         s.command_to_shape_ms.append(self._age_ms(msg))
         s.last_commanded_angles = np.asarray(msg.angles, dtype=float)
+        if len(msg.angles):
+            s.commanded_tips.append((_stamp_ns(msg), float(msg.cable_length),
+                                     s.last_commanded_angles))
         if msg.solve_time > 0.0:
             s.solve_times_s.append(msg.solve_time)
 
@@ -180,9 +196,11 @@ class Observer:
         s.measured_to_shape_ms.append(self._age_ms(msg))
         if msg.solve_time > 0.0:
             s.solve_times_s.append(msg.solve_time)
-        if s.last_commanded_angles is not None and len(msg.angles):
-            error = np.linalg.norm(self._tip_mm(msg.angles) - self._tip_mm(s.last_commanded_angles))
-            s.tip_errors_mm.append(float(error))
+        if len(msg.angles):
+            s.predicted_tips.append((_stamp_ns(msg), float(msg.cable_length),
+                                     np.asarray(msg.angles, dtype=float)))
+            if s.commanded_tips:
+                s.tip_error_pairs.append((len(s.predicted_tips) - 1, len(s.commanded_tips) - 1))
 
     def spin_for(self, seconds: float) -> None:
         deadline = time.monotonic() + seconds
@@ -245,8 +263,12 @@ class Observer:
         # In place: the subscription callbacks hold these very objects.
         for stats in self.stats.values():
             kept = stats.last_commanded_angles, stats.state
+            # The shapes in force when counting starts: a hold may end before the next solve
+            # (the running error pairs start afresh with them).
+            tips = stats.commanded_tips[-1:], stats.predicted_tips[-1:]
             stats.__init__()
             stats.last_commanded_angles, stats.state = kept
+            stats.commanded_tips, stats.predicted_tips = (list(t) for t in tips)
 
     def close(self) -> None:
         import rclpy
@@ -261,6 +283,57 @@ def _stamp_ns(msg) -> int:
 
 def _in_window(stamps_ns, window_ns) -> list:
     return sorted(t for t in stamps_ns if window_ns[0] <= t <= window_ns[1])
+
+
+def running_tip_errors_mm(s: ModuleStats, tip_mm=lambda x: x) -> list:
+    """Tip error at every predicted shape, mm: its tip against the tip of the commanded
+    shape that was the latest when it arrived. `tip_mm` maps a stored shape (angles) to
+    its tip point."""
+    c_tips, p_tips = {}, {}
+    errors = []
+    for p, c in s.tip_error_pairs:
+        if c not in c_tips:
+            c_tips[c] = tip_mm(s.commanded_tips[c][2])
+        if p not in p_tips:
+            p_tips[p] = tip_mm(s.predicted_tips[p][2])
+        errors.append(float(np.linalg.norm(p_tips[p] - c_tips[c])))
+    return errors
+
+
+def settled_tip_errors_mm(s: ModuleStats, window_ns, tip_mm=lambda x: x) -> list:
+    """Tip error at the end of every step the gait held, mm (the "settled" error).
+
+    A step ends at the last command of a hold: a command equal (within
+    `SETTLED_HOLD_TOL_M`) to the one before it, followed by one that differs, i.e. the
+    last commanded sample before the commanded contraction changes again; only ends
+    stamped inside `window_ns` count. There, the error is the distance between the tip
+    of the commanded shape (the latest commanded shape stamped at or before that command,
+    solved for the held length) and the tip of the predicted shape (the latest predicted
+    shape whose measured length was stamped at or before it). The winch has had the whole
+    hold to get there, so this measures the model and the motor at rest, not the lag.
+    `tip_mm` maps a stored shape (the observer stores angles) to its tip point.
+    """
+    if len(s.command_stamps_ns) < 3:
+        return []
+    order = np.argsort(s.command_stamps_ns, kind='stable')
+    t = np.asarray(s.command_stamps_ns, dtype=np.int64)[order]
+    length = np.asarray(s.command_lengths_m, dtype=float)[order]
+    held = np.abs(np.diff(length)) <= SETTLED_HOLD_TOL_M        # held[i]: i -> i + 1 equal
+    ends = np.nonzero(held[:-1] & ~held[1:])[0] + 1             # held into i, changes after
+    commanded = sorted(s.commanded_tips, key=lambda e: e[0])
+    predicted = sorted(s.predicted_tips, key=lambda e: e[0])
+    c_stamps = [e[0] for e in commanded]
+    p_stamps = [e[0] for e in predicted]
+    errors = []
+    for i in ends:
+        if not window_ns[0] <= t[i] <= window_ns[1]:
+            continue
+        c = np.searchsorted(c_stamps, t[i], side='right') - 1
+        p = np.searchsorted(p_stamps, t[i], side='right') - 1
+        if c < 0 or p < 0 or abs(commanded[c][1] - length[i]) > SETTLED_HOLD_TOL_M:
+            continue   # no shape solved for this hold (model node starved): no sample
+        errors.append(float(np.linalg.norm(tip_mm(commanded[c][2]) - tip_mm(predicted[p][2]))))
+    return errors
 
 
 def _percentiles(values) -> dict:
@@ -281,7 +354,9 @@ def summarise(scene, observer: Observer, seconds: float, recording: Path | None,
     for name, s in observer.stats.items():
         commands = _in_window(s.command_stamps_ns, window_ns)
         span = (commands[-1] - commands[0]) * 1e-9 if len(commands) > 1 else 0.0
-        errors = np.asarray(s.tip_errors_mm) if s.tip_errors_mm else None
+        running = running_tip_errors_mm(s, observer._tip_mm)
+        errors = np.asarray(running) if running else None
+        settled = settled_tip_errors_mm(s, window_ns, observer._tip_mm)
         state = s.state
         measured = _in_window(s.measured_stamps_ns, window_ns)
         # What the observer never saw is None ("not observed"), never a 0 or NaN that
@@ -300,6 +375,9 @@ def summarise(scene, observer: Observer, seconds: float, recording: Path | None,
             'predicted_shapes': s.predicted_shapes or None,
             'tip_error_mm_mean': float(np.mean(errors)) if errors is not None else None,
             'tip_error_mm_max': float(np.max(errors)) if errors is not None else None,
+            'settled_tip_error_mm_mean': float(np.mean(settled)) if settled else None,
+            'settled_tip_error_mm_max': float(np.max(settled)) if settled else None,
+            'settled_samples': len(settled),
             'solve_time_us_mean': float(np.mean(s.solve_times_s) * 1e6) if s.solve_times_s else None,
             'command_to_shape_ms': _percentiles(s.command_to_shape_ms),
             'measured_to_shape_ms': _percentiles(s.measured_to_shape_ms),
@@ -330,10 +408,12 @@ def _cell(value, spec: str) -> str:
 
 def print_summary(summary: dict) -> None:
     print(f"\nSoftSnap demo: {summary['scene']}, {summary['seconds']:g} s of gait "
-          "(tip error: commanded shape versus the shape predicted from the measured length; "
+          "(tip error: commanded shape versus the shape predicted from the measured length, "
+          "all the time (running) and at the end of each step (settled: last command before "
+          "the commanded contraction changes, n steps); "
           "lost: messages DDS reported lost to the observer)")
     header = (f"{'module':10s} {'cmds':>6s} {'Hz':>5s} {'lost':>4s} {'measured':>8s} {'shapes c/p':>11s} "
-              f"{'tip err mean/max mm':>20s} {'solve µs':>9s} {'online':>6s} {'batt V':>6s}")
+              f"{'tip err mean/max mm':>20s} {'settled mean/max mm (n)':>24s} {'solve µs':>9s} {'online':>6s} {'batt V':>6s}")
     print(header)
     print('-' * len(header))
     for name, m in summary['modules'].items():
@@ -341,6 +421,8 @@ def print_summary(summary: dict) -> None:
               f"{m['messages_lost']:4d} {_cell(m['measured_lengths'], '8d')} "
               f"{_cell(m['commanded_shapes'], '5d')}/{_cell(m['predicted_shapes'], '<5d')} "
               f"{_cell(m['tip_error_mm_mean'], '9.2f')}/{_cell(m['tip_error_mm_max'], '<9.2f')} "
+              f"{_cell(m['settled_tip_error_mm_mean'], '9.2f')}/{_cell(m['settled_tip_error_mm_max'], '<7.2f')}"
+              f"({m['settled_samples']:3d}) "
               f"{_cell(m['solve_time_us_mean'], '10.0f')} {_cell(m['online'], '>6s')} "
               f"{_cell(m['battery_v'], '6.2f')}")
     for name, m in summary['modules'].items():

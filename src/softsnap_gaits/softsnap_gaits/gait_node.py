@@ -10,7 +10,8 @@ Topics (relative, so inside the node's namespace):
   ``gait/phase``                    softsnap_interfaces/GaitPhase
 Services (private): ``~/start``, ``~/stop``, ``~/pause``, ``~/resume`` (std_srvs/Trigger),
 ``~/set_gait`` (softsnap_interfaces/SetGait).
-Parameters: scene, gait, rate, autostart, period, amplitude, transition_time (docs/gaits.md).
+Parameters: scene, gait, rate, autostart, period, amplitude, time_scale, transition_time
+(docs/gaits.md).
 
 The node is a thin shell: the gait library (gaits.py) computes contractions and the
 player (player.py) keeps the start/stop/pause state; here they are wired to ROS.
@@ -38,6 +39,28 @@ MIN_RATE_HZ, MAX_RATE_HZ = 1.0, 1000.0
 #: Largest period override (s) and amplitude override (m) the parameters accept.
 MAX_PERIOD_S, MAX_AMPLITUDE_M = 3600.0, 0.2
 MAX_TRANSITION_S = 10.0
+#: Parameters that define the gait: a change rebuilds it (and may be refused).
+GAIT_PARAMETERS = ('gait', 'period', 'amplitude', 'time_scale')
+
+
+def _time_scale(text) -> float | str | None:
+    """The time_scale parameter for make_gait: None (''), 'auto', or a number.
+
+    Raises GaitError (a ValueError) quoting the value for anything else (make_gait
+    checks the range).
+    """
+    if not isinstance(text, str):
+        raise GaitError(f"time_scale must be text ('', 'auto' or a number), got {text!r}")
+    text = text.strip()
+    if not text:
+        return None
+    if text.lower() == 'auto':
+        return 'auto'
+    try:
+        return float(text)
+    except ValueError:
+        raise GaitError(f"time_scale must be '', 'auto' or a number from 0.01 to 100, "
+                        f'got {text!r}') from None
 
 
 def _float_range(low: float, high: float) -> list[FloatingPointRange]:
@@ -66,6 +89,12 @@ class GaitNode(SoftSnapNode):
             description='Override of the largest cable contraction, in m (every module is '
                         "scaled alike); 0 keeps the gait's own amplitude.",
             floating_point_range=_float_range(0.0, MAX_AMPLITUDE_M)))
+        self._accept_number_as_text('time_scale')
+        self.declare_parameter('time_scale', '', ParameterDescriptor(
+            description="Slow a gait down for the winches: '' keeps the gait's own "
+                        "time_scale (1 unless its spec says otherwise; a gait faster than "
+                        "75 % of a winch's speed is refused), 'auto' slows it just enough, "
+                        'a number from 0.01 to 100 multiplies every duration.'))
         self.declare_parameter('transition_time', 0.3, ParameterDescriptor(
             description='Blend time in s from the last command to a new target on start, '
                         'stop and gait switches (0: jump).',
@@ -103,12 +132,19 @@ class GaitNode(SoftSnapNode):
             f'{"running" if self.player.state == RUNNING else "waiting for ~/start"}')
 
     # ------------------------------------------------------------------ helpers
+    def _accept_number_as_text(self, name: str) -> None:
+        """Let ``-p time_scale:=2`` (typed as a number) mean the text '2'."""
+        overrides = getattr(self, '_parameter_overrides', None)
+        p = overrides.get(name) if isinstance(overrides, dict) else None
+        if p is not None and p.type_ in (Parameter.Type.INTEGER, Parameter.Type.DOUBLE):
+            overrides[name] = Parameter(name, Parameter.Type.STRING, str(p.value))
+
     def _now_s(self) -> float:
         return self.get_clock().now().nanoseconds * 1e-9
 
     def _gait_config(self, changes: dict) -> dict:
         """Current gait, period and amplitude parameters with `changes` applied."""
-        config = {k: self.get_parameter(k).value for k in ('gait', 'period', 'amplitude')}
+        config = {k: self.get_parameter(k).value for k in GAIT_PARAMETERS}
         config.update(changes)
         return config
 
@@ -117,13 +153,14 @@ class GaitNode(SoftSnapNode):
         name = config['gait'] or self.scene.default_gait
         period = config['period'] or None
         amplitude = config['amplitude'] * 1000.0 if config['amplitude'] else None
-        return make_gait(name, self.scene, period_s=period, amplitude_mm=amplitude)
+        return make_gait(name, self.scene, period_s=period, amplitude_mm=amplitude,
+                         time_scale=_time_scale(config['time_scale']))
 
     # ------------------------------------------------------------------ callbacks
     def parameters_callback(self, parameters: list[Parameter]) -> SetParametersResult:
         """Validate a parameter change and apply it; refuse it with the reason otherwise."""
         changes = {p.name: p.value for p in parameters}
-        gait_changes = {k: v for k, v in changes.items() if k in ('gait', 'period', 'amplitude')}
+        gait_changes = {k: v for k, v in changes.items() if k in GAIT_PARAMETERS}
         new_gait = None
         if gait_changes:
             try:

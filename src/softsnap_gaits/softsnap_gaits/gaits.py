@@ -16,7 +16,11 @@ Two shapes cover the paper's robots:
 
 Every gait is checked at construction: each module's peak contraction must stay within
 its reachable contraction (the solver's `reachable_range`) and within the scene's
-``max_contraction_mm`` (the paper shows 0-80 mm).
+``max_contraction_mm`` (the paper shows 0-80 mm), and each module's peak commanded cable
+speed within `WINCH_SPEED_MARGIN` of its winch's speed (the scene's ``winch_speed_mm_s``),
+so that the winch can follow and the module reaches every shape the gait asks for. A gait
+too fast for its winches is refused, or slowed down with ``time_scale: auto`` (every
+duration multiplied by the smallest factor that makes it followable).
 
 Examples
 --------
@@ -24,9 +28,9 @@ Examples
 >>> scene = load_scene('brittle_star')
 >>> gait = make_gait('walk', scene)
 >>> gait.period_s, gait.module_names[:2]
-(1.0, ('yellow', 'blue'))
->>> gait.contraction_mm(0.25).round(1).tolist()   # blue and orange step first
-[0.0, 40.0, 0.0, 0.0, 40.0]
+(3.0, ('yellow', 'blue'))
+>>> gait.contraction_mm(1.0).round(1).tolist()   # blue and orange step first
+[0.0, 30.0, 0.0, 0.0, 30.0]
 """
 from __future__ import annotations
 
@@ -42,6 +46,7 @@ from softsnap_model.forward import reachable_range
 __all__ = [
     'Gait', 'GaitError', 'GAIT_TYPES', 'make_gait', 'reachable_contraction_mm',
     'pulse_shape', 'ease_keyframes', 'DEFAULT_RISE_TIME_S', 'LIMIT_TOL_MM',
+    'WINCH_SPEED_MARGIN', 'MAX_TIME_SCALE',
 ]
 
 #: Rise (and fall) time of pulse edges when a spec gives none (s).
@@ -49,6 +54,16 @@ DEFAULT_RISE_TIME_S = 0.05
 #: A peak contraction may exceed its limit by this much (mm) before a gait is refused:
 #: absorbs rounding in the files and the solver's own tolerance.
 LIMIT_TOL_MM = 1e-6
+#: Fraction of a winch's stated speed (scene ``winch_speed_mm_s``) a gait may command at
+#: its fastest. The rest is the winch's reserve to catch up: the motor model's load and
+#: battery vary (the firmware runs the motor from the battery within 60 counts of its
+#: target), and commands reach the module 10-100 ms late over Wi-Fi and ROS, so a winch
+#: driven at its full speed would lag for the whole edge and arrive late at every shape.
+WINCH_SPEED_MARGIN = 0.75
+#: Largest time scale a gait accepts (an explicit one or the one ``auto`` finds).
+MAX_TIME_SCALE = 100.0
+#: Relative tolerance on the speed check: a gait tuned to exactly the limit passes.
+SPEED_TOL = 1e-9
 #: Shortest period a gait accepts (s); also the lower bound of the node's overrides.
 MIN_PERIOD_S = 0.05
 #: Longest period a gait accepts (s).
@@ -153,7 +168,14 @@ class Gait:
         Largest contraction allowed per module (mm): the smaller of the solver's
         reachable contraction and the scene's ``max_contraction_mm``.
     peak_speed_mm_s : ndarray
-        Largest commanded cable speed per module (mm/s); inf for steps without ramps.
+        Largest commanded cable speed per module (mm/s), exact for the cosine edges;
+        inf for steps without ramps.
+    speed_limit_mm_s : ndarray
+        Largest cable speed allowed per module (mm/s): `WINCH_SPEED_MARGIN` times the
+        scene's ``winch_speed_mm_s``; ``peak_speed_mm_s`` never exceeds it.
+    time_scale : float
+        Factor every duration of the spec was multiplied by (1: as written; above 1:
+        slowed down, by ``time_scale: auto`` or an explicit scale).
     reachable_checked : bool
         True if the limits include the solver's reachable contraction (False only when
         the solver is not installed; a RuntimeWarning is issued then).
@@ -172,6 +194,8 @@ class Gait:
     peak_speed_mm_s: np.ndarray
     reachable_checked: bool
     params: Mapping[str, Any]
+    speed_limit_mm_s: np.ndarray
+    time_scale: float
     _profile: Callable[[np.ndarray], np.ndarray] = field(repr=False)
 
     @property
@@ -318,11 +342,13 @@ def _pulse_gait(s: _Spec, phases: dict[str, float], duty_default: float | None =
         # starts from the straight robot instead of jumping into pulses begun "earlier".
         return np.where(u < 0.0, 0.0, amp[None, :] * pulse_shape(u, duty, rise))
 
+    # Peak speed of a half-cosine edge of height a over r seconds: a * pi / (2 r), exactly.
     speed = amp * math.pi / (2.0 * rise_s) if rise_s > 0 else np.where(amp > 0, np.inf, 0.0)
+    edges = [f'{a:g} mm pulse edges ({rise_s:g} s cosine ramps, rise_time_s)' for a in amp]
     params = {'period_s': period, 'duty': duty, 'rise_time_s': rise_s,
               'amplitude_mm': {m: float(a) for m, a in zip(names, amp)},
               'phase': {m: float(p) for m, p in zip(names, phase) if m in phases}}
-    return period, True, profile, amp, speed, params
+    return period, True, profile, amp, speed, params, edges
 
 
 def _build_pulse(s: _Spec):
@@ -370,13 +396,18 @@ def _keyframe_gait(s: _Spec, frames: dict[str, tuple[np.ndarray, np.ndarray]],
                          for ts, vs in tables], axis=-1)
 
     peak = np.array([vs.max() for _, vs in tables])
-    speed = []
+    speed, edges = [], []
     for ts, vs in tables:
         if loop and ts[-1] < period:
             ts, vs = np.append(ts, period), np.append(vs, vs[0])
         dt, dv = np.diff(ts), np.abs(np.diff(vs))
-        speed.append(float((dv * math.pi / (2.0 * dt)).max(initial=0.0)))
-    return period, loop, profile, peak, np.array(speed), params
+        # Peak speed of a cosine ease of height dv over dt seconds: dv * pi / (2 dt), exactly.
+        seg = dv * math.pi / (2.0 * dt)
+        speed.append(float(seg.max(initial=0.0)))
+        k = int(np.argmax(seg)) if seg.size else 0
+        edges.append(f'keyframes [{ts[k]:g} s, {vs[k]:g} mm] -> [{ts[k + 1]:g} s, '
+                     f'{vs[k + 1]:g} mm]' if seg.size else 'no motion')
+    return period, loop, profile, peak, np.array(speed), params, edges
 
 
 def _build_keyframes(s: _Spec):
@@ -460,7 +491,8 @@ def reachable_contraction_mm(skeleton, threading_mm) -> float:
 # --------------------------------------------------------------------- entry point
 
 def make_gait(spec, scene, *, name: str | None = None, period_s: float | None = None,
-              amplitude_mm: float | None = None, check_reachable: bool = True) -> Gait:
+              amplitude_mm: float | None = None, check_reachable: bool = True,
+              time_scale: float | str | None = None) -> Gait:
     """Build and check a gait for `scene`.
 
     Parameters
@@ -479,12 +511,33 @@ def make_gait(spec, scene, *, name: str | None = None, period_s: float | None = 
     check_reachable : bool
         Check peaks against the solver's reachable contraction (True by default; the
         scene's ``max_contraction_mm`` is always checked).
+    time_scale : float or 'auto', optional
+        Multiply every duration of the gait (period, rise times, keyframe times, grasp
+        phases; after a `period_s` override) by this factor, > 0. ``'auto'``: the
+        smallest factor >= 1 that brings every module's peak cable speed within
+        `WINCH_SPEED_MARGIN` of its winch speed (1 if the gait is slow enough already).
+        None (default): the spec's own ``time_scale`` key, else 1.
 
     Raises
     ------
     GaitError (a ValueError)
         Unknown gait name or type (the message lists the known ones), invalid spec,
-        override out of range, or a contraction beyond a module's limit.
+        override out of range, a contraction beyond a module's limit, or a cable speed
+        beyond what a module's winch can follow (the message gives the speed needed, the
+        winch's, the module and the edge, and the time scale that would fix it).
+
+    Examples
+    --------
+    >>> from softsnap_model.scene import load_scene
+    >>> scene = load_scene('brittle_star')
+    >>> fast = {'type': 'alternating', 'period_s': 1.0, 'groups': [['blue'], ['red']],
+    ...         'amplitude_mm': 40.0, 'rise_time_s': 0.1}
+    >>> make_gait(fast, scene)                                    # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    softsnap_gaits.gaits.GaitError: ... module 'blue' needs 628.3 mm/s of cable on its 40 mm pulse edges ...
+    >>> gait = make_gait(fast, scene, time_scale='auto')
+    >>> round(gait.time_scale, 3), round(float(gait.peak_speed_mm_s.max()), 2)
+    (9.067, 69.3)
     """
     source = f'scene {scene.name!r} ({scene.path})'
     if isinstance(spec, str):
@@ -500,25 +553,48 @@ def make_gait(spec, scene, *, name: str | None = None, period_s: float | None = 
     if gait_type not in GAIT_TYPES:
         raise GaitError(f'{source}: gaits.{name}.type: unknown gait type {gait_type!r}; known '
                         f'types: {", ".join(GAIT_TYPES)}')
+    spec_scale = spec.pop('time_scale', None)
+    if time_scale is None:
+        time_scale, scale_key = (1.0 if spec_scale is None else spec_scale), f'gaits.{name}.time_scale'
+    else:
+        scale_key = f'gaits.{name}: time scale override'
+    auto = isinstance(time_scale, str) and time_scale.strip().lower() == 'auto'
+    if not auto and (isinstance(time_scale, bool) or not isinstance(time_scale, (int, float))
+                     or not 1.0 / MAX_TIME_SCALE <= time_scale <= MAX_TIME_SCALE):
+        raise GaitError(f'{source}: {scale_key}: expected auto or a number from '
+                        f'{1.0 / MAX_TIME_SCALE:g} to {MAX_TIME_SCALE:g}, got {time_scale!r}')
     if period_s is not None:
         if isinstance(period_s, bool) or not MIN_PERIOD_S <= float(period_s) <= MAX_PERIOD_S:
             raise GaitError(f'{source}: gaits.{name}: period override must be from '
                             f'{MIN_PERIOD_S} to {MAX_PERIOD_S} s, got {period_s!r}')
         spec = _with_period(spec, float(period_s))
-    s = _Spec(name, spec, scene, source)
-    period, loop, profile, peak, speed, params = GAIT_TYPES[gait_type](s)
-    s.finish()
     if amplitude_mm is not None:
         amplitude_mm = float(amplitude_mm)
         if not math.isfinite(amplitude_mm) or amplitude_mm < 0.0:
             raise GaitError(f'{source}: gaits.{name}: amplitude override must be >= 0 mm, '
                             f'got {amplitude_mm!r}')
-        top = float(peak.max(initial=0.0))
-        factor = amplitude_mm / top if top > 0 else 0.0
-        base_profile = profile
-        profile = lambda t, f=factor, p=base_profile: f * p(t)  # noqa: E731
-        peak, speed = peak * factor, speed * factor
-        params = dict(params, amplitude_scale=factor)
+
+    winch = np.array([m.winch_speed_mm_s for m in scene.modules], dtype=float)
+    speed_limit = WINCH_SPEED_MARGIN * winch
+    built = _build(spec, name, scene, source, amplitude_mm)
+    scale = 1.0 if auto else float(time_scale)
+    if auto:
+        ratio = built[4] / speed_limit
+        if np.any(np.isinf(ratio)):
+            i = int(np.argmax(np.isinf(ratio)))
+            raise GaitError(f'{source}: gaits.{name}: module {scene.modules[i].name!r} steps '
+                            f'without a ramp on its {built[6][i]}: no time scale makes a step '
+                            'followable; give it a ramp (rise_time_s > 0)')
+        scale = max(1.0, float(ratio.max(initial=0.0)) * (1.0 + 1e-12))
+        if scale > MAX_TIME_SCALE:
+            raise GaitError(f'{source}: gaits.{name}: time_scale auto would slow the gait '
+                            f'{scale:.3g} times, beyond {MAX_TIME_SCALE:g}; lower its amplitude')
+    if scale != 1.0:
+        scaled = _with_time_scale(spec, scale)
+        _check_period(scaled, name, source)
+        built = _build(scaled, name, scene, source, amplitude_mm)
+    period, loop, profile, peak, speed, params, edges = built
+    params = dict(params, time_scale=scale)
 
     limits = []
     for i, m in enumerate(scene.modules):
@@ -531,13 +607,68 @@ def make_gait(spec, scene, *, name: str | None = None, period_s: float | None = 
         if peak[i] > limit + LIMIT_TOL_MM:
             raise GaitError(f'{source}: gaits.{name}: module {m.name!r} would contract '
                             f'{peak[i]:.3f} mm, beyond {why} ({limit:.3f} mm)')
+    for i, m in enumerate(scene.modules):
+        if speed[i] > speed_limit[i] * (1.0 + SPEED_TOL):
+            need = speed[i] / speed_limit[i] * scale
+            fix = (f'slow it down at least {need:.3g} times (time_scale: auto does this)'
+                   if math.isfinite(need) else 'give it a ramp (rise_time_s > 0)')
+            raise GaitError(f'{source}: gaits.{name}: module {m.name!r} needs '
+                            f'{speed[i]:.1f} mm/s of cable on its {edges[i]}, beyond '
+                            f'{speed_limit[i]:.1f} mm/s ({WINCH_SPEED_MARGIN:.0%} of its '
+                            f'winch speed {winch[i]:g} mm/s, winch_speed_mm_s): the winch '
+                            f'could not follow; {fix}, or lower the amplitude')
     return Gait(name=name, type=gait_type, period_s=period, loop=loop,
                 module_names=scene.module_names,
                 straight_length_mm=_frozen(np.array([m.straight_length_mm for m in scene.modules])),
                 peak_contraction_mm=_frozen(peak), limit_contraction_mm=_frozen(np.array(limits)),
                 peak_speed_mm_s=_frozen(np.asarray(speed, dtype=float)),
                 reachable_checked=check_reachable,
-                params=MappingProxyType(params), _profile=profile)
+                params=MappingProxyType(params), speed_limit_mm_s=_frozen(speed_limit),
+                time_scale=scale, _profile=profile)
+
+
+def _build(spec: dict, name: str, scene, source: str, amplitude_mm: float | None):
+    """Run the type's builder and the amplitude override: (period, loop, profile, peak,
+    speed, params, edges)."""
+    s = _Spec(name, spec, scene, source)
+    period, loop, profile, peak, speed, params, edges = GAIT_TYPES[spec['type']](s)
+    s.finish()
+    if amplitude_mm is not None:
+        top = float(peak.max(initial=0.0))
+        factor = amplitude_mm / top if top > 0 else 0.0
+        base_profile = profile
+        profile = lambda t, f=factor, p=base_profile: f * p(t)  # noqa: E731
+        peak, speed = peak * factor, speed * factor
+        params = dict(params, amplitude_scale=factor)
+        edges = [f'{e} scaled by {factor:.3g} (amplitude override)' for e in edges]
+    return period, loop, profile, peak, speed, params, edges
+
+
+def _check_period(spec: dict, name: str, source: str) -> None:
+    """A time-scaled period must still be within [MIN_PERIOD_S, MAX_PERIOD_S]."""
+    p = spec.get('period_s')
+    if isinstance(p, (int, float)) and not isinstance(p, bool) and not MIN_PERIOD_S <= p <= MAX_PERIOD_S:
+        raise GaitError(f'{source}: gaits.{name}: time-scaled period {p:g} s is outside '
+                        f'{MIN_PERIOD_S} to {MAX_PERIOD_S} s')
+
+
+def _with_time_scale(spec: dict, factor: float) -> dict:
+    """Spec with every duration multiplied by `factor` (the curve's shape is kept)."""
+    t = spec.get('type')
+    if t == 'grasp':
+        keys = ('close_s', 'hold_s', 'open_s', 'rest_s')
+        return dict(spec, **{k: spec[k] * factor for k in keys
+                             if isinstance(spec.get(k), (int, float)) and not isinstance(spec[k], bool)})
+    period = spec.get('period_s')
+    if not isinstance(period, (int, float)) or isinstance(period, bool):
+        return spec          # invalid: the builder refuses it with the reason
+    if t == 'keyframes':
+        return _with_period(spec, period * factor)
+    rise = spec.get('rise_time_s', DEFAULT_RISE_TIME_S)
+    out = dict(spec, period_s=period * factor)
+    if isinstance(rise, (int, float)) and not isinstance(rise, bool):
+        out['rise_time_s'] = rise * factor
+    return out
 
 
 def _with_period(spec: dict, period_s: float) -> dict:

@@ -118,10 +118,12 @@ class RerunLoggerNode(SoftSnapNode):
         grpc_port = self.get_parameter('serve_grpc_port').value or (9876 if web_port else 0)
         bind_ip = self.get_parameter('serve_bind_ip').value
 
+        # Module colours (identity) and the robot's extent (the default top-down camera).
+        colors, bounds = recording.scene_style(scene) if scene is not None else (None, None)
         self.rec = recording.open_recording(self.output, viewer_url,
                                             serve_grpc_port=grpc_port or None,
                                             serve_bind_ip=bind_ip,
-                                            blueprint=recording.build_blueprint(),
+                                            blueprint=recording.build_blueprint(colors, bounds),
                                             application_id=f'softsnap_{robot}')
         self.web_url = None
         if web_port:
@@ -132,7 +134,8 @@ class RerunLoggerNode(SoftSnapNode):
             threadings_mm={m.name: m.threading_mm for m in getattr(scene, 'modules', [])},
             rate_hz=self.get_parameter('rate').value,
             spacing_mm=(scene.skeleton.spacing_mm if scene is not None
-                        else self.get_parameter('rib_spacing').value / recording.MM))
+                        else self.get_parameter('rib_spacing').value / recording.MM),
+            colors=colors)
         # Base poses from the scene, used when a RobotShape carries none.
         self.scene_poses = {m.name: (m.base_position_m, m.base_orientation_xyzw)
                             for m in getattr(scene, 'modules', [])}

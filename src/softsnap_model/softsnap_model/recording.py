@@ -61,16 +61,40 @@ SOURCES = ('commanded', 'predicted')
 RIB_SPACING_MM = Skeleton().spacing_mm
 RIB_HALF_LENGTH_MM = Skeleton().rib_length_mm / 2.0
 
-# Colours (RGB): commanded blue, predicted orange; ribs are lighter and the cable darker
-# shades of the same hue so the two shapes stay apart when they overlap.
-SPINE_COLORS = {'commanded': (40, 110, 240), 'predicted': (245, 130, 20)}
-RIB_COLORS = {'commanded': (150, 185, 250), 'predicted': (250, 195, 140)}
-CABLE_COLORS = {'commanded': (20, 50, 140), 'predicted': (170, 60, 0)}
+# Colour is identity, style is role. Each module keeps one hue everywhere (3D shapes and
+# every plot): its scene colour (the paper's module colours), else its name when that
+# is a colour, else the next free colour of MODULE_PALETTE. What a line is (commanded,
+# predicted, measured) is shown by saturation and width, never by hue: the commanded
+# shape (the target) is a thin muted "ghost" of the module's colour, the predicted shape
+# (from the measured length: where the module is) is bold in its full colour. So a
+# module called "blue" is blue and nothing else is.
+NAMED_COLORS = {
+    'blue': (40, 110, 240), 'orange': (245, 130, 20), 'green': (40, 175, 70),
+    'red': (225, 45, 45), 'purple': (160, 85, 230), 'yellow': (235, 200, 0),
+    'cyan': (0, 190, 210), 'magenta': (225, 60, 190), 'brown': (160, 100, 50),
+    'grey': (150, 150, 150),
+}
+MODULE_PALETTE = ('blue', 'orange', 'green', 'red', 'purple', 'yellow', 'cyan', 'magenta',
+                  'brown', 'grey')
+#: Share of the module colour kept in a commanded (target) line; the rest is a middle
+#: grey, so the target reads as a muted ghost of the bold predicted shape on the light
+#: and on the dark viewer theme alike.
+COMMANDED_BRIGHTNESS = 0.55
+GHOST_BASE = (128, 128, 128)
+#: Role styles: width factor of each role's lines (1 = bold). Plots use the same rule:
+#: a commanded series is dim and thin, a measured or predicted series full and thick.
+ROLE_WIDTH = {'commanded': 0.45, 'predicted': 1.0, 'measured': 1.0}
+ROLE_DESCRIPTION = {'commanded': 'thin, muted: the commanded shape or length (the target)',
+                    'predicted': 'bold, full colour: the shape predicted from the measured '
+                                 'length (where the module is)',
+                    'measured': 'bold, full colour: the measured length'}
 CONNECTOR_COLOR = (110, 110, 110)
-# Line radii in metres.
-SPINE_RADIUS_M = 0.0012
-RIB_RADIUS_M = 0.0006
-CABLE_RADIUS_M = 0.0003
+# Line radii in metres of the bold (predicted) role.
+SPINE_RADIUS_M = 0.0022
+RIB_RADIUS_M = 0.0009
+CABLE_RADIUS_M = 0.0005
+#: Series line widths in UI points of the bold role (plots).
+SERIES_WIDTH = 2.5
 
 MM = 1e-3  # metres per millimetre
 
@@ -104,25 +128,123 @@ def _check_name(module: str) -> None:
         raise ValueError(f'module name must be a non-empty word without "/", got {module!r}')
 
 
+# --- colours and styles -----------------------------------------------------------------
+
+RGB = tuple[int, int, int]
+
+
+def module_colors(modules: Iterable[tuple[str, str]]) -> dict[str, RGB]:
+    """Display colour of each module from (name, scene colour) pairs, in order.
+
+    The scene colour wins if it is a known colour name (NAMED_COLORS), then the module's
+    name if it is one; other modules take the next palette colour no module uses yet.
+
+    >>> module_colors([('head', ''), ('body2', ''), ('blue', '')])
+    {'head': (245, 130, 20), 'body2': (40, 175, 70), 'blue': (40, 110, 240)}
+    """
+    pairs = list(modules)
+    chosen: dict[str, str | None] = {}
+    for name, color in pairs:
+        for candidate in (str(color or '').strip().lower(), name.lower()):
+            if candidate in NAMED_COLORS:
+                chosen[name] = candidate
+                break
+        else:
+            chosen[name] = None
+    used = {c for c in chosen.values() if c}
+    free = [c for c in MODULE_PALETTE if c not in used] or list(MODULE_PALETTE)
+    k = 0
+    for name in chosen:
+        if chosen[name] is None:
+            chosen[name] = free[k % len(free)]
+            k += 1
+    return {name: NAMED_COLORS[c] for name, c in chosen.items()}
+
+
+def color_name(rgb: RGB) -> str:
+    """Name of a NAMED_COLORS colour (for legends); '' for any other."""
+    return next((n for n, c in NAMED_COLORS.items() if c == tuple(rgb)), '')
+
+
+def role_color(rgb: RGB, role: str) -> RGB:
+    """The colour a role draws a module in: full colour, or a muted ghost for commanded."""
+    if role not in ROLE_WIDTH:
+        raise ValueError(f'role must be one of {tuple(ROLE_WIDTH)}, got {role!r}')
+    if role != 'commanded':
+        return tuple(int(c) for c in rgb)
+    a = COMMANDED_BRIGHTNESS
+    return tuple(int(round(a * c + (1.0 - a) * g)) for c, g in zip(rgb, GHOST_BASE))
+
+
+def shade(rgb: RGB, factor: float) -> RGB:
+    """A darker shade (factor < 1) of a colour, for the cable inside the skeleton."""
+    return tuple(int(round(c * factor)) for c in rgb)
+
+
+def robot_bounds_m(points_m: Iterable[Sequence[float]]) -> tuple[tuple[float, float, float], float]:
+    """(centre, radius) in metres of a set of points: what the default camera frames."""
+    pts = np.asarray([[float(v) for v in p] for p in points_m], dtype=float).reshape(-1, 3)
+    if pts.size == 0:
+        raise ValueError('robot_bounds_m needs at least one point, got none')
+    centre = (pts.min(axis=0) + pts.max(axis=0)) / 2.0
+    radius = float(np.linalg.norm(pts - centre, axis=1).max())
+    return tuple(float(c) for c in centre), max(radius, 0.05)
+
+
+def scene_style(scene) -> tuple[dict[str, RGB], tuple[tuple[float, float, float], float]]:
+    """Module colours and robot bounds of a softsnap_model Scene (all modules straight)."""
+    from .scene import straight_tip_pose
+    colors = module_colors((m.name, m.color) for m in scene.modules)
+    points = [m.base_position_m for m in scene.modules]
+    points += [straight_tip_pose(m, scene.skeleton)[0] for m in scene.modules]
+    return colors, robot_bounds_m(points)
+
+
 # --- blueprint --------------------------------------------------------------------------
 
-def build_blueprint() -> rrb.Blueprint:
-    """The layout: the assembled robot in 3D on the left, the time series on the right.
+#: The default camera looks down on the robot from this far above the centre of its
+#: bounds, in bound radii (the 3D view is about as wide as tall; 55 degree field of view),
+#: tilted this far from the vertical so the orbit keeps z up.
+CAMERA_HEIGHT_RADII = 2.1
+CAMERA_TILT_RAD = math.radians(12.0)
+LEGEND_ROOT = 'legend'
 
-    Each view takes a quantity subtree, so one blueprint fits every robot and module count.
+
+def top_down_eye(bounds: tuple[Sequence[float], float]) -> rrb.EyeControls3D:
+    """Orbital camera above the centre of `bounds` (centre m, radius m), looking down."""
+    centre, radius = bounds
+    height = CAMERA_HEIGHT_RADII * radius
+    position = (centre[0], centre[1] - height * math.tan(CAMERA_TILT_RAD), centre[2] + height)
+    return rrb.EyeControls3D(kind=rrb.Eye3DKind.Orbital, position=position,
+                             look_target=tuple(centre), eye_up=(0.0, 0.0, 1.0))
+
+
+def build_blueprint(colors: Mapping[str, RGB] | None = None,
+                    bounds: tuple[Sequence[float], float] | None = None) -> rrb.Blueprint:
+    """The layout: the robot in 3D and the legend on the left, the time series on the right.
+
+    One plot per quantity; each takes a quantity subtree, so one blueprint fits every robot
+    and module count. The plots draw no legend of their own (with ten series it would
+    cover the data): the legend view names every module's colour and every role's style,
+    and hovering a line names its series. With `bounds` (centre m, radius m: see
+    `scene_style`) the 3D view starts looking down on the whole robot.
     """
     def plot(title: str, quantity: str) -> rrb.TimeSeriesView:
-        return rrb.TimeSeriesView(name=title, origin=f'{PLOTS_ROOT}/{quantity}')
+        return rrb.TimeSeriesView(name=title, origin=f'{PLOTS_ROOT}/{quantity}',
+                                  plot_legend=rrb.PlotLegend(visible=False))
 
     plots = rrb.Vertical(
-        plot('Cable length, commanded and measured (mm)', 'cable_length_mm'),
+        plot('Cable length (mm): commanded thin, measured bold', 'cable_length_mm'),
         plot('Tip error, commanded vs predicted (mm)', 'tip_error_mm'),
-        plot('Solver time (ms)', 'solve_time_ms'),
+        plot('Solver time (ms): commanded thin, predicted bold', 'solve_time_ms'),
         plot('Battery (V)', 'battery_v'),
     )
-    scene = rrb.Spatial3DView(name='Robot: commanded (blue) vs predicted (orange)',
-                              origin=ROBOT_ROOT)
-    return rrb.Blueprint(rrb.Horizontal(scene, plots, column_shares=[3, 2]),
+    scene = rrb.Spatial3DView(
+        name='Robot from above: commanded thin and muted, predicted bold',
+        origin=ROBOT_ROOT, eye_controls=None if bounds is None else top_down_eye(bounds))
+    legend = rrb.TextDocumentView(name='Legend', origin=LEGEND_ROOT)
+    left = rrb.Vertical(scene, legend, row_shares=[4, 1])
+    return rrb.Blueprint(rrb.Horizontal(left, plots, column_shares=[3, 2]),
                          collapse_panels=True)
 
 
@@ -272,14 +394,42 @@ def log_scene_setup(rec: rr.RecordingStream) -> None:
     rec.log(ROBOT_ROOT, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
 
 
-def log_series_styles(rec: rr.RecordingStream, module: str) -> None:
-    """Static legend names of a module's time series (the viewer picks the colours)."""
+def log_series_styles(rec: rr.RecordingStream, module: str, color: RGB) -> None:
+    """Static names, colours and widths of a module's time series.
+
+    The module's colour on every series; the role by brightness and width (commanded
+    dim and thin, measured/predicted full and bold).
+    """
     for quantity, series in (('cable_length_mm', 'commanded'), ('cable_length_mm', 'measured'),
                              ('solve_time_ms', 'commanded'), ('solve_time_ms', 'predicted')):
         rec.log(plot_path(quantity, module, series),
-                rr.SeriesLines(names=[f'{module} {series}']), static=True)
+                rr.SeriesLines(names=[f'{module} {series}'], colors=[role_color(color, series)],
+                               widths=[SERIES_WIDTH * ROLE_WIDTH[series]]), static=True)
     for quantity in ('tip_error_mm', 'battery_v'):
-        rec.log(plot_path(quantity, module), rr.SeriesLines(names=[module]), static=True)
+        rec.log(plot_path(quantity, module),
+                rr.SeriesLines(names=[module], colors=[color], widths=[SERIES_WIDTH]),
+                static=True)
+
+
+def legend_markdown(colors: Mapping[str, RGB]) -> str:
+    """The legend's text: which colour is which module, which style is which role, and
+    the series of every plot (the plots draw no legend of their own)."""
+    modules = ', '.join(f'**{name}** {color_name(rgb) or "rgb" + str(tuple(rgb))}'
+                        if color_name(rgb) != name else f'**{name}**'
+                        for name, rgb in colors.items())
+    return (f'**Colour = module** (named at its base in 3D): {modules}.  \n'
+            '**Style = role:** thin, muted = commanded (the target); bold, full colour = '
+            'predicted from the measured length (3D, solver time) or measured (cable length).'
+            f'  \n**Plots** (hover a line for its name): cable length, commanded and measured '
+            f'of each module ({2 * len(colors)} lines); tip error ({len(colors)}); solver '
+            f'time, commanded and predicted ({2 * len(colors)}); battery ({len(colors)}).')
+
+
+def log_legend(rec: rr.RecordingStream, colors: Mapping[str, RGB]) -> None:
+    """Static legend text (markdown) for the legend view; see `legend_markdown`."""
+    if colors:
+        rec.log(LEGEND_ROOT, rr.TextDocument(legend_markdown(colors),
+                                             media_type=rr.MediaType.MARKDOWN), static=True)
 
 
 def log_base_poses(rec: rr.RecordingStream,
@@ -298,27 +448,43 @@ def log_base_poses(rec: rr.RecordingStream,
                 static=static)
 
 
-def log_connector(rec: rr.RecordingStream, positions_m: Mapping[str, Sequence[float]]) -> None:
-    """Static markers where the modules attach to the connector, labelled by module."""
+def log_connector(rec: rr.RecordingStream, positions_m: Mapping[str, Sequence[float]],
+                  colors: Mapping[str, RGB] | None = None) -> None:
+    """Static markers where the modules attach to the connector, labelled by module and
+    drawn in the module's colour (grey without colours)."""
     if positions_m:
+        colors = colors or {}
         rec.log(f'{ROBOT_ROOT}/connector',
                 rr.Points3D([[float(v) for v in p] for p in positions_m.values()],
-                            radii=0.004, colors=[CONNECTOR_COLOR], labels=list(positions_m)),
+                            radii=0.004, labels=list(positions_m),
+                            colors=[colors.get(m, CONNECTOR_COLOR) for m in positions_m]),
                 static=True)
 
 
+def shape_colors(color: RGB, source: str) -> dict[str, RGB]:
+    """Colours of the spine, ribs and cable of a module's `source` shape.
+
+    Spine and ribs in the role's colour (`role_color`), the cable a darker shade of it.
+    """
+    base = role_color(color, source)
+    return {'spine': base, 'ribs': base, 'cable': shade(base, 0.6)}
+
+
 def log_shape_styles(rec: rr.RecordingStream, module: str, source: str,
-                     cable: bool = True) -> None:
+                     cable: bool = True, color: RGB = NAMED_COLORS['blue']) -> None:
     """Static colours and radii of a shape's strips, logged once per module and source.
 
-    Per-frame logs then carry the points only (about half the bytes and time per frame).
+    The module's colour, styled by role (see `shape_colors`, `ROLE_WIDTH`). Per-frame logs
+    then carry the points only (about half the bytes and time per frame).
     """
-    parts = [('spine', SPINE_COLORS, SPINE_RADIUS_M), ('ribs', RIB_COLORS, RIB_RADIUS_M)]
+    colors = shape_colors(color, source)
+    width = ROLE_WIDTH[source]
+    parts = [('spine', SPINE_RADIUS_M), ('ribs', RIB_RADIUS_M)]
     if cable:
-        parts.append(('cable', CABLE_COLORS, CABLE_RADIUS_M))
-    for part, color, radius in parts:
+        parts.append(('cable', CABLE_RADIUS_M))
+    for part, radius in parts:
         rec.log(shape_path(module, source, part),
-                rr.LineStrips3D.from_fields(colors=[color[source]], radii=[radius]),
+                rr.LineStrips3D.from_fields(colors=[colors[part]], radii=[radius * width]),
                 static=True)
 
 
@@ -381,12 +547,17 @@ class RobotRecorder:
         Largest logging rate per module and data source (0: log everything).
     spacing_mm:
         Spine arc length between ribs, used when a message carries no rib centres.
+    colors:
+        Display colour (RGB) by module name (see `module_colors`, `scene_style`); modules
+        without one take the next free palette colour when first seen.
     """
 
     def __init__(self, rec: rr.RecordingStream, *, modules: Iterable[str] | None = None,
                  threadings_mm: Mapping[str, Sequence[float]] | None = None,
-                 rate_hz: float = 30.0, spacing_mm: float = RIB_SPACING_MM):
+                 rate_hz: float = 30.0, spacing_mm: float = RIB_SPACING_MM,
+                 colors: Mapping[str, RGB] | None = None):
         self.rec = rec
+        self.colors: dict[str, RGB] = dict(colors or {})
         self.modules = None if modules is None else frozenset(modules)
         self.threadings_mm = dict(threadings_mm or {})
         self.spacing_mm = spacing_mm
@@ -397,6 +568,17 @@ class RobotRecorder:
         self._latest: dict[tuple[str, str], RibFrames] = {}
         self._styled: set[object] = set()
         log_scene_setup(rec)
+        if self.colors:
+            log_legend(rec, self.colors)
+
+    def color(self, module: str) -> RGB:
+        """The module's display colour; a new module takes the next free palette colour
+        (and the legend is redrawn with it)."""
+        if module not in self.colors:
+            pairs = [(m, color_name(c)) for m, c in self.colors.items()] + [(module, '')]
+            self.colors[module] = module_colors(pairs)[module]
+            log_legend(self.rec, self.colors)
+        return self.colors[module]
 
     def wants(self, module: str) -> bool:
         """True if ``module`` belongs to the logged set."""
@@ -410,7 +592,7 @@ class RobotRecorder:
             return False
         if module not in self._styled:
             self._styled.add(module)
-            log_series_styles(self.rec, module)
+            log_series_styles(self.rec, module, self.color(module))
         self.logged += 1
         set_stamp(self.rec, stamp_ns)
         return True
@@ -430,7 +612,8 @@ class RobotRecorder:
         if not changed:
             return
         if not self._poses:
-            log_connector(self.rec, {m: p for m, (p, _) in changed.items()})
+            log_connector(self.rec, {m: p for m, (p, _) in changed.items()},
+                          {m: self.color(m) for m in changed})
         self._poses.update(changed)
         set_stamp(self.rec, stamp_ns)
         log_base_poses(self.rec, changed)
@@ -447,7 +630,8 @@ class RobotRecorder:
             return False
         if (module, source) not in self._styled:
             self._styled.add((module, source))
-            log_shape_styles(self.rec, module, source, module in self.threadings_mm)
+            log_shape_styles(self.rec, module, source, module in self.threadings_mm,
+                             self.color(module))
         log_module_shape(self.rec, module, source, frames, self.threadings_mm.get(module))
         if solve_time_s is not None:
             log_scalar(self.rec, plot_path('solve_time_ms', module, source), solve_time_s * 1e3)
@@ -500,9 +684,10 @@ def _write_shapes(path: str | Path, shapes: Mapping[str, Sequence[Sequence[float
         poses = {name: ((0.0, -row_spacing_m * i, 0.0), (0.0, 0.0, 0.0, 1.0))
                  for i, name in enumerate(shapes)}
         log_base_poses(rec, poses, static=True)
-        log_connector(rec, {name: p for name, (p, _) in poses.items()})
+        colors = module_colors((name, '') for name in shapes)
+        log_connector(rec, {name: p for name, (p, _) in poses.items()}, colors)
         for name in shapes:
-            log_shape_styles(rec, name, 'predicted', name in threadings_mm)
+            log_shape_styles(rec, name, 'predicted', name in threadings_mm, colors[name])
         tips: dict[str, list[np.ndarray]] = {name: [] for name in shapes}
         for step, contraction in enumerate(contractions_mm):
             rec.set_time(STEP_TIMELINE, sequence=step)
@@ -516,8 +701,8 @@ def _write_shapes(path: str | Path, shapes: Mapping[str, Sequence[Sequence[float
         for name, points in tips.items():
             # The workspace: where the tip goes over the whole sweep.
             rec.log(f'{module_path(name)}/workspace/tip_path',
-                    rr.LineStrips3D([np.asarray(points)], radii=SPINE_RADIUS_M / 2,
-                                    colors=[CABLE_COLORS['commanded']]), static=True)
+                    rr.LineStrips3D([np.asarray(points)], radii=SPINE_RADIUS_M / 4,
+                                    colors=[shade(colors[name], 0.6)]), static=True)
     finally:
         close_recording(rec)
     return path

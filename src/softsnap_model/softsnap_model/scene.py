@@ -40,7 +40,8 @@ import yaml
 __all__ = [
     'Scene', 'SceneModule', 'SceneError', 'load_scene', 'find_scene', 'list_scenes',
     'compose_base_pose', 'straight_tip_pose', 'quaternion_to_matrix', 'SCENE_FORMAT', 'DEFAULT_HOST',
-    'DEFAULT_COUNTS_PER_MM', 'PAPER_MAX_CONTRACTION_MM', 'SCENE_PATH_ENV',
+    'DEFAULT_COUNTS_PER_MM', 'DEFAULT_WINCH_SPEED_MM_S', 'PAPER_MAX_CONTRACTION_MM',
+    'SCENE_PATH_ENV',
 ]
 
 #: Scene file format version this loader understands (the file's ``format`` key).
@@ -52,6 +53,15 @@ DEFAULT_HOST = '127.0.0.1'
 #: quadrature encoder (28 counts per motor turn), 1:100 gearbox (2800 counts per winch
 #: turn), winch drum 10 mm in diameter (31.4 mm of cable per turn).
 DEFAULT_COUNTS_PER_MM = 2800.0 / (math.pi * 10.0)
+#: Cable speed of a winch (mm/s) when a scene gives none: the speed the driver's motor
+#: model (softsnap_driver.firmware.MotorModel, FACTS.md) gives at the driver's default PWM.
+#: GA12-N20 1:100: 300 rpm at the output shaft at 6 V without load (the firmware boosts the
+#: motor to 6 V while it is more than 60 counts from its target); the cable load takes 25 %
+#: of the stall torque (speed x 0.75); the driver sends PWM 200 of 255; the 10 mm drum
+#: winds pi * 10 mm per turn: 300 / 60 * 0.75 * 200 / 255 * pi * 10 = 92.4 mm/s.
+#: Not imported from the driver (softsnap_model does not depend on it);
+#: test/gaits/test_scenes.py checks it against the motor model.
+DEFAULT_WINCH_SPEED_MM_S = 300.0 / 60.0 * (1.0 - 0.25) * (200.0 / 255.0) * math.pi * 10.0
 #: Largest cable contraction shown in the paper (mm); the default per-module limit.
 PAPER_MAX_CONTRACTION_MM = 80.0
 #: Environment variable: extra directories (os.pathsep-separated) searched for scenes first.
@@ -62,6 +72,9 @@ AXIS_TOL = 1e-6
 #: Tolerances (m, rad) on a chained module's stated base pose against its parent's.
 CHAIN_POSE_TOL_M = 5e-4
 CHAIN_ANGLE_TOL_RAD = 1e-3
+#: Fastest winch a scene may state (mm/s): 10 m/s of cable is far beyond any module motor,
+#: so a larger value is a unit mistake (m/s or counts/s).
+MAX_WINCH_SPEED_MM_S = 10000.0
 #: Largest distance (m) of a module base from the robot origin that we accept.
 MAX_BASE_DISTANCE_M = 5.0
 
@@ -97,6 +110,9 @@ class SceneModule:
     max_contraction_mm : float
         User limit on the cable contraction (mm); gaits are also held to the solver's
         reachable range.
+    winch_speed_mm_s : float
+        Cable speed of the module's winch at full drive (mm/s of cable); gaits are held
+        to a fraction of it (softsnap_gaits.gaits.WINCH_SPEED_MARGIN).
     color : str
         Display colour (the paper's module colours for the starfish and brittle star).
     parent : str or None
@@ -117,6 +133,7 @@ class SceneModule:
     counts_per_mm: float
     straight_length_mm: float
     max_contraction_mm: float = PAPER_MAX_CONTRACTION_MM
+    winch_speed_mm_s: float = DEFAULT_WINCH_SPEED_MM_S
     color: str = ''
     parent: str | None = None
     parent_offset_position_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
@@ -398,10 +415,10 @@ class _Checker:
 
 _TOP_REQUIRED = {'format', 'name', 'description', 'connector', 'modules', 'gaits', 'default_gait'}
 _TOP_OPTIONAL = {'frame', 'defaults', 'skeleton'}
-_DEFAULT_KEYS = {'host', 'counts_per_mm', 'max_contraction_mm'}
+_DEFAULT_KEYS = {'host', 'counts_per_mm', 'max_contraction_mm', 'winch_speed_mm_s'}
 _MODULE_REQUIRED = {'name', 'threading', 'port', 'base'}
-_MODULE_OPTIONAL = {'host', 'counts_per_mm', 'max_contraction_mm', 'color', 'parent',
-                    'parent_offset'}
+_MODULE_OPTIONAL = {'host', 'counts_per_mm', 'max_contraction_mm', 'winch_speed_mm_s', 'color',
+                    'parent', 'parent_offset'}
 _POSE_ORIENTATIONS = ('axes', 'rpy_deg', 'orientation_xyzw')
 _SKELETON_KEYS = {'n_ribs', 'spacing_mm', 'rib_length_mm', 'holes_mm', 'stiffness',
                   'rib_thickness_mm'}
@@ -579,6 +596,9 @@ def load_scene(path_or_name: str | os.PathLike) -> Scene:
                              'defaults.counts_per_mm', low=0.0, low_open=True, high=1e6)
     default_max = chk.number(defaults.get('max_contraction_mm', PAPER_MAX_CONTRACTION_MM),
                              'defaults.max_contraction_mm', low=0.0, low_open=True, high=1000.0)
+    default_speed = chk.number(defaults.get('winch_speed_mm_s', DEFAULT_WINCH_SPEED_MM_S),
+                               'defaults.winch_speed_mm_s', low=0.0, low_open=True,
+                               high=MAX_WINCH_SPEED_MM_S)
 
     skeleton = _make_skeleton(chk, data.get('skeleton'), 'skeleton')
 
@@ -608,6 +628,8 @@ def load_scene(path_or_name: str | os.PathLike) -> Scene:
                          low=0.0, low_open=True, high=1e6)
         max_c = chk.number(raw.get('max_contraction_mm', default_max),
                            f'{key}.max_contraction_mm', low=0.0, low_open=True, high=straight)
+        speed = chk.number(raw.get('winch_speed_mm_s', default_speed), f'{key}.winch_speed_mm_s',
+                           low=0.0, low_open=True, high=MAX_WINCH_SPEED_MM_S)
         color = chk.string(raw.get('color', ''), f'{key}.color', nonempty=False)
         position, orientation = _pose(chk, raw['base'], f'{key}.base')
         parent = raw.get('parent')
@@ -624,7 +646,8 @@ def load_scene(path_or_name: str | os.PathLike) -> Scene:
         modules.append(SceneModule(
             name=mname, holes=holes, threading_mm=offsets, base_position_m=position,
             base_orientation_xyzw=orientation, host=host, port=port, counts_per_mm=cpm,
-            straight_length_mm=straight, max_contraction_mm=max_c, color=color, parent=parent,
+            straight_length_mm=straight, max_contraction_mm=max_c, winch_speed_mm_s=speed,
+            color=color, parent=parent,
             parent_offset_position_m=offset_pos, parent_offset_orientation_xyzw=offset_q,
             index=i))
     for i, m in enumerate(modules):
