@@ -86,7 +86,7 @@ def _bend_direction(d1, d2):
     return -1.0 if d1 >= 0 else 1.0
 
 
-def _solve_segment(g, b_max, n_scan=400):
+def _solve_segment(g, b_max, n_scan=80):
     """Smallest b in (0, b_max] with g(b) = 0 after g < 0 (the followed branch), b_max
     when g stays negative (contact), 0 when g >= 0 right away (mirror below buckling)."""
     grid = np.linspace(0.0, b_max, n_scan + 1)[1:]

@@ -75,6 +75,7 @@ as converged without these checks.
 """
 from __future__ import annotations
 
+import functools
 import math
 import numbers
 from dataclasses import dataclass
@@ -303,6 +304,7 @@ class _Ctx:
         self.mirror = br.mirror
         self.end_angle = br.end_angle_rad
         self.end_tension = br.end_tension * self.k     # tension reaching contact
+        self.buckling = br.buckling_tension * self.k    # mirror segments start bending
         self.lo, self.hi = reachable_range(skeleton, d)
 
     def branch_angles(self, T):
@@ -351,20 +353,22 @@ def _equations(ctx, x, L, modes, S_prev, contact, straight, fixed):
     # Length constraint (mm).
     F[n] = length.sum() - L
     J[n, :n] = lp
-    # Interior holes k = 1..n-1.
+    # Interior holes k = 1..n-1: slip relation (dimensionless) or stick relation (mm).
     S = np.cumsum(length[::-1])[::-1]        # S_k = sum_{j>=k} L_j
-    for kk in range(1, n):
-        row = n + kk
-        m = modes[kk]
-        if m == STICK:
-            F[row] = S[kk] - S_prev[kk]
-            J[row, kk:n] = lp[kk:]
-        else:
-            F[row] = u[kk] - u[kk - 1] - m * ctx.mu[kk] * theta[kk]
-            J[row, n + kk] = 1.0
-            J[row, n + kk - 1] = -1.0
-            J[row, kk] = -m * ctx.mu[kk] * dth_self[kk]
-            J[row, kk - 1] = -m * ctx.mu[kk] * dth_prev[kk]
+    m = np.asarray(modes[1:], dtype=float)
+    kk = np.arange(1, n)
+    stick = m == STICK
+    slip_f = u[1:] - u[:-1] - m * ctx.mu[1:] * theta[1:]
+    F[n + 1:] = np.where(stick, S[1:] - (S_prev[1:] if S_prev is not None else 0.0), slip_f)
+    rows = n + kk
+    sl = ~stick
+    J[rows[sl], n + kk[sl]] = 1.0
+    J[rows[sl], n + kk[sl] - 1] = -1.0
+    J[rows[sl], kk[sl]] = -m[sl] * ctx.mu[kk[sl]] * dth_self[kk[sl]]
+    J[rows[sl], kk[sl] - 1] = -m[sl] * ctx.mu[kk[sl]] * dth_prev[kk[sl]]
+    if stick.any():
+        upper = np.triu(np.ones((n, n)))[1:]          # row k-1: columns j >= k
+        J[n + 1:, :n] += np.where(stick[:, None], upper * lp[None, :], 0.0)
     return F, J, dict(length=length, theta=theta, S=S)
 
 
@@ -412,6 +416,14 @@ def _small(F, n, modes):
             and np.all(np.abs(F[n + 1:][~stick[1:]]) <= _TOL_SLIP))
 
 
+def _classify(ctx, T):
+    """Held sets from the tensions alone: at contact from the contact tension on, mirror
+    segments straight up to their buckling tension (the branch is monotone between)."""
+    contact = T >= ctx.end_tension * (1.0 - 1e-12)
+    straight = ctx.mirror & (T <= ctx.buckling) & ~contact
+    return contact, straight
+
+
 def _solve_active(ctx, x0, L, modes, S_prev, max_iter, open_contact=False):
     """Newton with the free/held sets updated until every angle is on its branch.
 
@@ -421,34 +433,39 @@ def _solve_active(ctx, x0, L, modes, S_prev, max_iter, open_contact=False):
     """
     n = ctx.n
     x = x0.copy()
-    A = ctx.branch_angles(np.exp(x[n:]))
-    contact, straight = _held_from_branch(ctx, A)
-    if open_contact and contact.any():
-        T_open = np.minimum(np.exp(x[n:]), ctx.end_tension * (1.0 - 1e-6))
-        x[n:] = np.where(contact, np.log(T_open), x[n:])
-        A = ctx.branch_angles(np.exp(x[n:]))
-        x[:n] = np.where(contact, A, x[:n])
-        contact, straight = _held_from_branch(ctx, A)
+    T = np.exp(x[n:])
+    if open_contact:
+        c0, _ = _classify(ctx, T)
+        if c0.any():
+            T = np.where(c0, np.minimum(T, ctx.end_tension * (1.0 - 1e-6)), T)
+            x[n:] = np.log(T)
+            x[:n] = np.where(c0, ctx.branch_angles(T), x[:n])
+    contact, straight = _classify(ctx, T)
     total = 0
     seen = set()
     for _ in range(2 * n + 2):
-        fixed = np.where(contact, A, 0.0)
+        fixed = np.where(contact, ctx.direction * ctx.end_angle, 0.0)
         x[:n] = np.where(contact | straight, fixed, x[:n])
         x, ok, it, F = _newton(ctx, x, L, modes, S_prev, contact, straight, fixed, max_iter)
         total += it
         if not ok:
             return x, False, total, 'Newton did not reach the residual targets'
-        A = ctx.branch_angles(np.exp(x[n:]))
-        c2, s2 = _held_from_branch(ctx, A)
-        off = np.abs(x[:n] - A) > 1e3 * _TOL_RAD
-        key = (tuple(c2), tuple(s2))
-        if not off.any() and (c2 == contact).all() and (s2 == straight).all():
+        T = np.exp(x[n:])
+        c2, s2 = _classify(ctx, T)
+        free = ~(c2 | s2)
+        b = ctx.direction * x[:n]
+        # A free segment must sit strictly inside its branch (right side, before
+        # contact); the stationarity root there is unique, the branch being monotone.
+        wrong = free & ~((b > 0.0) & (b < ctx.end_angle))
+        if not wrong.any() and (c2 == contact).all() and (s2 == straight).all():
             return x, True, total, ''
-        if key in seen and not off.any():
-            return x, True, total, ''
+        key = (tuple(c2), tuple(s2), tuple(wrong))
+        if key in seen:
+            break
         seen.add(key)
-        # Restart the disagreeing segments on their branch at the current tensions.
-        x[:n] = np.where(off, A, x[:n])
+        # Restart the segments that changed set, or sit off their branch, on the branch.
+        moved = wrong | (c2 != contact) | (s2 != straight)
+        x[:n] = np.where(moved, ctx.branch_angles(T), x[:n])
         contact, straight = c2, s2
     return x, False, total, 'free/held segment sets did not settle'
 
@@ -461,7 +478,13 @@ def _check_inputs(skeleton, threading, friction):
         raise ValueError(f'skeleton must be a Skeleton, got {type(skeleton).__name__}')
     d = skeleton.threading_mm(threading)
     mu = _friction_array(friction, skeleton.n_segments)
-    return _Ctx(skeleton, d, mu)
+    return _context(skeleton, tuple(d.tolist()), tuple(mu.tolist()))
+
+
+@functools.lru_cache(maxsize=256)
+def _context(skeleton, d, mu):
+    """Memoised (pure function of its arguments; the context is never mutated)."""
+    return _Ctx(skeleton, np.array(d), np.array(mu))
 
 
 def _as_length(value) -> float:
