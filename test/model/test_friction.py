@@ -241,3 +241,19 @@ def test_not_converged_is_reported_never_silent():
         assert res.message.startswith('not converged')
     else:
         assert_contract(res)
+
+
+def test_friction_step_one_length_at_a_time_equals_the_sweep():
+    t = THREADINGS['red']
+    L0 = straight(t)
+    lengths = L0 - np.r_[np.linspace(0, 30, 7), np.linspace(28, 10, 4), 10.0, 12.0, 5.0]
+    sw = friction_sweep(SK, t, lengths, 0.2)
+    prev = None
+    from softsnap_model.friction import friction_step
+    for i, L in enumerate(lengths):
+        prev = friction_step(SK, t, L, 0.2, previous=prev)
+        assert prev.converged, prev.message
+        assert np.array_equal(prev.angles, sw.angles[i])
+        assert np.array_equal(prev.hole_modes, sw.steps[i].hole_modes)
+    with pytest.raises(ValueError, match='previous'):
+        friction_step(SK, t, L0 - 5, 0.2, previous='state')

@@ -91,7 +91,7 @@ __all__ = [
     'CONSTRAINT_TOL_MM', 'STATIONARITY_TOL_RAD', 'SLIP_TOL', 'MAX_ITER',
     'TYPICAL_FRICTION_RANGE', 'PULL', 'RELEASE', 'STICK',
     'FrictionResult', 'FrictionSweepResult',
-    'wrap_angles', 'solve_friction', 'friction_sweep',
+    'wrap_angles', 'solve_friction', 'friction_sweep', 'friction_step',
 ]
 
 #: Length contract (mm): ``|sum L_i - L| <= CONSTRAINT_TOL_MM``; also stuck holes' ``S_k``.
@@ -766,54 +766,84 @@ def friction_sweep(skeleton: Skeleton, threading, cable_lengths_mm, friction=0.0
         raise ValueError(f'cable_lengths_mm must be finite and > 0, got {bad!r}')
     for L in lengths:
         _check_length(ctx, float(L))
-    n = ctx.n
-    friction_holes = ctx.mu > 0
-    friction_holes[0] = False
     steps = []
-    state = None            # (x, modes, S) of the last tensioned state; None when slack
-    prev_L = None
+    previous = None
     for L in lengths.tolist():
-        if L >= ctx.hi:
-            direction = 'release' if prev_L is not None and L > prev_L else (
-                'hold' if prev_L is not None and L == prev_L else 'pull')
-            steps.append(_slack_result(ctx, L, np.full(n, PULL), direction))
-            state, prev_L = None, L
-            continue
-        if state is None:
-            # From slack (or the start): pulled from straight.
-            x, ok, it, why = _branch_solve(ctx, L, PULL, int(max_iter))
-            modes = np.full(n, PULL)
-            res = _make_result(ctx, x, L, modes, None, 'pull', ok, it, why)
-        elif L == prev_L:
-            x, modes, S = state
-            res = _make_result(ctx, x, L, modes, S, 'hold', True, 0, '')
-            res = _replace_direction(res, 'hold')
-        else:
-            x_prev, modes_prev, S_prev = state
-            mode = PULL if L < prev_L else RELEASE
-            direction = 'pull' if mode == PULL else 'release'
-            if modes_prev[0] == mode:
-                modes = modes_prev.copy()
-            else:
-                # Reversal: every hole with friction sticks at first.
-                modes = np.where(friction_holes, STICK, mode)
-            modes[0] = mode
-            modes[~friction_holes] = mode
-            x, ok, it, why, modes, S_start = _advance(ctx, x_prev, prev_L, L, modes, S_prev,
-                                                      mode, friction_holes, int(max_iter))
-            res = _make_result(ctx, x, L, modes, S_start, direction, ok, it, why)
-        steps.append(res)
-        length = segment_length_derivatives(res.angles, ctx.d1, ctx.d2, ctx.s)[0]
-        S_new = np.cumsum(length[::-1])[::-1]
-        state = (np.concatenate([res.angles, np.log(res.segment_tensions)]), res.hole_modes,
-                 S_new)
-        prev_L = L
+        previous = _step(ctx, previous, L, int(max_iter))
+        steps.append(previous)
     return FrictionSweepResult(
         steps=tuple(steps), cable_lengths_mm=lengths,
         angles=np.array([r.angles for r in steps]),
         rib_centers=np.array([r.rib_centers for r in steps]),
         winch_tension=np.array([r.winch_tension for r in steps]),
         converged=all(r.converged for r in steps))
+
+
+def _step(ctx, previous, L, max_iter):
+    """One length of a sweep, from the previous step's result (None: from straight)."""
+    n = ctx.n
+    friction_holes = ctx.mu > 0
+    friction_holes[0] = False
+    prev_L = None if previous is None else previous.cable_length_mm
+    if L >= ctx.hi:
+        direction = 'pull' if prev_L is None else (
+            'release' if L > prev_L else ('hold' if L == prev_L else 'pull'))
+        return _slack_result(ctx, L, np.full(n, PULL), direction)
+    if previous is None or previous.slack:
+        # From slack (or the start): pulled from straight.
+        x, ok, it, why = _branch_solve(ctx, L, PULL, max_iter)
+        return _make_result(ctx, x, L, np.full(n, PULL), None, 'pull', ok, it, why)
+    x_prev = np.concatenate([previous.angles, np.log(previous.segment_tensions)])
+    modes_prev = previous.hole_modes
+    length = segment_length_derivatives(previous.angles, ctx.d1, ctx.d2, ctx.s)[0]
+    S_prev = np.cumsum(length[::-1])[::-1]
+    if L == prev_L:
+        return _replace_direction(_make_result(ctx, x_prev, L, modes_prev, S_prev, 'hold',
+                                               True, 0, ''), 'hold')
+    mode = PULL if L < prev_L else RELEASE
+    direction = 'pull' if mode == PULL else 'release'
+    if modes_prev[0] == mode:
+        modes = modes_prev.copy()
+    else:
+        # Reversal: every hole with friction sticks at first.
+        modes = np.where(friction_holes, STICK, mode)
+    modes[0] = mode
+    modes[~friction_holes] = mode
+    x, ok, it, why, modes, S_start = _advance(ctx, x_prev, prev_L, L, modes, S_prev, mode,
+                                              friction_holes, max_iter)
+    return _make_result(ctx, x, L, modes, S_start, direction, ok, it, why)
+
+
+def friction_step(skeleton: Skeleton, threading, cable_length_mm, friction=0.0,
+                  previous: FrictionResult | None = None, *,
+                  max_iter: int = MAX_ITER) -> FrictionResult:
+    """Advance a module's stick/slip state to a new cable length (one sweep step).
+
+    For callers that receive lengths one at a time (e.g. a model node tracking a
+    module): ``previous`` is the result of the last call for the same skeleton,
+    threading and friction (None, or a slack result: pulled from straight). The
+    sequence of calls gives the same results as :func:`friction_sweep` of the lengths.
+
+    Raises
+    ------
+    InfeasibleLengthError, ValueError
+        As :func:`solve_friction`; a ``previous`` of another size or with non-finite
+        state is a ValueError.
+    """
+    ctx = _check_inputs(skeleton, threading, friction)
+    L = _as_length(cable_length_mm)
+    _check_length(ctx, L)
+    if previous is not None:
+        if not isinstance(previous, FrictionResult):
+            raise ValueError(f'previous must be a FrictionResult or None, got '
+                             f'{type(previous).__name__}')
+        if previous.angles.shape != (ctx.n,) or previous.hole_modes.shape != (ctx.n,):
+            raise ValueError(f'previous: expected {ctx.n} segments, got shape '
+                             f'{previous.angles.shape}')
+        if not previous.slack and not (np.all(np.isfinite(previous.angles))
+                                       and np.all(previous.segment_tensions > 0)):
+            raise ValueError('previous: angles must be finite and tensions > 0')
+    return _step(ctx, previous, L, int(max_iter))
 
 
 def _replace_direction(res, direction):
