@@ -18,6 +18,7 @@ SK = Skeleton(**GEOMETRY)
 THREE = [PAPER_THREADINGS['yellow'], PAPER_THREADINGS['red'], PAPER_THREADINGS['blue']]
 
 
+@pytest.mark.slow
 def test_recovers_stiffness_friction_and_encoder_scale_within_ci():
     rng = np.random.default_rng(1)
     k_true = np.round(rng.uniform(0.7, 1.4, 11), 3)

@@ -55,6 +55,7 @@ CASES = [('yellow', 0.1, 'pull', 40.0), ('yellow', 0.3, 'release', 25.0),
          ('alternating', 0.2, 'release', 20.0)]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('name, mu, direction, contraction', CASES)
 def test_branch_matches_independent_reference(name, mu, direction, contraction):
     t = THREADINGS[name]
