@@ -171,7 +171,7 @@ def wrap_angles(skeleton: Skeleton, threading, angles_rad) -> np.ndarray:
     >>> sk = Skeleton()
     >>> t = 'R1 R1 R1 R1 R1 R1 R1 R1 R2 R2 R3 R3'.split()
     >>> round(float(wrap_angles(sk, t, np.zeros(11)).sum()), 3)   # yellow, straight
-    0.77
+    0.768
     """
     d = skeleton.threading_mm(threading)
     a = np.asarray(angles_rad, dtype=float)
