@@ -66,8 +66,10 @@ buckling, rib contact): after Newton every angle is compared with
 segments are moved between free / held-at-contact / held-straight until they agree.
 
 On ``converged``: ``|sum L_i - L| <= CONSTRAINT_TOL_MM`` (1e-9 mm);
-``max_i |a_i - a_branch(T_i)| <= STATIONARITY_TOL_RAD`` (1e-10 rad), which also checks
-the branch; slipping holes ``|u_k - u_{k-1} -+ mu_k theta_k| <= SLIP_TOL`` (1e-10);
+``|a_i + T_i L_i'/(2 k_i)| <= STATIONARITY_TOL_RAD`` (1e-10 rad) on free segments and
+held ones exactly at contact or straight; every angle within ``BRANCH_TOL_RAD`` (1e-6
+rad) of :func:`~softsnap_model.forward.segment_angle_at_tension` at its own tension
+(the branch check); slipping holes ``|u_k - u_{k-1} -+ mu_k theta_k| <= SLIP_TOL`` (1e-10);
 stuck holes ``|S_k - S_k_prev| <= CONSTRAINT_TOL_MM`` and their tension ratio inside
 the friction cone, and every slipping hole moves the way its friction assumes. Otherwise
 ``converged=False`` and ``message`` says which check failed; an answer is never returned
@@ -88,7 +90,7 @@ from .geometry import half_angle_functions, rib_centers, cable_path, segment_len
 from .skeleton import Skeleton
 
 __all__ = [
-    'CONSTRAINT_TOL_MM', 'STATIONARITY_TOL_RAD', 'SLIP_TOL', 'MAX_ITER',
+    'CONSTRAINT_TOL_MM', 'STATIONARITY_TOL_RAD', 'SLIP_TOL', 'BRANCH_TOL_RAD', 'MAX_ITER',
     'TYPICAL_FRICTION_RANGE', 'PULL', 'RELEASE', 'STICK',
     'FrictionResult', 'FrictionSweepResult',
     'wrap_angles', 'solve_friction', 'friction_sweep', 'friction_step',
@@ -100,6 +102,9 @@ CONSTRAINT_TOL_MM = 1e-9
 STATIONARITY_TOL_RAD = 1e-10
 #: Slip contract (dimensionless): ``|log(T_k/T_{k-1}) -+ mu_k theta_k|`` on slipping holes.
 SLIP_TOL = 1e-10
+#: Branch check (rad): every angle within this of the followed branch's angle at its
+#: tension (:func:`~softsnap_model.forward.segment_angle_at_tension`).
+BRANCH_TOL_RAD = 1e-6
 #: Newton iterations per active set before the fallback.
 MAX_ITER = 60
 #: Estimated friction coefficient of a PE/nylon line in printed TPU holes (not measured).
@@ -219,7 +224,8 @@ class FrictionResult:
     constraint_residual : float
         ``|sum L_i - L|`` (mm).
     stationarity_residual : float
-        ``max |a_i - a_branch(T_i)|`` (rad).
+        ``max |a_i + T_i L_i'/(2 k_i)|`` over free segments, ``|a_i - a_branch|`` over
+        held ones (rad).
     slip_residual : float
         Largest slip-relation residual (dimensionless), or stick-relation (mm) residual.
     iterations : int
@@ -530,10 +536,19 @@ def _make_result(ctx, x, L, modes, S_prev, direction, ok, iterations, why):
     A = ctx.branch_angles(T)
     contact, straight = _held_from_branch(ctx, A)
     c_res = abs(float(length.sum()) - L)
-    s_res = float(np.max(np.abs(a - A)))
+    held = contact | straight
+    # Stationarity as in forward.py, ``|a + T L'/(2k)|`` on free segments (near a mirror
+    # segment's buckling point ``a_branch(T)`` is infinitely steep, so ``|a - a_branch|``
+    # would measure the tension's rounding); held segments must sit exactly at their
+    # branch angle, and every free one on its branch (a loose check, for the branch).
+    free_res = np.abs(a + T * lp / (2.0 * ctx.k))
+    s_res = float(np.max(np.where(held, np.abs(a - A), free_res)))
+    off_branch = float(np.max(np.abs(a - A)))
     S = np.cumsum(length[::-1])[::-1]
     slip_res, stick_res = 0.0, 0.0
     problems = []
+    if not off_branch <= BRANCH_TOL_RAD:
+        problems.append(f'angle {off_branch:.3g} rad off the followed branch')
     for kk in range(1, n):
         m = modes[kk]
         if m == STICK:
