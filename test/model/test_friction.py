@@ -235,6 +235,16 @@ def test_errors_and_slack():
     assert res.winch_tension == 0.0
 
 
+def test_friction_snap_through_is_reported_not_solved():
+    """With mu = 0.3 the alternating threading's segments buckle one at a time and snap
+    to contact (each segment's bend lowers the wrap before it, raising its own tension):
+    lengths inside a jump have no equilibrium on the pull branch."""
+    t = THREADINGS['alternating']
+    res = solve_friction(SK, t, straight(t) - 2.0, 0.3)
+    assert not res.converged
+    assert 'snap-through' in res.message and 'jumps from' in res.message
+
+
 def test_not_converged_is_reported_never_silent():
     t = THREADINGS['yellow']
     res = solve_friction(SK, t, straight(t) - 40.0, 0.3, max_iter=1)

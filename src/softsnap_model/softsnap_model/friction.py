@@ -602,9 +602,9 @@ def _branch_solve(ctx, L, mode, max_iter):
     # Fallback (slow, robust): the winch tension by bracketing on the total length, the
     # angles segment by segment (the branch equations are lower triangular for a given
     # winch tension), then the Newton polish for the contract.
-    xs = _sequential_solve(ctx, L, mode)
+    xs, reason = _sequential_solve(ctx, L, mode)
     if xs is None:
-        return x, ok, it, why + '; the bracketing fallback found no winch tension'
+        return x, ok, it, f'{why}; {reason}'
     x2, ok2, it2, why2 = _solve_active(ctx, xs, L, modes, None, max_iter)
     return x2, ok2, it + it2, why2
 
@@ -661,12 +661,23 @@ def _sequential_solve(ctx, L, mode):
         e = excess(g)
         if e <= 0.0:
             if prev is None:
-                return None
+                return None, 'the bracketing fallback found no winch tension'
             log_t = brentq(excess, prev, g, xtol=1e-13, rtol=1e-14)
             a, u = _sequential_angles(ctx, math.exp(log_t), mode)
-            return np.concatenate([a, u])
+            jump = abs(excess(log_t))
+            if jump > 1e-6:
+                # The length jumps at this winch tension: friction made a segment's
+                # buckling subcritical (its own bend lowers the wrap before it, so its
+                # tension rises as it bends) and it snaps to contact.
+                lo_len = L + excess(log_t + 1e-9)
+                hi_len = L + excess(log_t - 1e-9)
+                return None, (f'snap-through: the {"pull" if mode == PULL else "release"} '
+                              f'branch jumps from {hi_len:.6f} to {lo_len:.6f} mm at winch '
+                              f'tension {math.exp(log_t):.6g}; no equilibrium on it at '
+                              f'this length')
+            return np.concatenate([a, u]), ''
         prev = g
-    return None
+    return None, 'the bracketing fallback found no winch tension'
 
 
 def solve_friction(skeleton: Skeleton, threading, cable_length_mm, friction=0.0,
