@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 
 from softsnap_model import InfeasibleLengthError, Skeleton, reachable_range, solve_forward
-from softsnap_model.friction import (CONSTRAINT_TOL_MM, PULL, RELEASE, SLIP_TOL, STATIONARITY_TOL_RAD,
-                                     STICK, friction_sweep, solve_friction, wrap_angles)
+from softsnap_model.friction import (CONSTRAINT_TOL_MM, PULL, RELEASE, SLIP_TOL,
+                                     STATIONARITY_TOL_RAD, STICK, friction_step,
+                                     friction_sweep, solve_friction, wrap_angles)
 from softsnap_model.reference import PAPER_THREADINGS
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -260,7 +261,6 @@ def test_friction_step_one_length_at_a_time_equals_the_sweep():
     lengths = L0 - np.r_[np.linspace(0, 30, 7), np.linspace(28, 10, 4), 10.0, 12.0, 5.0]
     sw = friction_sweep(SK, t, lengths, 0.2)
     prev = None
-    from softsnap_model.friction import friction_step
     for i, L in enumerate(lengths):
         prev = friction_step(SK, t, L, 0.2, previous=prev)
         assert prev.converged, prev.message
