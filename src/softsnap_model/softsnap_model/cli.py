@@ -6,6 +6,7 @@ Examples::
     softsnap-model forward --threading R1,R1,R1,R1,R1,R1,R1,R1,R2,R2,R3,R3 --contraction 40
     softsnap-model sweep --threading "R1 R1 R1 R1 R1 R1 R1 R1 R2 R2 R3 R3" --stop 80 --steps 81
     softsnap-model range --threading "R3 L3 R3 L3 R3 L3 R3 L3 R3 L3 R3 L3"
+    softsnap-model calibrate --data docs/examples/calibration_example.yaml
 
 Errors are printed as JSON ``{"error": ..., "reachable_range_mm": ...}`` on stderr with
 exit status 2.
@@ -29,7 +30,8 @@ import sys
 import numpy as np
 
 #: Subcommands contributed by other modules, ``'package.module:function'``.
-PLUGINS: list[str] = ['softsnap_model.inverse:add_cli', 'softsnap_model.recording:add_cli']
+PLUGINS: list[str] = ['softsnap_model.inverse:add_cli', 'softsnap_model.recording:add_cli',
+                       'softsnap_model.calibration:add_cli']
 
 
 def parse_threading(text: str) -> list:
