@@ -75,3 +75,53 @@ def test_loaded_forward_service_equals_the_core(model_node, ros_node):
     again = ros_node.call(client, ForwardShape.Request(
         holes=holes, cable_length=length_mm / 1000.0), 20.0)
     assert again.success
+
+
+def test_friction_forward_service_equals_the_core(model_node, ros_node):
+    from geometry_msgs.msg import Vector3
+    from softsnap_interfaces.srv import ForwardShape
+    from softsnap_model.friction import solve_friction
+    scene = load_scene('brittle_star')
+    client = ros_node.create_client(ForwardShape, f'{NS}/model_node/forward_shape')
+    m = scene.module('yellow')
+    length_mm = m.straight_length_mm - 40.0
+    holes = list(m.holes)
+    angles = {}
+    for direction in ('pull', 'release'):
+        response = ros_node.call(client, ForwardShape.Request(
+            holes=holes, cable_length=length_mm / 1000.0, friction_coefficient=0.1,
+            direction=direction), 30.0)
+        assert response.success, response.message
+        core = solve_friction(scene.skeleton, holes, length_mm, friction=0.1, direction=direction)
+        assert core.converged
+        np.testing.assert_allclose(response.angles, core.angles, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(response.segment_tensions,
+                                   np.asarray(core.segment_tensions) * 1000.0, rtol=1e-12)
+        np.testing.assert_allclose(response.wrap_angles, core.wrap_angles, rtol=0, atol=1e-12)
+        assert response.tip_tension_ratio == pytest.approx(core.tip_tension_ratio, rel=1e-12)
+        angles[direction] = np.asarray(response.angles)
+    # Pulling, the tension decays towards the tip; the two branches differ (hysteresis).
+    pull = ros_node.call(client, ForwardShape.Request(
+        holes=holes, cable_length=length_mm / 1000.0, friction_coefficient=0.1), 30.0)
+    assert pull.tip_tension_ratio < 1.0
+    assert np.max(np.abs(angles['pull'] - angles['release'])) > 1e-3
+    # Frictionless: uniform tensions, ratio 1, no wrap angles reported.
+    plain = ros_node.call(client, ForwardShape.Request(
+        holes=holes, cable_length=length_mm / 1000.0), 30.0)
+    assert plain.success and plain.tip_tension_ratio == 1.0 and len(plain.wrap_angles) == 0
+    np.testing.assert_allclose(plain.segment_tensions, [plain.tension] * 11, rtol=0)
+    # Bad values and combinations are refused with the reason; the node answers on.
+    for request, reason in (
+            (ForwardShape.Request(holes=holes, cable_length=length_mm / 1000.0,
+                                  friction_coefficient=float('nan')), 'friction_coefficient'),
+            (ForwardShape.Request(holes=holes, cable_length=length_mm / 1000.0,
+                                  friction_coefficient=3.0), 'friction_coefficient'),
+            (ForwardShape.Request(holes=holes, cable_length=length_mm / 1000.0,
+                                  friction_coefficient=0.1, direction='sideways'), 'direction'),
+            (ForwardShape.Request(holes=holes, cable_length=length_mm / 1000.0,
+                                  friction_coefficient=0.1,
+                                  gravity=Vector3(x=0.0, y=9.81, z=0.0)), 'cannot be combined')):
+        response = ros_node.call(client, request, 30.0)
+        assert not response.success and reason in response.message, response.message
+    assert ros_node.call(client, ForwardShape.Request(
+        holes=holes, cable_length=length_mm / 1000.0), 30.0).success

@@ -50,6 +50,7 @@ from softsnap_interfaces.action import DesignThreading
 from softsnap_interfaces.srv import ForwardShape, InverseDesign
 
 from .forward import solve_forward
+from .friction import solve_friction
 from .inverse import DesignCancelled, DesignTimedOut, design_threading
 from .loads import DEFAULT_BENDING_STIFFNESS_NMM, Loads, solve_loaded
 from .predictor import SOURCES, RobotPredictor
@@ -367,8 +368,12 @@ class ModelNode(SoftSnapNode):
             threading = self._threading_mm(request.holes, request.threading)
             initial = np.asarray(request.initial_angles, dtype=float) if len(request.initial_angles) else None
             loads = self._request_loads(request)
+            friction = self._request_friction(request, loads)
             start = time.perf_counter()
-            if loads.is_zero:
+            if friction is not None:
+                result = solve_friction(self.skeleton, threading, request.cable_length * MM_PER_M,
+                                        friction=friction[0], direction=friction[1])
+            elif loads.is_zero:
                 result = solve_forward(self.skeleton, threading, request.cable_length * MM_PER_M,
                                        initial=initial)
             else:
@@ -395,20 +400,52 @@ class ModelNode(SoftSnapNode):
         response.rib_centers = _points_m(result.rib_centers)
         response.cable_path = _points_m(result.cable_path)
         k_nmm = loads.bending_stiffness_nmm
-        if loads.is_zero:
+        n_segments = len(response.angles)
+        response.tip_tension_ratio = 1.0
+        if friction is not None:
+            # The winch's tension is the one the motor feels; per-segment tensions decay
+            # (pull) or grow (release) towards the tip.
+            response.energy = float(np.sum(self.skeleton.stiffness_array * result.angles ** 2))
+            response.tension = float(result.winch_tension) * MM_PER_M
+            response.residual = max(float(result.constraint_residual) / MM_PER_M,
+                                    float(result.stationarity_residual))
+            response.segment_tensions = (np.asarray(result.segment_tensions, dtype=float)
+                                         * MM_PER_M).tolist()
+            response.wrap_angles = np.asarray(result.wrap_angles, dtype=float).tolist()
+            response.tip_tension_ratio = float(result.tip_tension_ratio)
+        elif loads.is_zero:
             response.energy = float(result.energy)
             response.tension = float(result.tension) * MM_PER_M
             response.residual = float(result.residual)
+            response.segment_tensions = [response.tension] * n_segments
         else:
             # Unit-stiffness fields stay comparable with the unloaded solve's.
             response.energy = float(np.sum(self.skeleton.stiffness_array * result.angles ** 2))
             response.tension = float(result.tension_n) / k_nmm * MM_PER_M
             response.residual = max(float(result.constraint_residual_mm) / MM_PER_M,
                                     float(result.stationarity_residual_rad))
+            response.segment_tensions = [response.tension] * n_segments
         response.cable_tension = float(response.tension) / MM_PER_M * k_nmm
         response.converged = bool(result.converged)
         response.iterations = int(result.iterations)
         return response
+
+    @staticmethod
+    def _request_friction(request, loads: Loads):
+        """(friction coefficient, direction) of a ForwardShape request, or None without
+        friction (ValueError if bad or combined with a load)."""
+        mu = float(request.friction_coefficient)
+        direction = request.direction or 'pull'
+        if not (math.isfinite(mu) and 0.0 <= mu <= 2.0):
+            raise ValueError(f'friction_coefficient must be in [0, 2], got {mu!r}')
+        if direction not in ('pull', 'release'):
+            raise ValueError(f"direction must be 'pull' or 'release' (or empty), got {direction!r}")
+        if mu == 0.0:
+            return None
+        if not loads.is_zero:
+            raise ValueError('friction_coefficient > 0 cannot be combined with gravity or a load '
+                             '(no solver couples them yet): give one or the other')
+        return mu, direction
 
     def _request_loads(self, request) -> Loads:
         """Loads of a ForwardShape request (SI) in the core's units (ValueError if bad)."""
