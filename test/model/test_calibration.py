@@ -126,3 +126,50 @@ def test_cli_calibrate_bad_file(capsys, tmp_path):
     path.write_text('observations: 3\n')
     assert main(['calibrate', '--data', str(path)]) == 2
     assert 'observations' in json.loads(capsys.readouterr().err)['error']
+
+
+def test_recovers_bending_stiffness_from_shapes_under_gravity():
+    # A module lying on its side (gravity in its plane) sags by an amount set by K: shapes
+    # made with a known K plus 0.2 mm marker noise give K back within its interval.
+    from softsnap_model.loads import DEFAULT_BENDING_STIFFNESS_NMM
+    true_k = 30.0
+    obs = synthetic_observations(SK, [PAPER_THREADINGS['yellow'], PAPER_THREADINGS['green']],
+                                 [10.0, 25.0, 40.0], gravity_mps2=(0.0, -9.81, 0.0),
+                                 bending_stiffness_nmm=true_k, noise_mm=0.2, seed=3)
+    assert all(o.loaded for o in obs)
+    res = calibrate(SK, obs, fit=('bending_stiffness',),
+                    initial={'bending_stiffness': DEFAULT_BENDING_STIFFNESS_NMM})
+    assert res.converged, res.message
+    assert res.names == ('bending_stiffness_nmm',)
+    assert res.ci_low[0] < true_k < res.ci_high[0], (res.values, res.ci_low, res.ci_high)
+    assert res.bending_stiffness_nmm == pytest.approx(true_k, rel=0.05)
+    assert res.ci_high[0] - res.ci_low[0] < 0.2 * true_k       # the data pin K down
+    assert 0.1 < res.rmse_mm < 0.3                              # the noise, no model error
+    # The sag really is K's signature: the start value fits far worse.
+    start = calibrate(SK, obs, fit=('length_offset',),
+                      initial={'bending_stiffness': DEFAULT_BENDING_STIFFNESS_NMM})
+    assert start.rmse_mm > 5 * res.rmse_mm
+
+
+def test_bending_stiffness_needs_loaded_observations_and_no_friction():
+    plain = synthetic_observations(SK, [PAPER_THREADINGS['yellow']], [20.0, 40.0])
+    with pytest.raises(ValueError, match='needs observations under gravity or a load'):
+        calibrate(SK, plain, fit=('bending_stiffness',))
+    loaded = synthetic_observations(SK, [PAPER_THREADINGS['yellow']], [20.0, 40.0],
+                                    gravity_mps2=(0.0, -9.81, 0.0))
+    with pytest.raises(ValueError, match='without friction'):
+        calibrate(SK, loaded, fit=('bending_stiffness', 'friction'))
+    with pytest.raises(ValueError, match='load_rib'):
+        Observation(PAPER_THREADINGS['yellow'], 150.0, np.zeros((12, 2)), load_rib=0)
+
+
+def test_loaded_observations_round_trip_through_a_file(tmp_path):
+    import yaml
+    from softsnap_model.calibration import observations_to_dict
+    obs = synthetic_observations(SK, [PAPER_THREADINGS['yellow']], [20.0],
+                                 load_n=(0.0, -0.05, 0.0), bending_stiffness_nmm=25.0)
+    path = tmp_path / 'loaded.yaml'
+    path.write_text(yaml.safe_dump(observations_to_dict(obs, SK)))
+    _, back = load_observations(path)
+    assert back[0].load_n == (0.0, -0.05, 0.0) and back[0].loaded
+    np.testing.assert_allclose(back[0].rib_centers_mm, obs[0].rib_centers_mm, atol=1e-4)

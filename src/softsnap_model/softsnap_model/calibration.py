@@ -9,9 +9,10 @@ Fits, by :func:`scipy.optimize.least_squares` on the rib-centre distances:
   being ``length_scale * L_observed + length_offset_mm`` (``L_observed`` from the
   commanded or encoder length).
 
-The bending stiffness ``K`` (N mm/rad^2) does not change any unloaded shape; it will be
-one more entry of :data:`PARAMETERS` (fitted the same way) once gravity and tip loads
-are in the model, since only they compare a force with ``K``.
+* ``bending_stiffness``: ``K`` (N mm/rad^2). It changes no unloaded shape, so it is
+  fitted from observations under gravity or a point load (:mod:`.loads`), the only ones
+  that compare a force with ``K``; those observations are solved without friction
+  (no solver couples the two yet), so ``friction`` cannot be fitted with them.
 
 Observation model: every observed rib centre (mm, in the module's base frame: rib 0 at
 the origin, spine leaving along +x, i.e. the markers registered to the base rib) is the
@@ -30,6 +31,9 @@ Input file (YAML or JSON), ``softsnap-model calibrate --data FILE``::
         cable_length_mm: 170.0        # the commanded / encoder length
         direction: pull               # optional: pull (default) or release
         rib_centers_mm: [[0, 0], [17.9, -1.2], ...]   # one [x, y] per rib
+        gravity_mps2: [0, -9.81, 0]   # optional: gravity in the base frame (m/s^2)
+        load_n: [0, 0, 0]             # optional: point load (N) on rib load_rib
+        load_rib: -1                  # optional: -1 for the tip
 """
 from __future__ import annotations
 
@@ -43,6 +47,7 @@ import numpy as np
 
 from .forward import reachable_range
 from .friction import solve_friction
+from .loads import DEFAULT_BENDING_STIFFNESS_NMM, Loads, solve_loaded
 from .skeleton import Skeleton
 
 __all__ = ['PARAMETERS', 'Observation', 'CalibrationResult', 'calibrate',
@@ -54,6 +59,7 @@ PARAMETERS: Mapping[str, tuple[float, float]] = {
     'friction': (0.0, 1.5),           # mu, the same at every hole
     'length_scale': (0.5, 2.0),       # model length = scale * observed + offset
     'length_offset': (-100.0, 100.0),  # mm
+    'bending_stiffness': (0.1, 10000.0),  # K, N mm/rad^2 (needs loaded observations)
 }
 #: Default set of fitted parameters.
 DEFAULT_FIT = ('stiffness', 'friction', 'length_scale', 'length_offset')
@@ -75,12 +81,20 @@ class Observation:
         Observed rib centres (mm) in the base frame; NaN for a missing marker.
     direction : str
         'pull' (reached by shortening) or 'release' (by lengthening).
+    gravity_mps2, load_n : tuple of 3 float
+        Gravity (m/s^2) and a point load (N) in the module base frame while the shape
+        was observed (:class:`~softsnap_model.loads.Loads`); zero by default.
+    load_rib : int
+        Rib carrying the point load (-1: the tip).
     """
 
     threading: tuple
     cable_length_mm: float
     rib_centers_mm: np.ndarray
     direction: str = 'pull'
+    gravity_mps2: tuple = (0.0, 0.0, 0.0)
+    load_n: tuple = (0.0, 0.0, 0.0)
+    load_rib: int = -1
 
     def __post_init__(self):
         if self.direction not in ('pull', 'release'):
@@ -98,6 +112,21 @@ class Observation:
         if np.any(np.isinf(p)):
             raise ValueError('rib_centers_mm must be finite (NaN marks a missing marker)')
         object.__setattr__(self, 'rib_centers_mm', p)
+        # Validated (and made plain tuples) by Loads itself.
+        loads = self.loads(DEFAULT_BENDING_STIFFNESS_NMM)
+        object.__setattr__(self, 'gravity_mps2', loads.gravity_mps2)
+        object.__setattr__(self, 'load_n', loads.load_n)
+        object.__setattr__(self, 'load_rib', loads.load_rib)
+
+    def loads(self, bending_stiffness_nmm: float) -> Loads:
+        """The observation's loads with a bending stiffness ``K`` (N mm/rad^2)."""
+        return Loads(gravity_mps2=tuple(self.gravity_mps2), load_n=tuple(self.load_n),
+                     load_rib=self.load_rib, bending_stiffness_nmm=bending_stiffness_nmm)
+
+    @property
+    def loaded(self) -> bool:
+        """True when gravity or the load has an in-plane component."""
+        return not self.loads(DEFAULT_BENDING_STIFFNESS_NMM).is_zero
 
 
 @dataclass(frozen=True)
@@ -132,6 +161,8 @@ class CalibrationResult:
     message : str
     skeleton : Skeleton
         The skeleton with the fitted stiffness.
+    bending_stiffness_nmm : float
+        ``K`` (N mm/rad^2): fitted, or the start value used for loaded observations.
     """
 
     names: tuple
@@ -152,6 +183,7 @@ class CalibrationResult:
     converged: bool
     message: str
     skeleton: Skeleton
+    bending_stiffness_nmm: float = DEFAULT_BENDING_STIFFNESS_NMM
 
     def to_dict(self) -> dict:
         """Plain JSON-able form (infinite bounds as None)."""
@@ -165,7 +197,8 @@ class CalibrationResult:
             'confidence': CONFIDENCE,
             'stiffness': self.stiffness.tolist(), 'reference_segment': self.reference_segment,
             'friction': self.friction, 'length_scale': self.length_scale,
-            'length_offset_mm': self.length_offset_mm, 'rmse_mm': self.rmse_mm,
+            'length_offset_mm': self.length_offset_mm,
+            'bending_stiffness_nmm': self.bending_stiffness_nmm, 'rmse_mm': self.rmse_mm,
             'rms_distance_mm': self.rms_distance_mm, 'n_points': self.n_points,
             'dof': self.dof, 'nfev': self.nfev, 'converged': self.converged,
             'message': self.message}
@@ -180,8 +213,12 @@ def _with_stiffness(skeleton: Skeleton, k) -> Skeleton:
 
 
 def model_rib_centers(skeleton: Skeleton, obs: Observation, friction: float,
-                      length_scale: float = 1.0, length_offset_mm: float = 0.0):
+                      length_scale: float = 1.0, length_offset_mm: float = 0.0,
+                      bending_stiffness_nmm: float = DEFAULT_BENDING_STIFFNESS_NMM):
     """Model rib centres (mm) for one observation; returns ``(centres, converged)``.
+
+    A loaded observation (gravity or a load in the plane) is solved by
+    :func:`~softsnap_model.loads.solve_loaded` with ``K``, without friction.
 
     The model length is clamped into the reachable range (just above its minimum), so
     the fit sees a finite, continuous residual where a trial parameter set cannot reach
@@ -190,7 +227,10 @@ def model_rib_centers(skeleton: Skeleton, obs: Observation, friction: float,
     L = length_scale * obs.cable_length_mm + length_offset_mm
     lo, hi = reachable_range(skeleton, obs.threading)
     L = max(L, lo + 1e-6 * (hi - lo))
-    res = solve_friction(skeleton, obs.threading, L, friction, obs.direction)
+    if obs.loaded:
+        res = solve_loaded(skeleton, obs.threading, L, obs.loads(bending_stiffness_nmm))
+    else:
+        res = solve_friction(skeleton, obs.threading, L, friction, obs.direction)
     return res.rib_centers, res.converged
 
 
@@ -204,7 +244,8 @@ class _Problem:
         self.free_k = [i for i in range(n) if i != reference_segment]
         self.k0 = skeleton.stiffness_array
         self.start = dict(friction=0.1 if 'friction' in self.fit else 0.0,
-                          length_scale=1.0, length_offset=0.0)
+                          length_scale=1.0, length_offset=0.0,
+                          bending_stiffness=DEFAULT_BENDING_STIFFNESS_NMM)
         self.start.update(initial or {})
         names, x0, lo, hi = [], [], [], []
         for p in self.fit:
@@ -216,7 +257,8 @@ class _Problem:
                     lo.append(b[0])
                     hi.append(b[1])
             else:
-                names.append('length_offset_mm' if p == 'length_offset' else p)
+                names.append({'length_offset': 'length_offset_mm',
+                              'bending_stiffness': 'bending_stiffness_nmm'}.get(p, p))
                 x0.append(float(np.clip(self.start[p], *b)))
                 lo.append(b[0])
                 hi.append(b[1])
@@ -228,8 +270,8 @@ class _Problem:
 
     def unpack(self, x):
         k = self.k0.copy()
-        vals = dict(friction=self.start['friction'], length_scale=self.start['length_scale'],
-                    length_offset=self.start['length_offset'])
+        vals = {name: self.start[name] for name in
+                ('friction', 'length_scale', 'length_offset', 'bending_stiffness')}
         j = 0
         for p in self.fit:
             if p == 'stiffness':
@@ -247,7 +289,7 @@ class _Problem:
         ok = True
         for o, m in zip(self.obs, self.masks):
             c, conv = model_rib_centers(sk, o, v['friction'], v['length_scale'],
-                                        v['length_offset'])
+                                        v['length_offset'], v['bending_stiffness'])
             ok &= conv
             out.append((c[1:] - o.rib_centers_mm[1:])[m].ravel())
         self.all_converged = ok
@@ -273,7 +315,7 @@ def calibrate(skeleton: Skeleton, observations: Sequence[Observation],
         Segment whose stiffness is held fixed (sets the scale).
     initial : mapping, optional
         Start values for 'friction' (default 0.1), 'length_scale' (1),
-        'length_offset' (0 mm).
+        'length_offset' (0 mm), 'bending_stiffness' (the default K, N mm/rad^2).
     max_nfev : int
         Cap on residual evaluations of ``least_squares``.
 
@@ -285,7 +327,9 @@ def calibrate(skeleton: Skeleton, observations: Sequence[Observation],
     ------
     ValueError
         No observations, unknown parameter names, a bad reference segment, a threading
-        or rib count not matching the skeleton, or fewer residuals than parameters.
+        or rib count not matching the skeleton, fewer residuals than parameters,
+        ``bending_stiffness`` without a loaded observation, or friction together with
+        loaded observations.
     """
     if not isinstance(skeleton, Skeleton):
         raise ValueError(f'skeleton must be a Skeleton, got {type(skeleton).__name__}')
@@ -309,6 +353,15 @@ def calibrate(skeleton: Skeleton, observations: Sequence[Observation],
         if o.rib_centers_mm.shape[0] != skeleton.n_ribs:
             raise ValueError(f'observation {i}: expected {skeleton.n_ribs} rib centres, got '
                              f'{o.rib_centers_mm.shape[0]}')
+    loaded = [i for i, o in enumerate(observations) if o.loaded]
+    if 'bending_stiffness' in fit and not loaded:
+        raise ValueError('bending_stiffness changes no unloaded shape: fitting it needs '
+                         'observations under gravity or a load (gravity_mps2, load_n)')
+    friction_start = (initial or {}).get('friction', 0.1 if 'friction' in fit else 0.0)
+    if loaded and ('friction' in fit or friction_start != 0.0):
+        raise ValueError(f'observations {loaded} are loaded and are solved without friction '
+                         '(no solver couples gravity/loads with friction yet): do not fit '
+                         'or set friction with them')
     from scipy.optimize import least_squares
     from scipy.stats import t as student_t
     prob = _Problem(skeleton, observations, fit, reference_segment, initial)
@@ -347,7 +400,7 @@ def calibrate(skeleton: Skeleton, observations: Sequence[Observation],
         length_offset_mm=v['length_offset'], rmse_mm=rmse,
         rms_distance_mm=math.sqrt(2.0) * rmse, n_points=prob.n_points, dof=dof,
         nfev=int(sol.nfev), converged=ok, message=str(msg),
-        skeleton=_with_stiffness(skeleton, k))
+        skeleton=_with_stiffness(skeleton, k), bending_stiffness_nmm=v['bending_stiffness'])
 
 
 # ----------------------------------------------------------------------------------------
@@ -375,7 +428,8 @@ def load_observations(path) -> tuple[Skeleton, list]:
     for i, item in enumerate(items):
         if not isinstance(item, Mapping):
             raise ValueError(f'{path}: observation {i} must be a mapping, got {item!r}')
-        extra = set(item) - {'threading', 'cable_length_mm', 'direction', 'rib_centers_mm'}
+        extra = set(item) - {'threading', 'cable_length_mm', 'direction', 'rib_centers_mm',
+                             'gravity_mps2', 'load_n', 'load_rib'}
         if extra:
             raise ValueError(f'{path}: observation {i}: unknown keys {sorted(extra)}')
         try:
@@ -384,7 +438,10 @@ def load_observations(path) -> tuple[Skeleton, list]:
             obs.append(Observation(threading=item['threading'],
                                    cable_length_mm=item['cable_length_mm'],
                                    rib_centers_mm=rc,
-                                   direction=item.get('direction', 'pull')))
+                                   direction=item.get('direction', 'pull'),
+                                   gravity_mps2=tuple(item.get('gravity_mps2', (0.0, 0.0, 0.0))),
+                                   load_n=tuple(item.get('load_n', (0.0, 0.0, 0.0))),
+                                   load_rib=item.get('load_rib', -1)))
         except KeyError as exc:
             raise ValueError(f'{path}: observation {i}: missing key {exc}') from None
         except (TypeError, ValueError) as exc:
@@ -395,13 +452,18 @@ def load_observations(path) -> tuple[Skeleton, list]:
 def synthetic_observations(skeleton: Skeleton, threadings, contractions_mm, *,
                            friction: float = 0.0, length_scale: float = 1.0,
                            length_offset_mm: float = 0.0, noise_mm: float = 0.0,
-                           seed: int = 0, directions=('pull',)) -> list:
+                           seed: int = 0, directions=('pull',),
+                           gravity_mps2=(0.0, 0.0, 0.0), load_n=(0.0, 0.0, 0.0),
+                           load_rib: int = -1,
+                           bending_stiffness_nmm: float = DEFAULT_BENDING_STIFFNESS_NMM) -> list:
     """Observations generated by the model itself (for tests and examples).
 
     For every threading, contraction (mm from the model's straight length) and
     direction, the model shape with the given parameters plus Gaussian noise
     (``noise_mm`` per coordinate, seeded). The recorded length is the one an encoder
-    with that scale and offset would report: ``(L_model - offset) / scale``.
+    with that scale and offset would report: ``(L_model - offset) / scale``. With gravity
+    or a load in the plane the shapes come from :func:`~softsnap_model.loads.solve_loaded`
+    with ``bending_stiffness_nmm`` (and no friction).
     """
     rng = np.random.default_rng(seed)
     out = []
@@ -411,15 +473,20 @@ def synthetic_observations(skeleton: Skeleton, threadings, contractions_mm, *,
         for c in contractions_mm:
             for direction in directions:
                 L = straight - float(c)
-                res = solve_friction(skeleton, t, L, friction, direction)
+                template = Observation(t, L, np.zeros((skeleton.n_ribs, 2)), direction,
+                                       tuple(gravity_mps2), tuple(load_n), load_rib)
+                if template.loaded:
+                    res = solve_loaded(skeleton, t, L, template.loads(bending_stiffness_nmm))
+                else:
+                    res = solve_friction(skeleton, t, L, friction, direction)
                 if not res.converged:
                     raise ValueError(f'model did not converge for {t} at {L} mm: '
                                      f'{res.message}')
                 pts = res.rib_centers + noise_mm * rng.standard_normal(res.rib_centers.shape)
                 pts[0] = 0.0
-                out.append(Observation(threading=t,
-                                       cable_length_mm=(L - length_offset_mm) / length_scale,
-                                       rib_centers_mm=pts, direction=direction))
+                out.append(dataclasses.replace(
+                    template, cable_length_mm=(L - length_offset_mm) / length_scale,
+                    rib_centers_mm=pts))
     return out
 
 
@@ -429,7 +496,9 @@ def observations_to_dict(observations, skeleton: Skeleton | None = None) -> dict
         {'threading': ' '.join(str(h) for h in o.threading),
          'cable_length_mm': round(o.cable_length_mm, 6), 'direction': o.direction,
          'rib_centers_mm': [[None if not math.isfinite(v) else round(float(v), 4)
-                             for v in row] for row in o.rib_centers_mm]}
+                             for v in row] for row in o.rib_centers_mm],
+         **({'gravity_mps2': list(o.gravity_mps2), 'load_n': list(o.load_n),
+             'load_rib': o.load_rib} if o.loaded else {})}
         for o in observations]}
     if skeleton is not None:
         data['skeleton'] = skeleton.to_dict()
@@ -447,6 +516,8 @@ def _cmd_calibrate(args, skeleton) -> dict:
     initial = {}
     if args.friction is not None:
         initial['friction'] = args.friction
+    elif any(o.loaded for o in obs) and 'friction' not in fit:
+        initial['friction'] = 0.0   # loaded observations are solved without friction
     res = calibrate(skeleton, obs, fit, reference_segment=args.reference_segment,
                     initial=initial, max_nfev=args.max_nfev)
     out = res.to_dict()
