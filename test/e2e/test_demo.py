@@ -6,6 +6,7 @@ import subprocess
 import sys
 import time
 
+import numpy as np
 import pytest
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
@@ -174,12 +175,17 @@ def test_a_module_the_observer_did_not_see_is_reported_as_not_observed(capsys):
     from softsnap_gaits.demo import ModuleStats, print_summary, summarise
     seen, unseen = ModuleStats(), ModuleStats()
     seen.command_stamps_ns = [1_000_000_000 + i * 20_000_000 for i in range(51)]
+    seen.command_lengths_m = [0.2] * 51
     seen.measured_stamps_ns = [1_000_000_000 + i * 50_000_000 for i in range(21)]
     seen.commanded_shapes = seen.predicted_shapes = 30
-    seen.tip_errors_mm = [1.0, 3.0]
+    # Running tip errors 1 and 3 mm: two predicted tips against one commanded tip.
+    seen.commanded_tips = [(0, 0.2, np.array([0.0, 0.0]))]
+    seen.predicted_tips = [(0, 0.2, np.array([1.0, 0.0])), (0, 0.2, np.array([3.0, 0.0]))]
+    seen.tip_error_pairs = [(0, 0), (1, 0)]
     seen.solve_times_s = [1e-4]
     seen.state = SimpleNamespace(online=True, battery_voltage=4.05, request_failures=0)
-    observer = SimpleNamespace(stats={'m1': seen, 'm2': unseen}, diagnostics=None)
+    observer = SimpleNamespace(stats={'m1': seen, 'm2': unseen}, diagnostics=None,
+                               _tip_mm=lambda tip: tip)   # stored shapes are tips already
     summary = summarise(SimpleNamespace(name='two'), observer, 1.0, None, {})
     m1, m2 = summary['modules']['m1'], summary['modules']['m2']
     assert m1['commands_received'] == 51 and m1['tip_error_mm_mean'] == 2.0 and m1['online'] is True
