@@ -1,10 +1,13 @@
-"""Helpers shared by the benchmark scripts: start and stop installed nodes as processes."""
+"""Helpers shared by the benchmark scripts: median timing, and starting and stopping
+installed nodes as processes."""
 from __future__ import annotations
 
 import os
 import signal
+import statistics
 import subprocess
 import tempfile
+import time
 
 from ament_index_python.packages import get_package_prefix
 
@@ -29,3 +32,14 @@ def stop(proc: subprocess.Popen) -> None:
         proc.wait(10)
     except subprocess.TimeoutExpired:
         os.killpg(proc.pid, signal.SIGKILL)
+
+
+def timed(fn, repeat: int):
+    """(median wall time of ``repeat`` calls of ``fn`` in s, the last call's result)."""
+    times = []
+    out = None
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        out = fn()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times), out

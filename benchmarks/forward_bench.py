@@ -36,6 +36,7 @@ sys.path.insert(0, str(REPO / 'test' / 'model'))
 from mp_reference import kkt_reference, rib_centers_mp  # noqa: E402
 
 import softsnap_model.forward as fwd  # noqa: E402
+from benchlib import timed  # noqa: E402
 from softsnap_model.reference import BRITTLE_STAR_MODULES, PAPER_THREADINGS  # noqa: E402
 from softsnap_model import (Skeleton, reachable_range, rib_centers, segment_length,  # noqa: E402
                             solve_forward, solve_forward_batch, sweep)
@@ -120,16 +121,6 @@ def warm_vs_cold(step_mm=0.26):
             prev = rw
     return (statistics.median(cold), statistics.median(warm), float(np.mean(it_cold)),
             float(np.mean(it_warm)), len(cold))
-
-
-def timed(fn, repeat):
-    times = []
-    out = None
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        out = fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times), out
 
 
 def rib_error(angles, ref_centers):

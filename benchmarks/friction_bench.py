@@ -23,7 +23,6 @@ import os
 import platform
 import statistics
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -34,21 +33,12 @@ import friction_reference as ref  # noqa: E402
 
 from softsnap_model import Skeleton, reachable_range, solve_forward, sweep  # noqa: E402
 from softsnap_model.friction import friction_sweep, solve_friction  # noqa: E402
+from benchlib import timed  # noqa: E402
 from softsnap_model.reference import BRITTLE_STAR_MODULES, PAPER_THREADINGS  # noqa: E402
 
 SK = Skeleton()
 MUS = (0.05, 0.1, 0.2)
 CONTRACTIONS = (20.0, 40.0, 60.0)
-
-
-def median_time(fn, repeat):
-    times = []
-    out = None
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        out = fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times), out
 
 
 def fmt_range(values, scale, unit):
@@ -80,8 +70,8 @@ def main():
                 c = min(c_nominal, 0.9 * (hi - lo))
                 L = hi - c
                 solve_friction(SK, t, L, mu)           # first call builds the caches
-                dt_f, r = median_time(lambda: solve_friction(SK, t, L, mu), repeat)
-                dt_0, f = median_time(lambda: solve_forward(SK, t, L), repeat)
+                dt_f, r = timed(lambda: solve_friction(SK, t, L, mu), repeat)
+                dt_0, f = timed(lambda: solve_forward(SK, t, L), repeat)
                 if not r.converged:
                     print(f'  {name} {c:.1f} mm: NOT CONVERGED: {r.message}')
                 t_fr.append(dt_f)
@@ -108,8 +98,8 @@ def main():
     c = np.r_[c, c[-2::-1]]
     rows = []
     for mu in MUS:
-        dt_s, sw = median_time(lambda: friction_sweep(SK, t, L0 - c, mu), max(1, repeat // 3))
-        dt_0, sw0 = median_time(lambda: sweep(SK, t, c), repeat)
+        dt_s, sw = timed(lambda: friction_sweep(SK, t, L0 - c, mu), max(1, repeat // 3))
+        dt_0, sw0 = timed(lambda: sweep(SK, t, c), repeat)
         half = len(c) // 2
         width = np.max(np.linalg.norm(sw.rib_centers[:half + 1]
                                       - sw.rib_centers[half:][::-1], axis=2))
