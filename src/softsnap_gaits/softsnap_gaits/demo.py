@@ -6,8 +6,10 @@ one simulated module and one driver per module, the model node, the gait node an
 rerun logger, each its own OS process talking over ROS 2. It runs the scene's gait for a
 fixed time, stops every process (also on Ctrl-C or when a node crashes; no orphans:
 each child runs in its own process group, which is signalled and reaped), and prints a
-summary: commands sent, shapes predicted, tracking error between the commanded and the
-predicted shape, solver time, messages dropped, and the path of the ``.rrd`` recording.
+summary: commands sent by the gait node and received by each driver by their own
+counters (so "lost" is the true difference, and what this process's observer missed is
+shown apart), shapes predicted, tracking error between the commanded and the predicted
+shape, solver time, and the path of the ``.rrd`` recording.
 
 Each demo claims a private slot (:mod:`softsnap_gaits.isolation`): a ROS domain id no
 other demo or test on this machine uses (unless ``ROS_DOMAIN_ID`` is set) and free
@@ -423,7 +425,7 @@ def summarise(scene, observer: Observer, seconds: float, recording: Path | None,
         errors = np.asarray(running) if running else None
         settled = settled_tip_errors_mm(s, window_ns, observer._tip_mm)
         state = s.state
-        counted = commands_counted(name, s, getattr(observer, 'gait_sent', {}), window_ns)
+        counted = commands_counted(name, s, observer.gait_sent, window_ns)
         measured = _in_window(s.measured_stamps_ns, window_ns)
         # What the observer never saw is None ("not observed"), never a 0 or NaN that
         # would read as a measurement.
@@ -440,6 +442,7 @@ def summarise(scene, observer: Observer, seconds: float, recording: Path | None,
             'observer_commands': counted.observed if counted else None,
             'observer_shortfall': counted.observer_shortfall if counted else None,
             'counted_seconds': (counted.to_ns - counted.from_ns) * 1e-9 if counted else None,
+            # The driver's counts since it started (its latest state).
             'driver_refused': int(state.commands_refused) if state is not None else None,
             'driver_targets_sent': int(state.targets_sent) if state is not None else None,
             # What the observer took inside the run window, and its rate from the stamps.
