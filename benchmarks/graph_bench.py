@@ -5,8 +5,8 @@ Runs the demo graph (simulated modules, drivers, model node, gait node, rerun lo
 for each gait command rate and prints: end-to-end latency from a gait command to the
 commanded shape published by the model node, and from a driver's measured length to the
 predicted shape (median and p99, observed in a separate process); command rates achieved
-against the configured rate; messages DDS reported lost; CPU (% of one core) and memory
-(RSS) per node.
+against the configured rate; commands lost between the gait node and the drivers (by
+their own counters); CPU (% of one core) and memory (RSS) per node.
 
 Usage: .venv/bin/python benchmarks/graph_bench.py [--seconds 20] [--rates 50 100]
 """
@@ -48,12 +48,12 @@ def main() -> None:
         meas_med = np.median([m['measured_to_shape_ms']['median'] for m in modules])
         meas_p99 = np.max([m['measured_to_shape_ms']['p99'] for m in modules])
         achieved = np.mean([m['command_rate_hz'] for m in modules])
-        lost = sum(m['messages_lost'] for m in modules)
+        lost = sum(m['commands_lost'] or 0 for m in modules)  # gait sent - drivers received
         print(f"\n{summary['scene']}: gait at {rate:g} Hz for {summary['seconds']:g} s")
         print(f'  command -> commanded shape: median {cmd_med:.2f} ms, p99 {cmd_p99:.2f} ms')
         print(f'  measured -> predicted shape: median {meas_med:.2f} ms, p99 {meas_p99:.2f} ms')
         print(f'  command rate achieved: {achieved:.1f} Hz of {rate:g} Hz per module; '
-              f'messages lost: {lost}')
+              f'commands lost: {lost}')
         print(f"  {'node':16s} {'CPU % of 1 core':>16s} {'RSS MiB':>8s}")
         for name, usage in summary['processes'].items():
             print(f"  {name:16s} {usage['cpu_percent']:16.1f} {usage['rss_mib']:8.1f}")

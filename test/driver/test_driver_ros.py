@@ -110,6 +110,13 @@ def test_bad_inputs_never_reach_the_module_nor_crash_the_node(start_node, ros_no
         probe.command(length)
     assert probe.wait_state(lambda s: s.commands_refused == 9 and s.commands_clamped == 1), \
         probe.last()
+    # Every command taken is counted, refused or not; the latest one's stamp is reported.
+    last_stamp = ros_node.get_clock().now().nanoseconds
+    probe.command(0.15)
+    assert probe.wait_state(lambda s: s.commands_received == 12), probe.last()
+    stamp = probe.last().last_command_stamp
+    assert stamp.sec * 10**9 + stamp.nanosec >= last_stamp  # the 0.15 m command's own stamp
+    assert probe.wait_state(lambda s: s.targets_sent >= 1), probe.last()
     assert ros_node.spin_until(lambda: probe.measured and within_deadband(probe.measured[-1].cable_length, 0.15), 10)
     with server.lock:
         sent = [r.target for r in server.module.received_targets]

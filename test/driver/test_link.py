@@ -87,10 +87,16 @@ def test_commands_coalesce_latest_wins(sim_server, link_to):
     server = sim_server(Faults(delay_probability=1.0, delay_s=0.05))
     link = link_to(server)
     for i in range(200):
-        link.command(0.198 - i * 0.0003)
+        link.command(0.198 - i * 0.0003, stamp_ns=1000 + i)
     final = CAL.command(0.198 - 199 * 0.0003).count
     assert wait_for(lambda: targets(server) and targets(server)[-1] == final)
     assert len(targets(server)) < 20        # not 200 requests queued up
+    # Its own counts: every command received, each acknowledged target sent once, and
+    # the stamp of the latest command (what a sender matches its sent count against).
+    assert wait_for(lambda: last(link).counters.targets_sent == len(targets(server)))
+    report = last(link)
+    assert report.counters.commands_received == 200 and report.last_command_stamp_ns == 1199
+    assert report.counters.commands_refused == 0
 
 
 def test_nothing_beyond_the_range_reaches_the_module(sim_server, link_to):

@@ -113,6 +113,13 @@ def test_gait_node_publishes_at_the_configured_rate(start_node, ros_node):
     phase = phases[-1][1]
     assert phase.gait == 'walk' and phase.running and not phase.paused
     assert phase.period == 3.0 and 0.0 <= phase.phase <= 1.0 and phase.cycle >= 1
+    # Its own counts: one command per module per tick, at least as many as arrived here
+    # with a stamp up to this phase's (a phase is published after its tick's commands).
+    assert list(phase.modules) == ['yellow', 'blue', 'green', 'red', 'orange']
+    sent = dict(zip(phase.modules, phase.commands_sent))
+    assert len(set(sent.values())) == 1, sent
+    stamp = stamp_s(phase)
+    assert sent['yellow'] >= sum(1 for _, m in yellow if stamp_s(m) <= stamp) > 5
 
     # Change the rate at run time, then refuse an out-of-range one.
     client = ros_node.create_client(SetParameters, f'{NS}/gait_node/set_parameters')

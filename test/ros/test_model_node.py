@@ -141,6 +141,7 @@ def test_published_shapes_follow_a_changing_command(brittle_star_node, ros_node)
     pub = ros_node.create_publisher(CableLength, f'{NS}/yellow/cable_length/command', 10)
     assert ros_node.spin_until(lambda: pub.get_subscription_count() > 0 and diagnostics, 20.0), \
         brittle_star_node.output()
+    taken_before = list(diagnostics[-1].commanded_lengths)
 
     def command(length_mm):
         msg = CableLength(cable_length=length_mm / 1000.0)
@@ -172,6 +173,12 @@ def test_published_shapes_follow_a_changing_command(brittle_star_node, ros_node)
         msg = CableLength(cable_length=bad)
         pub.publish(msg)
     assert ros_node.spin_until(lambda: diagnostics and diagnostics[-1].refused >= 3, 10.0)
+    # Its own per-module counts: the 3 good and 3 bad yellow commands were all taken.
+    d = diagnostics[-1]
+    assert list(d.modules) == list(scene.module_names)
+    taken = [n - b for n, b in zip(d.commanded_lengths, taken_before)]
+    assert taken == [6, 0, 0, 0, 0], taken
+    assert list(d.measured_lengths) == [0] * 5  # no driver runs here
     assert len(shapes) == n_before
     assert brittle_star_node.alive()
     command(yellow.straight_length_mm - 30.0)

@@ -106,8 +106,11 @@ class DriverNode(SoftSnapNode):
         # Depth 50: a briefly starved subscriber (model node, logger) loses no measurement.
         self.measured_publisher = self.create_publisher(CableLength, f'{m}/cable_length/measured', 50)
         self.state_publisher = self.create_publisher(ModuleState, f'{m}/state', 10)
+        # Depth 100 (2 s of 50 Hz commands): a driver starved by a busy machine takes the
+        # queued commands late instead of having them overwritten (commands_received
+        # tells the sender what arrived).
         self.command_subscription = self.create_subscription(
-            CableLength, f'{m}/cable_length/command', self.command_callback, 10)
+            CableLength, f'{m}/cable_length/command', self.command_callback, 100)
         self.trigger_services = [
             self.create_service(Trigger, f'{m}/{kind}', self._trigger_callback(kind))
             for kind in ('calibrate', 'pause', 'resume', 'stop')]
@@ -160,7 +163,8 @@ class DriverNode(SoftSnapNode):
     # -- ROS inputs --------------------------------------------------------------------
     def command_callback(self, msg: CableLength) -> None:
         try:
-            self.link.command(msg.cable_length)
+            stamp = msg.header.stamp
+            self.link.command(msg.cable_length, stamp.sec * 1_000_000_000 + stamp.nanosec)
         except ValueError:
             pass  # counted, logged (throttled) and reported in the state by the link
         except Exception as exc:  # noqa: BLE001 - no input may take the driver down
@@ -204,6 +208,10 @@ class DriverNode(SoftSnapNode):
             state.motor_power = report.pwm_power
         c = report.counters
         state.request_failures = c.request_failures
+        state.commands_received = c.commands_received
+        state.targets_sent = c.targets_sent
+        state.last_command_stamp.sec, state.last_command_stamp.nanosec = divmod(
+            report.last_command_stamp_ns, 1_000_000_000)
         state.commands_clamped = c.commands_clamped
         state.commands_refused = c.commands_refused
         state.reboots_detected = c.reboots_detected

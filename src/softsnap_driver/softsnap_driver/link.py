@@ -133,6 +133,8 @@ class Counters:
     """Event counts since the link started."""
 
     request_failures: int = 0
+    commands_received: int = 0       # every command() call, refused or not
+    targets_sent: int = 0            # set requests the module acknowledged
     commands_clamped: int = 0
     commands_refused: int = 0
     reboots_detected: int = 0
@@ -158,6 +160,7 @@ class LinkReport:
     counters: Counters
     last_error: str                  # active problems, '' when none
     last_error_stamp: float = math.nan   # clock time (s) of the most recent error; NaN: none
+    last_command_stamp_ns: int = 0   # the sender's stamp of the latest command (ns); 0: none
 
 
 @dataclass(frozen=True)
@@ -207,6 +210,7 @@ class ModuleLink:
         self._actions: deque[_Action] = deque()
         self._pending: TargetCommand | None = None
         self._last_command_time: float | None = None
+        self._last_command_stamp_ns = 0
         self._commands_accepted = 0                 # a new command supersedes a wanted stop
         self._stale_handled = True
         self._stop_wanted: str | None = None        # why a stop is wanted and not confirmed
@@ -259,14 +263,18 @@ class ModuleLink:
             self._config = config
             self._cond.notify_all()
 
-    def command(self, length_m: float) -> TargetCommand:
+    def command(self, length_m: float, stamp_ns: int = 0) -> TargetCommand:
         """Accept a commanded cable length (m): clamp it if near the range and queue it.
 
         Latest wins. Raises ValueError (non-physical: NaN, infinite, <= 0, beyond the
         clamp margin) or :class:`NeedsCalibration`; both are counted as refused commands.
         A new command supersedes a stop that is still wanted (the sender is in control).
+        `stamp_ns` (the sender's stamp, ns) is reported with the received count, so a sender
+        can tell how many of its commands up to that stamp arrived.
         """
         with self._cond:
+            self._count(commands_received=1)
+            self._last_command_stamp_ns = int(stamp_ns)
             try:
                 cmd = self._config.calibration.command(length_m)
                 if not self._calibrated:
@@ -564,6 +572,8 @@ class ModuleLink:
             return
         self._sent = key
         self._module_target = cmd.count
+        with self._cond:
+            self._count(targets_sent=1)
         self._progress = (status.encoder_count, self._clock())   # a new target: re-arm
 
     def _do_stale(self, config: LinkConfig) -> None:
@@ -722,6 +732,7 @@ class ModuleLink:
         with self._cond:
             calibrated, counters = self._calibrated, self._counters
             last_error, last_error_stamp = self._last_error(), self._last_error_stamp
+            last_command_stamp_ns = self._last_command_stamp_ns
         measured = (calibration.length_m(status.encoder_count)
                     if status is not None and calibrated else math.nan)
         target = self._module_target
@@ -730,7 +741,8 @@ class ModuleLink:
             status=status, measured_length_m=measured,
             target_length_m=calibration.length_m(target) if target is not None and calibrated else math.nan,
             encoder_target=target if target is not None else 0, pwm_power=config.pwm_power,
-            counters=counters, last_error=last_error, last_error_stamp=last_error_stamp)
+            counters=counters, last_error=last_error, last_error_stamp=last_error_stamp,
+            last_command_stamp_ns=last_command_stamp_ns)
         try:
             self._report(report)
         except Exception as exc:  # noqa: BLE001 - a broken consumer must not stop the link

@@ -6,8 +6,10 @@ one simulated module and one driver per module, the model node, the gait node an
 rerun logger, each its own OS process talking over ROS 2. It runs the scene's gait for a
 fixed time, stops every process (also on Ctrl-C or when a node crashes; no orphans:
 each child runs in its own process group, which is signalled and reaped), and prints a
-summary: commands sent, shapes predicted, tracking error between the commanded and the
-predicted shape, solver time, messages dropped, and the path of the ``.rrd`` recording.
+summary: commands sent by the gait node and received by each driver by their own
+counters (so "lost" is the true difference, and what this process's observer missed is
+shown apart), shapes predicted, tracking error between the commanded and the predicted
+shape, solver time, and the path of the ``.rrd`` recording.
 
 Each demo claims a private slot (:mod:`softsnap_gaits.isolation`): a ROS domain id no
 other demo or test on this machine uses (unless ``ROS_DOMAIN_ID`` is set) and free
@@ -84,6 +86,9 @@ class ModuleStats:
     command_lengths_m: list = dataclasses.field(default_factory=list)
     commanded_tips: list = dataclasses.field(default_factory=list)
     predicted_tips: list = dataclasses.field(default_factory=list)
+    # The driver's own counts, from every state message: (state stamp ns, commands
+    # received, stamp ns of the latest command received); see commands_counted.
+    driver_counts: list = dataclasses.field(default_factory=list)
 
 
 class Process:
@@ -132,11 +137,15 @@ class Observer:
 
     def __init__(self, scene, namespace: str):
         import rclpy
-        from softsnap_interfaces.msg import CableLength, ModelDiagnostics, ModuleShape, ModuleState
+        from softsnap_interfaces.msg import (CableLength, GaitPhase, ModelDiagnostics, ModuleShape,
+                                             ModuleState)
 
         self.scene = scene
         self.stats = {m.name: ModuleStats() for m in scene.modules}
         self.diagnostics = None
+        # The gait node's own counts: tick stamp (ns) -> {module: commands sent up to and
+        # including that tick} (GaitPhase is published after the tick's commands).
+        self.gait_sent: dict[int, dict[str, int]] = {}
         self.context = rclpy.Context()
         rclpy.init(context=self.context)
         self.node = rclpy.create_node('demo_observer', namespace=namespace, context=self.context)
@@ -164,9 +173,20 @@ class Observer:
             subscribe(ModuleShape, f'{m.name}/shape/predicted',
                       lambda msg, s=s: self._predicted(s, msg), s)
             self.node.create_subscription(ModuleState, f'{m.name}/state',
-                                          lambda msg, s=s: setattr(s, 'state', msg), 10)
+                                          lambda msg, s=s: self._state(s, msg), 100)
         self.node.create_subscription(ModelDiagnostics, 'model/diagnostics',
                                       lambda msg: setattr(self, 'diagnostics', msg), 10)
+        self.node.create_subscription(GaitPhase, 'gait/phase', self._phase, STREAM_DEPTH)
+
+    def _phase(self, msg) -> None:
+        if len(msg.modules) == len(msg.commands_sent):
+            self.gait_sent[_stamp_ns(msg)] = dict(zip(msg.modules, (int(n) for n in msg.commands_sent)))
+
+    @staticmethod
+    def _state(s: ModuleStats, msg) -> None:
+        s.state = msg
+        last = msg.last_command_stamp.sec * 1_000_000_000 + msg.last_command_stamp.nanosec
+        s.driver_counts.append((_stamp_ns(msg), int(msg.commands_received), last))
 
     def _command(self, s: ModuleStats, msg) -> None:
         s.command_stamps_ns.append(_stamp_ns(msg))
@@ -336,6 +356,53 @@ def settled_tip_errors_mm(s: ModuleStats, window_ns, tip_mm=lambda x: x) -> list
     return errors
 
 
+@dataclasses.dataclass(frozen=True)
+class CommandCounts:
+    """Commands of one module over one stretch of tick stamps, by each party's own count.
+
+    The stretch runs from the latest command a driver state reported early in the run
+    (exclusive) to the latest one it reported by the end (inclusive): over it the gait
+    node's counts (GaitPhase of those ticks) and the driver's (ModuleState) are exact, so
+    `lost` is what left the gait node and never reached the driver.
+    """
+
+    sent: int            # published by the gait node (count)
+    received: int        # taken by the driver (count)
+    observed: int        # taken by the demo's observer (count)
+    from_ns: int         # stamps (ns of ROS time) of the stretch: (from_ns, to_ns]
+    to_ns: int
+
+    @property
+    def lost(self) -> int:
+        return self.sent - self.received
+
+    @property
+    def observer_shortfall(self) -> int:
+        """What the observer missed: its own problem (starved by load), not a lost command."""
+        return self.sent - self.observed
+
+
+def commands_counted(name: str, s: ModuleStats, gait_sent: dict[int, dict[str, int]],
+                     window_ns: tuple[int, int]) -> CommandCounts | None:
+    """The gait node's, the driver's and the observer's counts of `name`'s commands.
+
+    A driver state says "commands_received, the latest stamped T"; the gait node's
+    GaitPhase stamped T says how many it had sent up to and including T. Two such pairs,
+    the first and last whose T lies in `window_ns`, bound the stretch. None when there is
+    no such pair (driver states or gait phases not observed).
+    """
+    usable = [(received, last) for _, received, last in s.driver_counts
+              if window_ns[0] <= last <= window_ns[1] and name in gait_sent.get(last, {})]
+    if len(usable) < 2:
+        return None
+    (r0, t0), (r1, t1) = usable[0], max(usable, key=lambda u: (u[1], u[0]))
+    if t1 <= t0:
+        return None
+    observed = sum(1 for t in s.command_stamps_ns if t0 < t <= t1)
+    return CommandCounts(sent=gait_sent[t1][name] - gait_sent[t0][name], received=r1 - r0,
+                         observed=observed, from_ns=t0, to_ns=t1)
+
+
 def _percentiles(values) -> dict:
     if not values:
         return {'median': math.nan, 'p99': math.nan, 'n': 0}
@@ -358,18 +425,31 @@ def summarise(scene, observer: Observer, seconds: float, recording: Path | None,
         errors = np.asarray(running) if running else None
         settled = settled_tip_errors_mm(s, window_ns, observer._tip_mm)
         state = s.state
+        counted = commands_counted(name, s, observer.gait_sent, window_ns)
         measured = _in_window(s.measured_stamps_ns, window_ns)
         # What the observer never saw is None ("not observed"), never a 0 or NaN that
         # would read as a measurement.
         unobserved = [what for what, seen in (
             ('gait commands', s.command_stamps_ns), ('measured lengths', s.measured_stamps_ns),
             ('commanded shapes', s.commanded_shapes), ('predicted shapes', s.predicted_shapes),
-            ('driver state', state is not None)) if not seen]
+            ('driver state', state is not None),
+            ('command counters', counted is not None)) if not seen]
         modules[name] = {
-            'commands_received': len(commands) if s.command_stamps_ns else None,
+            # The nodes' own counts over the same stretch of commands (CommandCounts).
+            'commands_sent': counted.sent if counted else None,
+            'driver_received': counted.received if counted else None,
+            'commands_lost': counted.lost if counted else None,
+            'observer_commands': counted.observed if counted else None,
+            'observer_shortfall': counted.observer_shortfall if counted else None,
+            'counted_seconds': (counted.to_ns - counted.from_ns) * 1e-9 if counted else None,
+            # The driver's counts since it started (its latest state).
+            'driver_refused': int(state.commands_refused) if state is not None else None,
+            'driver_targets_sent': int(state.targets_sent) if state is not None else None,
+            # What the observer took inside the run window, and its rate from the stamps.
+            'commands_observed': len(commands) if s.command_stamps_ns else None,
             'command_rate_hz': ((len(commands) - 1) / span if span > 0 else 0.0)
                                if s.command_stamps_ns else None,
-            'messages_lost': s.lost,
+            'observer_dds_lost': s.lost,
             'measured_lengths': len(measured) if s.measured_stamps_ns else None,
             'commanded_shapes': s.commanded_shapes or None,
             'predicted_shapes': s.predicted_shapes or None,
@@ -391,7 +471,10 @@ def summarise(scene, observer: Observer, seconds: float, recording: Path | None,
         'scene': scene.name, 'seconds': seconds, 'modules': modules,
         'model': None if diag is None else {
             'solves': diag.solves, 'skipped_unchanged': diag.skipped_unchanged,
-            'skipped_duplicate': diag.skipped_duplicate, 'refused': diag.refused},
+            'skipped_duplicate': diag.skipped_duplicate, 'refused': diag.refused,
+            # Length messages the model node took per module since it started (counts).
+            'lengths_taken': {m: {'commanded': int(c), 'measured': int(r)} for m, c, r in zip(
+                diag.modules, diag.commanded_lengths, diag.measured_lengths)}},
         'recording': None if recording is None else str(recording),
         'recording_bytes': recording.stat().st_size if recording and recording.exists() else 0,
         'exit_codes': exit_codes,
@@ -411,14 +494,19 @@ def print_summary(summary: dict) -> None:
           "(tip error: commanded shape versus the shape predicted from the measured length, "
           "all the time (running) and at the end of each step (settled: last command before "
           "the commanded contraction changes, n steps); "
-          "lost: messages DDS reported lost to the observer)")
-    header = (f"{'module':10s} {'cmds':>6s} {'Hz':>5s} {'lost':>4s} {'measured':>8s} {'shapes c/p':>11s} "
+          "commands by each node's own count: sent by the gait node, rcvd by the driver, "
+          "lost = sent - rcvd; seen by this demo's observer, short = sent - seen (the "
+          "observer's own shortfall under load, not a lost command))")
+    header = (f"{'module':10s} {'sent':>5s} {'rcvd':>5s} {'lost':>4s} {'seen':>5s} {'short':>5s} {'Hz':>5s} "
+              f"{'measured':>8s} {'shapes c/p':>11s} "
               f"{'tip err mean/max mm':>20s} {'settled mean/max mm (n)':>24s} {'solve µs':>9s} {'online':>6s} {'batt V':>6s}")
     print(header)
     print('-' * len(header))
     for name, m in summary['modules'].items():
-        print(f"{name:10s} {_cell(m['commands_received'], '6d')} {_cell(m['command_rate_hz'], '5.1f')} "
-              f"{m['messages_lost']:4d} {_cell(m['measured_lengths'], '8d')} "
+        print(f"{name:10s} {_cell(m['commands_sent'], '5d')} {_cell(m['driver_received'], '5d')} "
+              f"{_cell(m['commands_lost'], '4d')} {_cell(m['observer_commands'], '5d')} "
+              f"{_cell(m['observer_shortfall'], '5d')} {_cell(m['command_rate_hz'], '5.1f')} "
+              f"{_cell(m['measured_lengths'], '8d')} "
               f"{_cell(m['commanded_shapes'], '5d')}/{_cell(m['predicted_shapes'], '<5d')} "
               f"{_cell(m['tip_error_mm_mean'], '9.2f')}/{_cell(m['tip_error_mm_max'], '<9.2f')} "
               f"{_cell(m['settled_tip_error_mm_mean'], '9.2f')}/{_cell(m['settled_tip_error_mm_max'], '<7.2f')}"
@@ -428,10 +516,21 @@ def print_summary(summary: dict) -> None:
     for name, m in summary['modules'].items():
         if m.get('not_observed'):
             print(f"{name}: not observed (shown as -): {', '.join(m['not_observed'])}")
+    lost = {name: m['commands_lost'] for name, m in summary['modules'].items() if m['commands_lost']}
+    if lost:
+        print(f'WARNING: commands lost between the gait node and the drivers: {lost}')
+    dds_lost = {name: m['observer_dds_lost'] for name, m in summary['modules'].items()
+                if m['observer_dds_lost']}
+    if dds_lost:
+        print(f'observer: DDS reported messages lost to the observer: {dds_lost}')
     if summary['model']:
         d = summary['model']
         print(f"model node: {d['solves']} solves, {d['skipped_unchanged']} unchanged lengths and "
               f"{d['skipped_duplicate']} duplicate modules skipped, {d['refused']} refused")
+        if d.get('lengths_taken'):
+            taken = ', '.join(f"{name} {n['commanded']}/{n['measured']}"
+                              for name, n in d['lengths_taken'].items())
+            print(f'model node took commanded/measured lengths (since its start): {taken}')
     latency = [m['command_to_shape_ms']['median'] for m in summary['modules'].values()
                if m['command_to_shape_ms']['n']]
     if latency:

@@ -7,7 +7,8 @@ Run (``ros2 run softsnap_gaits gait_node`` or the installed script directly)::
 
 Topics (relative, so inside the node's namespace):
   ``<module>/cable_length/command`` softsnap_interfaces/CableLength, metres
-  ``gait/phase``                    softsnap_interfaces/GaitPhase
+  ``gait/phase``                    softsnap_interfaces/GaitPhase (with the commands
+                                    published per module since start)
 Services (private): ``~/start``, ``~/stop``, ``~/pause``, ``~/resume`` (std_srvs/Trigger),
 ``~/set_gait`` (softsnap_interfaces/SetGait).
 Parameters: scene, gait, rate, autostart, period, amplitude, time_scale, transition_time
@@ -111,7 +112,11 @@ class GaitNode(SoftSnapNode):
             # long, so a subscriber starved for a moment (a busy 2-core machine) loses none.
             m.name: self.create_publisher(CableLength, f'{m.name}/cable_length/command', 50)
             for m in self.scene.modules}
-        self.phase_publisher = self.create_publisher(GaitPhase, 'gait/phase', 10)
+        # Depth 50 like the commands: the phase carries the sent counts a subscriber matches
+        # its received counts against (by stamp), so a starved subscriber should miss none.
+        self.phase_publisher = self.create_publisher(GaitPhase, 'gait/phase', 50)
+        # Commands published per module since start (count), reported in every GaitPhase.
+        self.commands_sent = {m.name: 0 for m in self.scene.modules}
         self.create_service(Trigger, '~/start', self.start_callback)
         self.create_service(Trigger, '~/stop', self.stop_callback)
         self.create_service(Trigger, '~/pause', self.pause_callback)
@@ -203,6 +208,7 @@ class GaitNode(SoftSnapNode):
                 msg.header.stamp = stamp
                 msg.cable_length = float(length_mm) / 1000.0
                 self.command_publishers[name].publish(msg)
+                self.commands_sent[name] += 1
         phase = GaitPhase()
         phase.header.stamp = stamp
         phase.gait = self.player.gait.name
@@ -211,6 +217,8 @@ class GaitNode(SoftSnapNode):
         phase.phase = min(max(out.phase, 0.0), 1.0)
         phase.cycle = out.cycle
         phase.period = float(self.player.gait.period_s)
+        phase.modules = list(self.commands_sent)
+        phase.commands_sent = list(self.commands_sent.values())
         self.phase_publisher.publish(phase)
 
     def _trigger(self, action, response: Trigger.Response) -> Trigger.Response:

@@ -168,6 +168,8 @@ class ModelNode(SoftSnapNode):
                            enable_rosout=False,
                            cli_args=['--ros-args', '-r', f'__node:={self.get_name()}_inbox'])
         self._length_subscriptions = []
+        # Length messages taken per (module, source) since start (count), in diagnostics.
+        self.lengths_taken = {(m.name, source): 0 for m in self.scene.modules for source in SOURCES}
         self.module_publishers = {}
         for module in self.scene.modules:
             for source in SOURCES:
@@ -239,6 +241,7 @@ class ModelNode(SoftSnapNode):
 
     # ------------------------------------------------------------------ topics
     def length_callback(self, msg: CableLength, module: str, source: str) -> None:
+        self.lengths_taken[(module, source)] += 1
         stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         try:
             self.predictor.submit(source, module, msg.cable_length * MM_PER_M, stamp_ns)
@@ -346,6 +349,9 @@ class ModelNode(SoftSnapNode):
             refused=c.refused, service_calls=self.service_calls,
             service_failures=self.service_failures,
             mean_solve_time=(c.solve_time_s - time_before) / n if n else 0.0)
+        msg.modules = [m.name for m in self.scene.modules]
+        msg.commanded_lengths = [self.lengths_taken[(m, 'commanded')] for m in msg.modules]
+        msg.measured_lengths = [self.lengths_taken[(m, 'predicted')] for m in msg.modules]
         msg.header.stamp = self.get_clock().now().to_msg()
         self._solve_time_reported = (c.solves, c.solve_time_s)
         self.diagnostics_publisher.publish(msg)
