@@ -113,8 +113,9 @@ def ros_node():
             executor.spin_once(timeout_sec=0.02)
         return bool(predicate())
 
-    def call(client, request, timeout: float = 10.0):
-        """Wait for the service, call it and return the response (fails the test on timeout)."""
+    def call(client, request, timeout: float = 30.0):
+        """Wait for the service, call it and return the response (fails the test on timeout;
+        30 s by default: a node on a machine with both cores busy answers late, not never)."""
         assert spin_until(client.service_is_ready, timeout), f'{client.srv_name} not available'
         future = client.call_async(request)
         assert spin_until(future.done, timeout), f'{client.srv_name} did not answer'
