@@ -6,6 +6,10 @@ For a module named M (parameter ``module``), relative to the node's namespace:
 - publishes ``M/cable_length/measured`` (CableLength, metres) after every status reply
   while the module is calibrated, and ``M/state`` (softsnap_interfaces/ModuleState)
   after every request and at the poll rate while offline;
+- publishes ``M/battery`` (sensor_msgs/BatteryState) and, on the absolute
+  ``/diagnostics``, a diagnostic_msgs/DiagnosticArray with the module's status, every
+  ``diagnostics_period_s`` (levels: :mod:`softsnap_driver.diagnostics`,
+  docs/diagnostics.md);
 - serves ``M/calibrate``, ``M/pause``, ``M/resume`` and ``M/stop`` (std_srvs/Trigger).
 
 The node is thin: it adapts parameters, messages and services to
@@ -18,6 +22,7 @@ from __future__ import annotations
 import math
 import re
 import sys
+import time
 
 import rclpy
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
@@ -25,10 +30,13 @@ from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescr
 from rclpy.duration import Duration
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
+from diagnostic_msgs.msg import DiagnosticArray
+from sensor_msgs.msg import BatteryState
 from softsnap_interfaces.msg import CableLength, ModuleState
 from std_srvs.srv import Trigger
 
 from softsnap_driver.core import DEFAULT_CLAMP_MARGIN_M, CableCalibration
+from softsnap_driver.diagnostics import DriverHealth, battery_state, diagnostic_name
 from softsnap_driver.link import LinkConfig, LinkReport, ModuleLink
 from softsnap_driver.ros_parameters import SoftSnapNode
 from softsnap_driver.spinning import spin_until_shutdown
@@ -84,6 +92,9 @@ PARAMETERS = {
     'stop_deadline_s': (1.0, _float(
         'Retry reach until the stop is confirmed, for at most this long, then report and keep trying, s',
         0.05, 60.0)),
+    'diagnostics_period_s': (1.0, ParameterDescriptor(
+        description='Period of /diagnostics and <module>/battery messages, s', read_only=True,
+        floating_point_range=[FloatingPointRange(from_value=0.1, to_value=60.0)])),
 }
 
 
@@ -115,6 +126,15 @@ class DriverNode(SoftSnapNode):
             self.create_service(Trigger, f'{m}/{kind}', self._trigger_callback(kind))
             for kind in ('calibrate', 'pause', 'resume', 'stop')]
         self._error_stamp = (math.nan, None)   # (link clock, ROS time) of the latest error
+        # Standard health outputs, from the link's latest report (set by its worker thread;
+        # one reference assignment, read by the timer).
+        self._latest_report: LinkReport | None = None
+        self.health = DriverHealth(diagnostic_name(self.get_namespace(), m),
+                                   f'{config.host}:{config.port}')
+        self.battery_publisher = self.create_publisher(BatteryState, f'{m}/battery', 10)
+        self.diagnostics_publisher = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self.diagnostics_timer = self.create_timer(
+            self.get_parameter('diagnostics_period_s').value, self.diagnostics_callback)
         self.link = ModuleLink(config, self.report_callback, self.get_logger())
         self.link.start()
         low, high = config.calibration.length_range_m
@@ -179,6 +199,7 @@ class DriverNode(SoftSnapNode):
 
     # -- ROS outputs (called from the link's worker thread) ----------------------------
     def report_callback(self, report: LinkReport) -> None:
+        self._latest_report = report
         if not self.context.ok():
             return
         stamp = self.get_clock().now().to_msg()
@@ -229,6 +250,22 @@ class DriverNode(SoftSnapNode):
                                      (self.get_clock().now() - Duration(nanoseconds=age_ns)).to_msg())
             state.last_error_time = self._error_stamp[1]
         self.state_publisher.publish(state)
+
+    def diagnostics_callback(self) -> None:
+        # The link stamps reports on time.monotonic (its default clock).
+        report = self._latest_report
+        stamp = self.get_clock().now().to_msg()
+        try:
+            diagnostics = DiagnosticArray(status=[self.health.status(report, time.monotonic())])
+            battery = battery_state(report, self.module)
+        except Exception as exc:  # noqa: BLE001 - health reporting must not stop the driver
+            self.get_logger().error(f'diagnostics failed: {exc!r}', throttle_duration_sec=5.0)
+            return
+        diagnostics.header.stamp = stamp
+        self.diagnostics_publisher.publish(diagnostics)
+        battery.header.stamp = stamp
+        battery.header.frame_id = self.module
+        self.battery_publisher.publish(battery)
 
     def destroy_node(self) -> None:
         # Bounded (link.SHUTDOWN_BUDGET_S): the stop on shutdown fits the 2 s SIGINT budget.

@@ -9,7 +9,14 @@ Topics (relative to the node's namespace; SI units):
 - publishes ``<module>/shape/commanded`` and ``<module>/shape/predicted`` (ModuleShape),
   ``model/shape/commanded`` and ``model/shape/predicted`` (RobotShape, all modules with
   their base poses) and ``model/diagnostics`` (ModelDiagnostics, what was solved and
-  skipped).
+  skipped);
+- standard outputs (built by :mod:`softsnap_model.standard_messages`, only for
+  subscribers): ``model/markers`` (visualization_msgs/MarkerArray at ``marker_rate``, in
+  the frame named after the scene, with the simulated shapes received on
+  ``model/shape/simulated``), ``model/joint_states/commanded`` and
+  ``model/joint_states/predicted`` (sensor_msgs/JointState, joints
+  ``<module>/segment_<i>``) and, on the absolute ``/diagnostics``, the node's
+  diagnostic_msgs/DiagnosticArray every ``diagnostics_period``.
 Services: ``~/forward_shape`` (ForwardShape), ``~/inverse_design`` (InverseDesign).
 Action: ``~/design_threading`` (DesignThreading: the inverse design with progress feedback
 and cancel; one goal at a time, further goals are rejected while one runs).
@@ -42,6 +49,9 @@ from rclpy.node import Node
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.qos import QoSProfile
 from rclpy.task import Future
+from diagnostic_msgs.msg import DiagnosticArray
+from sensor_msgs.msg import JointState
+from visualization_msgs.msg import MarkerArray
 
 from softsnap_driver.ros_parameters import SoftSnapNode
 from softsnap_driver.spinning import spin_until_shutdown
@@ -55,6 +65,7 @@ from .inverse import DesignCancelled, DesignTimedOut, design_threading
 from .loads import DEFAULT_BENDING_STIFFNESS_NMM, Loads, solve_loaded
 from .predictor import SOURCES, RobotPredictor
 from .scene import SceneError, load_scene
+from . import standard_messages as standard
 
 MM_PER_M = 1000.0
 LENGTH_TOPIC = {'commanded': 'cable_length/command', 'predicted': 'cable_length/measured'}
@@ -137,6 +148,9 @@ class ModelNode(SoftSnapNode):
             description='Longest an inverse design may take from its arrival, waiting in the '
                         'queue included; then it is stopped and answered as timed out (s)',
             floating_point_range=[FloatingPointRange(from_value=0.1, to_value=3600.0)]))
+        self.declare_parameter('marker_rate', 10.0, ParameterDescriptor(
+            description='Rate of model/markers (MarkerArray) while someone subscribes (Hz)',
+            floating_point_range=[FloatingPointRange(from_value=0.1, to_value=100.0)]))
         self.add_on_set_parameters_callback(self.parameters_callback)
 
         self.scene = load_scene(self.get_parameter('scene').value)
@@ -181,6 +195,19 @@ class ModelNode(SoftSnapNode):
         self.robot_publishers = {s: self.create_publisher(RobotShape, f'model/shape/{s}', qos)
                                  for s in SOURCES}
         self.diagnostics_publisher = self.create_publisher(ModelDiagnostics, 'model/diagnostics', qos)
+        # Standard outputs for RViz, Foxglove and rqt: built only while subscribed.
+        self.marker_publisher = self.create_publisher(MarkerArray, 'model/markers', qos)
+        self.joint_state_publishers = {
+            s: self.create_publisher(JointState, f'model/joint_states/{s}', qos) for s in SOURCES}
+        self.ros_diagnostics_publisher = self.create_publisher(DiagnosticArray, '/diagnostics', qos)
+        # Only the newest simulated shape matters: depth 1, drawn at the next marker tick.
+        self._simulated = None
+        self.create_subscription(RobotShape, 'model/shape/simulated',
+                                 self.simulated_shape_callback, 1)
+        self._marker_cache: dict[tuple[str, str], tuple] = {}  # (module, source) -> (key, markers)
+        self.marker_arrays_published = 0
+        self.joint_states_published = 0
+        self._health_reported = None
         self.create_service(ForwardShape, '~/forward_shape', self.forward_shape_callback)
         # An inverse design takes 0.1 s to design_timeout: it runs on a worker thread so
         # that predictions and forward solves go on meanwhile; the guard condition wakes
@@ -207,6 +234,8 @@ class ModelNode(SoftSnapNode):
         self.tick_timer = self.create_timer(1.0 / self.get_parameter('rate').value, self.tick_callback)
         self.diagnostics_timer = self.create_timer(
             self.get_parameter('diagnostics_period').value, self.diagnostics_callback)
+        self.marker_timer = self.create_timer(
+            1.0 / self.get_parameter('marker_rate').value, self.marker_callback)
         self.get_logger().info(
             f'scene {self.scene.name!r}: {len(self.scene.modules)} modules '
             f'({", ".join(self.scene.module_names)}), predicting at '
@@ -218,7 +247,7 @@ class ModelNode(SoftSnapNode):
             if param.name == 'rib_centers' and param.value not in ('auto', 'always', 'never'):
                 return SetParametersResult(successful=False, reason=(
                     f"rib_centers must be 'auto', 'always' or 'never', got {param.value!r}"))
-            if param.name in ('rate', 'length_tolerance', 'diagnostics_period'):
+            if param.name in ('rate', 'length_tolerance', 'diagnostics_period', 'marker_rate'):
                 value = param.value
                 if not isinstance(value, (int, float)) or not math.isfinite(value):
                     return SetParametersResult(successful=False,
@@ -237,6 +266,10 @@ class ModelNode(SoftSnapNode):
             elif param.name == 'rate':
                 self.tick_timer.cancel()
                 self.tick_timer = self.create_timer(1.0 / float(param.value), self.tick_callback)
+            elif param.name == 'marker_rate':
+                self.marker_timer.cancel()
+                self.marker_timer = self.create_timer(1.0 / float(param.value),
+                                                      self.marker_callback)
         return SetParametersResult(successful=True)
 
     # ------------------------------------------------------------------ topics
@@ -284,6 +317,10 @@ class ModelNode(SoftSnapNode):
         for source in SOURCES:
             if not updated[source]:
                 continue
+            if self.joint_state_publishers[source].get_subscription_count() > 0:
+                for joint_state in standard.joint_states(updated[source]):
+                    self.joint_state_publishers[source].publish(joint_state)
+                    self.joint_states_published += 1
             # Serialising costs ~0.1 ms a message: topics nobody listens to are skipped, and
             # a shape's message is built once, only when some topic needs it.
             for shape in updated[source]:
@@ -339,6 +376,91 @@ class ModelNode(SoftSnapNode):
         msg.solve_time = shape.solve_time_s
         return msg
 
+    # ------------------------------------------------------------------ standard outputs
+    def simulated_shape_callback(self, msg: RobotShape) -> None:
+        self._simulated = msg  # drawn (and checked) at the next marker tick, if watched
+
+    def marker_callback(self) -> None:
+        if self.marker_publisher.get_subscription_count() == 0:
+            return  # nobody watches: build nothing
+        try:
+            markers = self._model_markers() + self._simulated_markers()
+        except Exception as error:  # never let a marker bug stop the node
+            self.get_logger().error(f'markers failed: {error!r}', throttle_duration_sec=1.0)
+            return
+        self.marker_publisher.publish(MarkerArray(markers=markers))
+        self.marker_arrays_published += 1
+
+    def _cached_markers(self, key, shape, pose, build):
+        """Markers of one (module, source), rebuilt only when its shape or pose changed.
+
+        The cache holds the shape itself (compared by identity: the predictor makes a
+        new object for every solve)."""
+        cached = self._marker_cache.get(key)
+        if cached is None or cached[0] is not shape or cached[1] != pose:
+            cached = (shape, pose, build())
+            self._marker_cache[key] = cached
+        return cached[2]
+
+    def _model_markers(self) -> list:
+        markers = []
+        skeleton = self.skeleton
+        for source in SOURCES:
+            for index, (module, shape, pose) in enumerate(zip(
+                    self.scene.modules, self.predictor.shapes(source),
+                    self.predictor.base_poses(source))):
+                if shape is None:
+                    continue
+
+                def build(module=module, shape=shape, pose=pose, index=index, source=source):
+                    parts = standard.module_parts_m(
+                        shape.angles, module.threading_mm, spacing_mm=skeleton.spacing_mm,
+                        rib_length_mm=skeleton.rib_length_mm,
+                        rib_centers_mm=shape.rib_centers_mm)
+                    return standard.module_markers(
+                        parts, frame_id=self.scene.name, stamp=standard.stamp_msg(shape.stamp_ns),
+                        module=module.name, module_index=index, source=source,
+                        base_pose=standard.pose_msg(*pose))
+                markers += self._cached_markers((module.name, source), shape, pose, build)
+        return markers
+
+    def _simulated_markers(self) -> list:
+        msg = self._simulated
+        if msg is None:
+            return []
+        cached = self._marker_cache.get(('', 'simulated'))
+        if cached is not None and cached[0] is msg:
+            return cached[1]
+        markers = []
+        if len(msg.base_poses) != len(msg.modules):
+            self.get_logger().warning(
+                f'simulated RobotShape has {len(msg.modules)} modules but '
+                f'{len(msg.base_poses)} base poses: not drawn', throttle_duration_sec=5.0)
+        else:
+            names = self.scene.module_names
+            for i, (shape, pose) in enumerate(zip(msg.modules, msg.base_poses)):
+                known = shape.module in names
+                index = names.index(shape.module) if known else len(names) + i
+                centers = ([(p.x * MM_PER_M, p.y * MM_PER_M, p.z * MM_PER_M)
+                            for p in shape.rib_centers] or None)
+                try:
+                    parts = standard.module_parts_m(
+                        shape.angles,
+                        self.scene.module(shape.module).threading_mm if known else None,
+                        spacing_mm=self.skeleton.spacing_mm,
+                        rib_length_mm=self.skeleton.rib_length_mm, rib_centers_mm=centers)
+                except ValueError as error:
+                    self.get_logger().warning(f'simulated shape of {shape.module!r} not drawn: '
+                                              f'{error}', throttle_duration_sec=5.0)
+                    continue
+                markers += standard.module_markers(
+                    parts, frame_id=msg.header.frame_id or self.scene.name,
+                    stamp=shape.header.stamp if shape.header.stamp.sec else msg.header.stamp,
+                    module=shape.module, module_index=index,
+                    source=shape.source or 'simulated', base_pose=pose)
+        self._marker_cache[('', 'simulated')] = (msg, markers)
+        return markers
+
     def diagnostics_callback(self) -> None:
         c = self.predictor.counters
         solves_before, time_before = self._solve_time_reported
@@ -349,6 +471,19 @@ class ModelNode(SoftSnapNode):
             refused=c.refused, service_calls=self.service_calls,
             service_failures=self.service_failures,
             mean_solve_time=(c.solve_time_s - time_before) / n if n else 0.0)
+        health = standard.ModelHealth(
+            solves=c.solves, skipped_unchanged=c.skipped_unchanged,
+            skipped_duplicate=c.skipped_duplicate, skipped_rib_points=c.skipped_rib_points,
+            refused=c.refused, service_calls=self.service_calls,
+            service_failures=self.service_failures, mean_solve_time_s=msg.mean_solve_time,
+            marker_arrays_published=self.marker_arrays_published,
+            joint_states_published=self.joint_states_published)
+        diagnostics = DiagnosticArray(status=[standard.model_status(
+            f'softsnap/{self.scene.name}/model', health, self._health_reported,
+            1.0 / self.get_parameter('rate').value)])
+        diagnostics.header.stamp = self.get_clock().now().to_msg()
+        self._health_reported = health
+        self.ros_diagnostics_publisher.publish(diagnostics)
         msg.modules = [m.name for m in self.scene.modules]
         msg.commanded_lengths = [self.lengths_taken[(m, 'commanded')] for m in msg.modules]
         msg.measured_lengths = [self.lengths_taken[(m, 'predicted')] for m in msg.modules]
