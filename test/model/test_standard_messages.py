@@ -125,3 +125,50 @@ def test_model_status_levels_follow_the_thresholds():
     assert slow.level == DiagnosticStatus.WARN and 'mean solve time' in slow.message
     failed = standard.model_status('n', _health(service_failures=1), _health(), 0.01)
     assert failed.level == DiagnosticStatus.WARN
+
+
+def test_prediction_markers_show_the_predictors_own_rib_centres(brittle_star):
+    predictor = RobotPredictor(brittle_star)
+    module = brittle_star.module('blue')
+    predictor.submit('predicted', 'blue', module.straight_length_mm - 25.0, stamp_ns=7)
+    shape = predictor.tick(rib_centers=True)['predicted'][0]
+    pose = ((0.1, 0.2, 0.0), (0.0, 0.0, 0.0, 1.0))
+    markers = standard.prediction_markers(
+        shape, module_index=1, threading_mm=module.threading_mm, base_pose_m=pose,
+        frame_id='brittle_star', spacing_mm=brittle_star.skeleton.spacing_mm,
+        rib_length_mm=brittle_star.skeleton.rib_length_mm)
+    spine = markers[0]
+    assert spine.ns == 'blue/predicted/spine' and spine.header.stamp.nanosec == 7
+    np.testing.assert_allclose(_xyz(spine.points)[:, :2], shape.rib_centers_mm / 1000.0, atol=0)
+    assert (spine.pose.position.x, spine.pose.position.y) == (0.1, 0.2)
+
+
+def test_robot_shape_markers_draw_good_modules_and_report_bad_ones(brittle_star):
+    from geometry_msgs.msg import Point, Pose
+    from softsnap_interfaces.msg import ModuleShape, RobotShape
+    skeleton = brittle_star.skeleton
+    kwargs = dict(default_frame_id='brittle_star', module_names=brittle_star.module_names,
+                  threadings_mm={m.name: m.threading_mm for m in brittle_star.modules},
+                  spacing_mm=skeleton.spacing_mm, rib_length_mm=skeleton.rib_length_mm)
+    angles = [0.05] * skeleton.n_segments
+    msg = RobotShape()
+    msg.header.frame_id = 'world'
+    msg.modules = [ModuleShape(module='red', source='simulated', angles=angles),
+                   ModuleShape(module='stranger', angles=angles),               # not in the scene
+                   ModuleShape(module='green', angles=angles[:3],              # inconsistent
+                               rib_centers=[Point()] * 12)]
+    msg.base_poses = [Pose(), Pose(), Pose()]
+    markers, problems = standard.robot_shape_markers(msg, **kwargs)
+    assert len(problems) == 1 and "'green'" in problems[0]
+    by_ns = {m.ns: m for m in markers}
+    assert set(by_ns) == {'red/simulated/spine', 'red/simulated/ribs', 'red/simulated/cable',
+                          'stranger/simulated/spine', 'stranger/simulated/ribs'}  # no threading
+    assert all(m.header.frame_id == 'world' for m in markers)
+    expected = standard.module_parts_m(angles, None, spacing_mm=skeleton.spacing_mm,
+                                       rib_length_mm=skeleton.rib_length_mm).spine
+    np.testing.assert_allclose(_xyz(by_ns['red/simulated/spine'].points), expected, atol=1e-15)
+    assert by_ns['stranger/simulated/spine'].id not in {m.id for m in markers
+                                                        if m.ns.startswith('red')}
+    msg.base_poses = [Pose()]
+    markers, problems = standard.robot_shape_markers(msg, **kwargs)
+    assert markers == [] and 'base poses' in problems[0]

@@ -391,37 +391,25 @@ class ModelNode(SoftSnapNode):
         self.marker_publisher.publish(MarkerArray(markers=markers))
         self.marker_arrays_published += 1
 
-    def _cached_markers(self, key, shape, pose, build):
-        """Markers of one (module, source), rebuilt only when its shape or pose changed.
-
-        The cache holds the shape itself (compared by identity: the predictor makes a
-        new object for every solve)."""
-        cached = self._marker_cache.get(key)
-        if cached is None or cached[0] is not shape or cached[1] != pose:
-            cached = (shape, pose, build())
-            self._marker_cache[key] = cached
-        return cached[2]
-
     def _model_markers(self) -> list:
+        """Markers of every solved shape; a (module, source)'s markers are rebuilt only
+        when its shape (a new object for every solve) or its base pose changed."""
         markers = []
-        skeleton = self.skeleton
         for source in SOURCES:
             for index, (module, shape, pose) in enumerate(zip(
                     self.scene.modules, self.predictor.shapes(source),
                     self.predictor.base_poses(source))):
                 if shape is None:
                     continue
-
-                def build(module=module, shape=shape, pose=pose, index=index, source=source):
-                    parts = standard.module_parts_m(
-                        shape.angles, module.threading_mm, spacing_mm=skeleton.spacing_mm,
-                        rib_length_mm=skeleton.rib_length_mm,
-                        rib_centers_mm=shape.rib_centers_mm)
-                    return standard.module_markers(
-                        parts, frame_id=self.scene.name, stamp=standard.stamp_msg(shape.stamp_ns),
-                        module=module.name, module_index=index, source=source,
-                        base_pose=standard.pose_msg(*pose))
-                markers += self._cached_markers((module.name, source), shape, pose, build)
+                cached = self._marker_cache.get((module.name, source))
+                if cached is None or cached[0] is not shape or cached[1] != pose:
+                    cached = (shape, pose, standard.prediction_markers(
+                        shape, module_index=index, threading_mm=module.threading_mm,
+                        base_pose_m=pose, frame_id=self.scene.name,
+                        spacing_mm=self.skeleton.spacing_mm,
+                        rib_length_mm=self.skeleton.rib_length_mm))
+                    self._marker_cache[(module.name, source)] = cached
+                markers += cached[2]
         return markers
 
     def _simulated_markers(self) -> list:
@@ -431,33 +419,12 @@ class ModelNode(SoftSnapNode):
         cached = self._marker_cache.get(('', 'simulated'))
         if cached is not None and cached[0] is msg:
             return cached[1]
-        markers = []
-        if len(msg.base_poses) != len(msg.modules):
-            self.get_logger().warning(
-                f'simulated RobotShape has {len(msg.modules)} modules but '
-                f'{len(msg.base_poses)} base poses: not drawn', throttle_duration_sec=5.0)
-        else:
-            names = self.scene.module_names
-            for i, (shape, pose) in enumerate(zip(msg.modules, msg.base_poses)):
-                known = shape.module in names
-                index = names.index(shape.module) if known else len(names) + i
-                centers = ([(p.x * MM_PER_M, p.y * MM_PER_M, p.z * MM_PER_M)
-                            for p in shape.rib_centers] or None)
-                try:
-                    parts = standard.module_parts_m(
-                        shape.angles,
-                        self.scene.module(shape.module).threading_mm if known else None,
-                        spacing_mm=self.skeleton.spacing_mm,
-                        rib_length_mm=self.skeleton.rib_length_mm, rib_centers_mm=centers)
-                except ValueError as error:
-                    self.get_logger().warning(f'simulated shape of {shape.module!r} not drawn: '
-                                              f'{error}', throttle_duration_sec=5.0)
-                    continue
-                markers += standard.module_markers(
-                    parts, frame_id=msg.header.frame_id or self.scene.name,
-                    stamp=shape.header.stamp if shape.header.stamp.sec else msg.header.stamp,
-                    module=shape.module, module_index=index,
-                    source=shape.source or 'simulated', base_pose=pose)
+        markers, problems = standard.robot_shape_markers(
+            msg, default_frame_id=self.scene.name, module_names=self.scene.module_names,
+            threadings_mm={m.name: m.threading_mm for m in self.scene.modules},
+            spacing_mm=self.skeleton.spacing_mm, rib_length_mm=self.skeleton.rib_length_mm)
+        for problem in problems:
+            self.get_logger().warning(f'simulated {problem}', throttle_duration_sec=5.0)
         self._marker_cache[('', 'simulated')] = (msg, markers)
         return markers
 

@@ -42,7 +42,7 @@ from visualization_msgs.msg import Marker
 from . import geometry
 
 __all__ = ['SOURCE_COLORS', 'PARTS', 'LINE_WIDTH_M', 'ModuleParts', 'ModelHealth',
-           'module_parts_m', 'module_markers', 'marker_id', 'joint_names', 'joint_states',
+           'module_parts_m', 'module_markers', 'prediction_markers', 'robot_shape_markers', 'marker_id', 'joint_names', 'joint_states',
            'model_status', 'pose_msg', 'stamp_msg', 'MODEL_SLOW_SOLVE_FRACTION']
 
 MM_PER_M = 1000.0
@@ -173,6 +173,59 @@ def module_markers(parts: ModuleParts, *, frame_id: str, stamp: Time, module: st
         marker.points = _points(points)
         markers.append(marker)
     return markers
+
+
+def prediction_markers(shape, *, module_index: int, threading_mm, base_pose_m,
+                       frame_id: str, spacing_mm: float, rib_length_mm: float) -> list[Marker]:
+    """Markers of one :class:`~softsnap_model.predictor.ModulePrediction`.
+
+    Its own rib centres when it has them (else from its angles), the cable through
+    ``threading_mm``, at ``base_pose_m`` = (position m, quaternion xyzw) in ``frame_id``,
+    stamped with the stamp of the length it was solved from.
+    """
+    parts = module_parts_m(shape.angles, threading_mm, spacing_mm=spacing_mm,
+                           rib_length_mm=rib_length_mm, rib_centers_mm=shape.rib_centers_mm)
+    return module_markers(parts, frame_id=frame_id, stamp=stamp_msg(shape.stamp_ns),
+                          module=shape.module, module_index=module_index, source=shape.source,
+                          base_pose=pose_msg(*base_pose_m))
+
+
+def robot_shape_markers(msg, *, default_frame_id: str, module_names: Sequence[str],
+                        threadings_mm: Mapping[str, Sequence[float]], spacing_mm: float,
+                        rib_length_mm: float) -> tuple[list[Marker], list[str]]:
+    """Markers of a ``softsnap_interfaces/RobotShape`` (a physics simulation's shapes).
+
+    Each module's rib centres (m, module base frame; computed from its angles when
+    empty) are drawn at its base pose, in the message's ``header.frame_id`` (else
+    ``default_frame_id``). Modules of the scene (``module_names``) keep their ids; others
+    get ids after them. The cable is drawn for modules with a known threading.
+
+    Returns the markers and the problems found (a module that cannot be drawn is
+    skipped, with the reason); never raises for a bad message.
+    """
+    if len(msg.base_poses) != len(msg.modules):
+        return [], [f'RobotShape has {len(msg.modules)} modules but {len(msg.base_poses)} '
+                    'base poses: not drawn']
+    markers, problems = [], []
+    frame_id = msg.header.frame_id or default_frame_id
+    names = list(module_names)
+    for i, (shape, pose) in enumerate(zip(msg.modules, msg.base_poses)):
+        index = names.index(shape.module) if shape.module in names else len(names) + i
+        centers = ([(p.x * MM_PER_M, p.y * MM_PER_M, p.z * MM_PER_M) for p in shape.rib_centers]
+                   or None)
+        try:
+            parts = module_parts_m(shape.angles, threadings_mm.get(shape.module),
+                                   spacing_mm=spacing_mm, rib_length_mm=rib_length_mm,
+                                   rib_centers_mm=centers)
+        except ValueError as error:
+            problems.append(f'shape of {shape.module!r} not drawn: {error}')
+            continue
+        stamp = shape.header.stamp if (shape.header.stamp.sec or shape.header.stamp.nanosec) \
+            else msg.header.stamp
+        markers += module_markers(parts, frame_id=frame_id, stamp=stamp, module=shape.module,
+                                  module_index=index, source=shape.source or 'simulated',
+                                  base_pose=pose)
+    return markers, problems
 
 
 def pose_msg(position_m: Sequence[float], orientation_xyzw: Sequence[float]) -> Pose:
