@@ -219,21 +219,25 @@ def test_driver_diagnostics_and_battery_follow_the_simulated_module(start_node, 
     assert diagnostics.latest[name].hardware_id == f'127.0.0.1:{free_port}'
 
     # Predicted joint angles equal the solve of the measured length with the same stamp.
-    msg = CableLength(cable_length=(straight_mm - 15.0) / 1000.0)
-    msg.header.stamp = ros_node.get_clock().now().to_msg()
-    command.publish(msg)
+    # Joint states come only when a shape changes: bend the module to one of two lengths
+    # in turn until the model (which may still be discovering us) sent one of a bent length.
     bent_m = straight_mm / 1000.0 - 0.014
 
     def moved():
         bent = {_stamp_ns(m.header.stamp) for m in measured if m.cable_length < bent_m}
         return any(_stamp_ns(p.header.stamp) in bent for p in predicted)
-    deadline = time.monotonic() + 60.0
-    while not ros_node.spin_until(moved, 1.0):
+    deadline = time.monotonic() + 90.0
+    contraction_mm = 15.0
+    while not moved():
         assert time.monotonic() < deadline, (
             f'no predicted joint state of a bent measured length: {len(measured)} measured '
             f'(last {measured[-1].cable_length if measured else None} m), '
             f'{len(predicted)} predicted\n{model.output()}')
+        contraction_mm = 33.0 - contraction_mm          # 15 mm, 18 mm, 15 mm, ...
+        msg = CableLength(cable_length=(straight_mm - contraction_mm) / 1000.0)
+        msg.header.stamp = ros_node.get_clock().now().to_msg()
         command.publish(msg)
+        ros_node.spin_until(moved, 3.0)
     by_stamp = {_stamp_ns(m.header.stamp): m.cable_length for m in measured}
     checked = 0
     for joint_state in predicted:

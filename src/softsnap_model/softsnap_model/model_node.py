@@ -392,8 +392,9 @@ class ModelNode(SoftSnapNode):
         self.marker_arrays_published += 1
 
     def _model_markers(self) -> list:
-        """Markers of every solved shape; a (module, source)'s markers are rebuilt only
-        when its shape (a new object for every solve) or its base pose changed."""
+        """Markers of every solved shape; a (module, source)'s markers are updated only
+        when its shape (a new object for every solve) or its base pose changed, in place
+        (the previous array was serialised when published)."""
         markers = []
         for source in SOURCES:
             for index, (module, shape, pose) in enumerate(zip(
@@ -407,7 +408,8 @@ class ModelNode(SoftSnapNode):
                         shape, module_index=index, threading_mm=module.threading_mm,
                         base_pose_m=pose, frame_id=self.scene.name,
                         spacing_mm=self.skeleton.spacing_mm,
-                        rib_length_mm=self.skeleton.rib_length_mm))
+                        rib_length_mm=self.skeleton.rib_length_mm,
+                        reuse=cached[2] if cached is not None else ()))
                     self._marker_cache[(module.name, source)] = cached
                 markers += cached[2]
         return markers

@@ -149,45 +149,57 @@ def _color(source: str, factor: float = 1.0) -> ColorRGBA:
 
 
 def module_markers(parts: ModuleParts, *, frame_id: str, stamp: Time, module: str,
-                   module_index: int, source: str, base_pose: Pose) -> list[Marker]:
+                   module_index: int, source: str, base_pose: Pose,
+                   reuse: Sequence[Marker] = ()) -> list[Marker]:
     """LINE_STRIP spine, LINE_LIST ribs and LINE_STRIP cable of one module shape.
 
     The points stay in the module base frame; ``base_pose`` (the module base pose in
     ``frame_id``, metres) is each marker's pose, so the viewer places them on the robot.
+
+    ``reuse``: markers this function returned before for the same module and source,
+    already published (publishing serialises them): they are updated in place instead
+    of building new ones, which saves about a third of the cost (a Marker holds ~20
+    nested messages). Pass nothing when the old markers may still be read elsewhere.
     """
+    old = {marker.ns: marker for marker in reuse}
     markers = []
     for part in PARTS:
         points = getattr(parts, part)
         if points is None:
             continue
-        marker = Marker()
+        ns = f'{module}/{source}/{part}'
+        marker = old.get(ns)
+        if marker is None:
+            marker = Marker()
+            marker.ns = ns
+            marker.id = marker_id(module_index, source, part)
+            marker.type = Marker.LINE_LIST if part == 'ribs' else Marker.LINE_STRIP
+            marker.action = Marker.ADD
+            marker.scale.x = LINE_WIDTH_M[part]
+            marker.color = _color(source, CABLE_SHADE if part == 'cable' else 1.0)
         marker.header.frame_id = frame_id
         marker.header.stamp = stamp
-        marker.ns = f'{module}/{source}/{part}'
-        marker.id = marker_id(module_index, source, part)
-        marker.type = Marker.LINE_LIST if part == 'ribs' else Marker.LINE_STRIP
-        marker.action = Marker.ADD
         marker.pose = base_pose
-        marker.scale.x = LINE_WIDTH_M[part]
-        marker.color = _color(source, CABLE_SHADE if part == 'cable' else 1.0)
         marker.points = _points(points)
         markers.append(marker)
     return markers
 
 
 def prediction_markers(shape, *, module_index: int, threading_mm, base_pose_m,
-                       frame_id: str, spacing_mm: float, rib_length_mm: float) -> list[Marker]:
+                       frame_id: str, spacing_mm: float, rib_length_mm: float,
+                       reuse: Sequence[Marker] = ()) -> list[Marker]:
     """Markers of one :class:`~softsnap_model.predictor.ModulePrediction`.
 
     Its own rib centres when it has them (else from its angles), the cable through
     ``threading_mm``, at ``base_pose_m`` = (position m, quaternion xyzw) in ``frame_id``,
-    stamped with the stamp of the length it was solved from.
+    stamped with the stamp of the length it was solved from. ``reuse``: see
+    :func:`module_markers`.
     """
     parts = module_parts_m(shape.angles, threading_mm, spacing_mm=spacing_mm,
                            rib_length_mm=rib_length_mm, rib_centers_mm=shape.rib_centers_mm)
     return module_markers(parts, frame_id=frame_id, stamp=stamp_msg(shape.stamp_ns),
                           module=shape.module, module_index=module_index, source=shape.source,
-                          base_pose=pose_msg(*base_pose_m))
+                          base_pose=pose_msg(*base_pose_m), reuse=reuse)
 
 
 def robot_shape_markers(msg, *, default_frame_id: str, module_names: Sequence[str],
