@@ -172,6 +172,21 @@ def test_markers_and_joint_states_equal_the_solved_shapes(start_node, ros_node):
     count = len(arrays)
     assert ros_node.spin_until(lambda: len(arrays) > count, 30.0)
     assert {(m.ns, m.id) for m in arrays[-1].markers} == ids
+
+    # marker_rate is validated: out of range refused with a reason, a good value applied.
+    from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+    from rcl_interfaces.srv import SetParameters
+    client = ros_node.create_client(SetParameters, f'{NS}/model_node/set_parameters')
+
+    def set_rate(value):
+        request = SetParameters.Request(parameters=[Parameter(name='marker_rate', value=ParameterValue(
+            type=ParameterType.PARAMETER_DOUBLE, double_value=value))])
+        return ros_node.call(client, request).results[0]
+    refused = set_rate(1000.0)
+    assert not refused.successful and refused.reason
+    assert set_rate(2.0).successful
+    count = len(arrays)
+    assert ros_node.spin_until(lambda: len(arrays) > count, 30.0)
     assert model.alive()
 
 
