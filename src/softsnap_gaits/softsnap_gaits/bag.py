@@ -13,7 +13,7 @@ Command line (``ros2 run softsnap_gaits bag ...``, ``.venv/lib/softsnap_gaits/ba
 ``python -m softsnap_gaits.bag ...``)::
 
     bag record -o DIR [TOPIC ...] [--namespace NS ...] [--all] [--exclude REGEX ...]
-    bag play DIR [--rate R] [--topics TOPIC ...] [--loop] [--delay S]
+    bag play DIR [--rate R] [--topics TOPIC ...] [--loop] [--delay S] [--wait-for-subscribers S]
     bag info DIR
 
 This module is the core: topic selection, message definitions, the writer, reading and
@@ -417,10 +417,10 @@ def bag_info(path: str | Path) -> BagInfo:
             for c in reader.connections)
         import yaml
         meta = yaml.safe_load((Path(path) / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
-        empty = reader.message_count == 0
+        empty = reader.message_count == 0  # (an empty bag's start is 2^63 - 1)
         return BagInfo(Path(path), meta['storage_identifier'], tuple(meta['relative_file_paths']),
-                       0 if empty else reader.start_time, 0 if empty else reader.duration,
-                       reader.message_count, topics)
+                       0 if empty else int(meta['starting_time']['nanoseconds_since_epoch']),
+                       int(meta['duration']['nanoseconds']), reader.message_count, topics)
     finally:
         reader.close()
 
@@ -490,6 +490,10 @@ def build_parser() -> argparse.ArgumentParser:
     play.add_argument('-d', '--delay', type=float, default=1.0,
                       help='wait this long after creating the publishers, s, so that '
                            'subscribers match before the first message (default 1)')
+    play.add_argument('-w', '--wait-for-subscribers', type=float, default=0.0, metavar='S',
+                      help='first wait until every played topic has a subscriber, at most S '
+                           'seconds (then play anyway, naming the topics without one; '
+                           'default 0: do not wait)')
     info = commands.add_parser('info', help="print a bag's topics, types and counts")
     info.add_argument('bag', help='the bag directory')
     info.add_argument('--json', action='store_true', help='print as JSON')
@@ -534,10 +538,12 @@ def main(argv: list[str] | None = None) -> int:
             return record(Path(args.output), selection, args.discovery_period, ros_args)
         if not (math.isfinite(args.delay) and 0.0 <= args.delay <= 60.0):
             parser.error(f'--delay must be 0-60 s, got {args.delay}')
+        if not (math.isfinite(args.wait_for_subscribers) and 0.0 <= args.wait_for_subscribers <= 3600.0):
+            parser.error(f'--wait-for-subscribers must be 0-3600 s, got {args.wait_for_subscribers}')
         PlaybackClock(args.rate, 0, 0.0)  # validates the rate before ROS starts
         from .bag_node import play
         return play(Path(args.bag), args.rate, None if args.topics is None else _absolute(args.topics),
-                    args.loop, args.delay, ros_args)
+                    args.loop, args.delay, ros_args, wait_for_subscribers_s=args.wait_for_subscribers)
     except BagError as error:
         print(f'bag: {error}', file=sys.stderr)
         return 1

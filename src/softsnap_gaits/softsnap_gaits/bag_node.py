@@ -199,7 +199,7 @@ class BagPlayer(Node):
 
 
 def play(bag: Path, rate: float, topics: tuple[str, ...] | None, loop: bool, delay_s: float,
-         ros_args: list[str]) -> int:
+         ros_args: list[str], wait_for_subscribers_s: float = 0.0) -> int:
     """Publish the bag's messages with their recorded timing (scaled by `rate`)."""
     stop = _StopFlag()
     context = rclpy.Context()
@@ -222,7 +222,16 @@ def play(bag: Path, rate: float, topics: tuple[str, ...] | None, loop: bool, del
                 executor.spin_once(timeout_sec=min(left, SPIN_STEP_S))
             return False
 
-        playing = wait_until(time.monotonic() + delay_s)
+        playing = True
+        if wait_for_subscribers_s > 0:
+            deadline = time.monotonic() + wait_for_subscribers_s
+            while playing and time.monotonic() < deadline and not all(
+                    p.get_subscription_count() for p in node.publishers_.values()):
+                playing = wait_until(min(deadline, time.monotonic() + SPIN_STEP_S))
+            lonely = sorted(t for t, p in node.publishers_.items() if not p.get_subscription_count())
+            if lonely:
+                node.get_logger().warning(f'playing without a subscriber on: {", ".join(lonely)}')
+        playing = playing and wait_until(time.monotonic() + delay_s)
         passes = 0
         while playing:
             clock = None
