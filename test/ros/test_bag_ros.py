@@ -296,3 +296,13 @@ def test_rerun_loads_the_bag_and_decodes_our_types(recorded, decoded, tmp_path, 
     assert states and all(s[0]['module'] == 'yellow' for s in states)
     shapes = rrd.values(f'{NS}/yellow/shape/predicted'.lstrip('/'), 'softsnap_interfaces.msg.ModuleShape:message')
     assert all(len(s[0]['angles']) == 11 for s in shapes)
+
+    # The viewer's own file loader (what `rerun bag.mcap` opens), saved instead of shown.
+    loaded = tmp_path / 'loaded.rrd'
+    proc = subprocess.run([str(rerun), str(bag / 'session.mcap'), '--save', str(loaded),
+                           '--bind', '127.0.0.1', '--port', str(SLOT.free_port())],
+                          capture_output=True, text=True, timeout=180, stdin=subprocess.DEVNULL)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    viewer = read_rrd(loaded)
+    for topic in EXPECTED:
+        assert len(viewer.rows[topic.lstrip('/')]) == counts[topic], topic
