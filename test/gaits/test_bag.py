@@ -227,3 +227,19 @@ def test_cli_info_and_errors(tmp_path):
     bad = _bag_cli('record', '-o', str(tmp_path / 'c'))
     assert bad.returncode == 1 and 'nothing to record' in bad.stderr
     assert not Path(tmp_path / 'c').exists()
+
+
+def test_robot_graph_adds_a_recorder_of_every_topic_only_when_asked(tmp_path):
+    from softsnap_gaits.graph import robot_graph
+    from softsnap_gaits.launching import node_action_kwargs
+    from softsnap_model.scene import load_scene
+    scene = load_scene('snake')
+    assert all(s.executable != 'bag' for s in robot_graph(scene))
+    spec = robot_graph(scene, bag=tmp_path / 'b')[-1]
+    assert (spec.package, spec.executable, spec.name, spec.namespace) == (
+        'softsnap_gaits', 'bag', 'bag_recorder', '/snake')
+    assert spec.arguments == ('record', '-o', str(tmp_path / 'b'), '--all',
+                              '--exclude', '^/parameter_events$')
+    assert spec.ros_args()[:3] == ['--ros-args', '-r', '__node:=bag_recorder']
+    assert node_action_kwargs(spec)['arguments'] == list(spec.arguments)
+    assert 'arguments' not in node_action_kwargs(robot_graph(scene)[0])
