@@ -151,11 +151,11 @@ def record(output: Path, selection: TopicFilter, discovery_period_s: float,
     writer = BagWriter(output)  # refuses an existing path before ROS starts
     stop = _StopFlag()
     context = rclpy.Context()
-    # rclpy's own handlers would shut the context down under the writer; ours set a flag.
-    rclpy.init(args=['bag', *ros_args], context=context,
-               signal_handler_options=SignalHandlerOptions.NO)
     node = None
     try:
+        # rclpy's own handlers would shut the context down under the writer; ours set a flag.
+        rclpy.init(args=['bag', *ros_args], context=context,
+                   signal_handler_options=SignalHandlerOptions.NO)
         node = BagRecorder(writer, selection, discovery_period_s, context=context)
         node.discover_callback()
         executor = SingleThreadedExecutor(context=context)
@@ -203,10 +203,10 @@ def play(bag: Path, rate: float, topics: tuple[str, ...] | None, loop: bool, del
     """Publish the bag's messages with their recorded timing (scaled by `rate`)."""
     stop = _StopFlag()
     context = rclpy.Context()
-    rclpy.init(args=['bag', *ros_args], context=context,
-               signal_handler_options=SignalHandlerOptions.NO)
     node = None
     try:
+        rclpy.init(args=['bag', *ros_args], context=context,
+                   signal_handler_options=SignalHandlerOptions.NO)
         node = BagPlayer(bag, topics, context=context)
         if not node.publishers_:
             raise BagError(f'nothing to play from {bag}: no selected topic with an installed type')
