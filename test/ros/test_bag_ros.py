@@ -20,7 +20,6 @@ import numpy as np
 import pytest
 import yaml
 
-from conftest import SLOT, NodeProcess, executable
 from softsnap_gaits.bag import message_definition
 from softsnap_gaits.graph import robot_graph
 from softsnap_model.scene import load_scene
@@ -69,26 +68,38 @@ class _Peer:
         rclpy.try_shutdown(context=self.context)
 
 
-def _start(tmp: Path, env: dict, package: str, name: str, *args: str) -> NodeProcess:
-    return NodeProcess([str(executable(package, name)), *args], tmp / f'{name}.{len(list(tmp.glob("*.log")))}.log', env)
+@pytest.fixture(scope='module')
+def root_conftest(request):
+    """The test tree's root conftest module (NodeProcess, executable, this session's SLOT):
+    several conftest files share the module name, so it is looked up by its path."""
+    return request.config.pluginmanager.get_plugin(str(Path(__file__).resolve().parents[1] / 'conftest.py'))
 
 
 @pytest.fixture(scope='module')
-def recorded(tmp_path_factory):
+def start(root_conftest):
+    """start(tmp, env, package, executable, *args) -> NodeProcess (stopped by the caller)."""
+    def start(tmp: Path, env: dict, package: str, name: str, *args: str):
+        log = tmp / f'{name}.{len(list(tmp.glob("*.log")))}.log'
+        return root_conftest.NodeProcess([str(root_conftest.executable(package, name)), *args], log, env)
+    return start
+
+
+@pytest.fixture(scope='module')
+def recorded(tmp_path_factory, root_conftest, start):
     """(bag path, probe values, recorder exit code, recorder output, wall window ns)."""
     from softsnap_interfaces.msg import CableLength, ModuleShape
 
     tmp = tmp_path_factory.mktemp('bag_graph')
     env = dict(os.environ, ROS_HOME=str(tmp / 'ros_home'), PYTHONUNBUFFERED='1')
     scene = load_scene('brittle_star')
-    port = SLOT.free_port()
+    port = root_conftest.SLOT.free_port()
     specs = {s.name: s for s in robot_graph(scene, rerun=False,
                                             sim_ports={m.name: port for m in scene.modules})}
     bag = tmp / 'session'
     started_ns = time.time_ns()
-    recorder = _start(tmp, env, 'softsnap_gaits', 'bag', 'record', '-o', str(bag),
+    recorder = start(tmp, env, 'softsnap_gaits', 'bag', 'record', '-o', str(bag),
                       '--namespace', NS, '--ros-args', '-r', '__node:=bag_recorder')
-    graph = [_start(tmp, env, specs[n].package, specs[n].executable, *specs[n].ros_args())
+    graph = [start(tmp, env, specs[n].package, specs[n].executable, *specs[n].ros_args())
              for n in ('sim_yellow', 'driver_yellow', 'model_node', 'gait_node')]
     peer = _Peer('bag_test_peer')
     shapes = Counter()
@@ -220,7 +231,7 @@ def test_metadata_matches_the_mcap(recorded, decoded):
 
 
 def test_played_bag_reproduces_the_session_in_a_fresh_model_node_and_rerun_logger(
-        recorded, decoded, tmp_path, read_rrd):
+        recorded, decoded, tmp_path, read_rrd, start, root_conftest):
     """Only the lengths are played; a new model node solves them into the same shapes,
     stamped as recorded, and a rerun logger records the past session on its timeline."""
     from softsnap_interfaces.msg import ModuleShape
@@ -235,8 +246,8 @@ def test_played_bag_reproduces_the_session_in_a_fresh_model_node_and_rerun_logge
     env = dict(os.environ, ROS_HOME=str(tmp_path / 'ros_home'), PYTHONUNBUFFERED='1')
     scene = load_scene('brittle_star')
     specs = {s.name: s for s in robot_graph(scene, recording=tmp_path / 'replay.rrd')}
-    model = _start(tmp_path, env, 'softsnap_model', 'model_node', *specs['model_node'].ros_args())
-    logger = _start(tmp_path, env, 'softsnap_gaits', 'rerun_logger', *specs['rerun_logger'].ros_args())
+    model = start(tmp_path, env, 'softsnap_model', 'model_node', *specs['model_node'].ros_args())
+    logger = start(tmp_path, env, 'softsnap_gaits', 'rerun_logger', *specs['rerun_logger'].ros_args())
     peer = _Peer('bag_replay_peer')
     replayed = defaultdict(dict)
     try:
@@ -248,7 +259,7 @@ def test_played_bag_reproduces_the_session_in_a_fresh_model_node_and_rerun_logge
                    for kind in ('command', 'measured')]
         # Every played topic has a subscriber (the model node) before the first message.
         player = subprocess.run(
-            [str(executable('softsnap_gaits', 'bag')), 'play', str(bag), '--rate', '1',
+            [str(root_conftest.executable('softsnap_gaits', 'bag')), 'play', str(bag), '--rate', '1',
              '--wait-for-subscribers', '90', '--delay', '1', '--topics', *lengths],
             capture_output=True, text=True, timeout=240, env=env)
         assert player.returncode == 0, player.stdout + player.stderr
@@ -273,7 +284,7 @@ def test_played_bag_reproduces_the_session_in_a_fresh_model_node_and_rerun_logge
     assert times and set(times) <= length_stamps  # the past session's time line
 
 
-def test_rerun_loads_the_bag_and_decodes_our_types(recorded, decoded, tmp_path, read_rrd):
+def test_rerun_loads_the_bag_and_decodes_our_types(recorded, decoded, tmp_path, read_rrd, root_conftest):
     """rerun's own MCAP importer (rerun-sdk 0.41: `rerun mcap convert`) reads the bag and
     decodes softsnap_interfaces messages from the embedded definitions."""
     rerun = Path(sys.prefix) / 'bin' / 'rerun'
@@ -300,7 +311,7 @@ def test_rerun_loads_the_bag_and_decodes_our_types(recorded, decoded, tmp_path, 
     # The viewer's own file loader (what `rerun bag.mcap` opens), saved instead of shown.
     loaded = tmp_path / 'loaded.rrd'
     proc = subprocess.run([str(rerun), str(bag / 'session.mcap'), '--save', str(loaded),
-                           '--bind', '127.0.0.1', '--port', str(SLOT.free_port())],
+                           '--bind', '127.0.0.1', '--port', str(root_conftest.SLOT.free_port())],
                           capture_output=True, text=True, timeout=180, stdin=subprocess.DEVNULL)
     assert proc.returncode == 0, proc.stderr[-3000:]
     viewer = read_rrd(loaded)
