@@ -25,6 +25,7 @@ setup(
             'gait_node = softsnap_gaits.gait_node:main',
             'rerun_logger = softsnap_gaits.rerun_logger:main',
             'demo = softsnap_gaits.demo:main',
+            'bag = softsnap_gaits.bag:main',
         ],
     },
 )

@@ -52,7 +52,7 @@ def test_demo_runs_the_robot_and_records_it(scene, tmp_path, read_rrd):
         assert m['tip_error_mm_mean'] >= 0.0 and m['tip_error_mm_max'] < 400.0, (name, m)
     # Every process stopped on SIGINT (no kill, no crash, no orphan).
     assert all(code in (0, -2) for code in summary['exit_codes'].values()), summary['exit_codes']
-    assert len(summary['exit_codes']) == 5 * 2 + 3
+    assert len(summary['exit_codes']) == 5 * 2 + 4  # modules, drivers, model, gait, rerun, bag
     recording = run_dir / f'{scene}.rrd'
     assert summary['recording'] == str(recording.resolve())
     assert recording.stat().st_size > 10_000
@@ -66,6 +66,36 @@ def test_demo_runs_the_robot_and_records_it(scene, tmp_path, read_rrd):
             assert len(points) == 12
             assert max(abs(c) for p in points for c in p) < 0.25
         assert len(rec.scalars(f'plots/cable_length_mm/{module}/commanded')) >= 3
+    check_demo_bag(run_dir / 'bag', summary)
+
+
+def check_demo_bag(bag, summary):
+    """The demo's ROS 2 bag: every topic of the run, decoded by mcap_ros2 from the file alone."""
+    import warnings
+    from collections import Counter
+    import yaml
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore', DeprecationWarning)  # mcap_ros2 0.6's reader module
+        from mcap_ros2.reader import read_ros2_messages
+        decoded = list(read_ros2_messages(bag / 'bag.mcap'))
+    assert summary['bag'] == str(bag.resolve())
+    counts = Counter(m.channel.topic for m in decoded)
+    assert summary['bag_messages'] == len(decoded)
+    assert {t: n for t, n in summary['bag_topics'].items() if n} == dict(counts)
+    meta = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    assert meta['storage_identifier'] == 'mcap' and meta['message_count'] == len(decoded)
+    ns = f"/{summary['scene']}"
+    for name, m in summary['modules'].items():
+        # The recorder subscribes once it discovers a topic (0.5 s period): on a loaded
+        # machine it may miss the first commands, not the run (exact counts: test_bag_ros).
+        assert counts[f'{ns}/{name}/cable_length/command'] >= m['commands_sent'] * 0.5, name
+        for topic in ('cable_length/measured', 'state', 'shape/commanded', 'shape/predicted'):
+            assert counts[f'{ns}/{name}/{topic}'] > 0, (name, topic)
+    for topic in ('gait/phase', 'model/diagnostics', 'model/shape/predicted'):
+        assert counts[f'{ns}/{topic}'] > 0, topic
+    assert counts['/rosout'] > 0 and '/parameter_events' not in counts
+    states = [m.ros_msg for m in decoded if m.channel.topic == f'{ns}/yellow/state']
+    assert states[-1].module == 'yellow' and states[-1].online
 
 
 def test_demo_reports_a_bad_scene(tmp_path):
@@ -144,10 +174,12 @@ def test_a_module_that_never_comes_online_stops_the_demo_with_what_is_missing(tm
 
 
 def test_two_demos_at_once_both_report_real_numbers(tmp_path):
+    # Two robots' slots, not their bags (test_demo_runs_the_robot_and_records_it checks
+    # the bag): without the two recorders, 2 x 13 processes share the 2 cores.
     runs = [tmp_path / 'a', tmp_path / 'b']
     demos = [subprocess.Popen(
         [sys.executable, '-m', 'softsnap_gaits.demo', '--scene', 'gripper', '--seconds', '4',
-         '--run-dir', str(run), '--json'],
+         '--run-dir', str(run), '--json', '--no-bag'],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, stdin=subprocess.DEVNULL,
         env=demo_env()) for run in runs]
     outputs = []

@@ -9,7 +9,9 @@ each child runs in its own process group, which is signalled and reaped), and pr
 summary: commands sent by the gait node and received by each driver by their own
 counters (so "lost" is the true difference, and what this process's observer missed is
 shown apart), shapes predicted, tracking error between the commanded and the predicted
-shape, solver time, and the path of the ``.rrd`` recording.
+shape, solver time, and the paths of the ``.rrd`` recording and of the ROS 2 bag (a
+rosbag2 directory with every topic of the run, :mod:`softsnap_gaits.bag`; ``bag play``
+replays it).
 
 Each demo claims a private slot (:mod:`softsnap_gaits.isolation`): a ROS domain id no
 other demo or test on this machine uses (unless ``ROS_DOMAIN_ID`` is set) and free
@@ -101,7 +103,7 @@ class Process:
         self.log_path = log_dir / f'{spec.name}.log'
         self._log = open(self.log_path, 'wb')
         # pass_fds: the slot's lock (isolation.py) stays held while any child lives.
-        self.popen = subprocess.Popen([str(exe), *spec.ros_args()], stdout=self._log,
+        self.popen = subprocess.Popen([str(exe), *spec.arguments, *spec.ros_args()], stdout=self._log,
                                       stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                                       env=env, start_new_session=True, pass_fds=pass_fds)
 
@@ -544,6 +546,12 @@ def print_summary(summary: dict) -> None:
     if summary['recording']:
         print(f"recording: {summary['recording']} ({summary['recording_bytes'] / 1024:.0f} KiB); "
               f"open it with: .venv/bin/rerun {summary['recording']}")
+    if summary.get('bag'):
+        print(f"bag: {summary['bag']} ({summary['bag_messages']} messages on "
+              f"{len(summary['bag_topics'])} topics, {summary['bag_bytes'] / 1024:.0f} KiB); "
+              f"replay it with: .venv/lib/softsnap_gaits/bag play {summary['bag']}")
+    elif summary.get('bag_error'):
+        print(f"bag: {summary['bag_error']}")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -564,6 +572,7 @@ def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
     run_dir.mkdir(parents=True, exist_ok=True)
     recording = None if args.no_rerun else (Path(args.output) if args.output
                                             else run_dir / f'{scene.name}.rrd').resolve()
+    bag = None if args.no_bag else (Path(args.bag) if args.bag else _free_name(run_dir / 'bag')).resolve()
     # Simulated modules get free ports of the slot (their drivers the same ones); real
     # modules, and --scene-ports, keep the scene's addresses.
     sim_ports = None
@@ -571,7 +580,8 @@ def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
         sim_ports = {m.name: slot.free_port() for m in scene.modules}
     specs = robot_graph(scene, simulate=not args.real, gait=args.gait,
                         gait_rate_hz=args.gait_rate, model_rate_hz=args.model_rate,
-                        recording=recording, rerun=not args.no_rerun, sim_ports=sim_ports)
+                        recording=recording, rerun=not args.no_rerun, sim_ports=sim_ports,
+                        bag=bag)
     # The observer in this process and every child use the slot's domain.
     os.environ['ROS_DOMAIN_ID'] = str(slot.domain_id)
     env = dict(os.environ, PYTHONUNBUFFERED='1')
@@ -630,8 +640,9 @@ def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
             if check_children():
                 observer.drain(window_ns[1])
     finally:
-        # Stop the producers first (gait), the recorder last so it sees everything.
-        order = sorted(processes, key=lambda p: {'gait_node': 0, 'rerun_logger': 2}.get(p.spec.name, 1))
+        # Stop the producers first (gait), the recorders last so they see everything.
+        order = sorted(processes, key=lambda p: {'gait_node': 0, 'rerun_logger': 2,
+                                                 'bag_recorder': 2}.get(p.spec.name, 1))
         for p in order:
             p.signal(signal.SIGINT)
             if p.spec.name in ('gait_node',):
@@ -658,6 +669,7 @@ def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
         return _report_start_failure(args, scene, processes, crashed, not_ready, exit_codes,
                                      run_dir, observer)
     summary = summarise(scene, observer, round(elapsed, 2), recording, exit_codes, window_ns)
+    summary.update(_bag_summary(bag))
     summary['started'] = started
     summary['ros_domain_id'] = slot.domain_id
     summary['processes'] = {
@@ -672,6 +684,29 @@ def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
     if crashed:
         return 1
     return 130 if stop_requested else 0
+
+
+def _free_name(path: Path) -> Path:
+    """`path`, or `path`-2, -3, ... if taken (a bag is never written over)."""
+    candidate, n = path, 1
+    while candidate.exists():
+        n += 1
+        candidate = path.with_name(f'{path.name}-{n}')
+    return candidate
+
+
+def _bag_summary(bag: Path | None) -> dict:
+    """The bag's path, message counts per topic and size, read back from its metadata."""
+    if bag is None:
+        return {'bag': None}
+    from .bag import BagError, bag_info
+    try:
+        info = bag_info(bag)
+    except BagError as error:
+        return {'bag': None, 'bag_error': str(error)}
+    return {'bag': str(bag), 'bag_messages': info.message_count,
+            'bag_topics': {t.name: t.message_count for t in info.topics},
+            'bag_bytes': sum(f.stat().st_size for f in bag.iterdir())}
 
 
 def _report_start_failure(args, scene, processes, crashed, not_ready, exit_codes, run_dir,
@@ -716,7 +751,11 @@ def build_parser() -> argparse.ArgumentParser:
                              f'{READY_TIMEOUT_S:g}); then the demo stops and says what is missing')
     parser.add_argument('--output', default=None, help='.rrd path (default runs/<scene>-<time>/<scene>.rrd)')
     parser.add_argument('--run-dir', default=None, help='folder for logs and the recording')
-    parser.add_argument('--no-rerun', action='store_true', help='do not record')
+    parser.add_argument('--no-rerun', action='store_true', help='do not record the .rrd')
+    parser.add_argument('--bag', default=None,
+                        help='ROS 2 bag directory to record every topic to (default '
+                             'runs/<scene>-<time>/bag; must not exist)')
+    parser.add_argument('--no-bag', action='store_true', help='do not record a ROS 2 bag')
     parser.add_argument('--json', action='store_true', help='print the summary as JSON')
     return parser
 
@@ -727,6 +766,8 @@ def main(argv: list[str] | None = None) -> int:
         build_parser().error(f'--seconds must be positive, got {args.seconds}')
     if not (args.ready_timeout > 0 and math.isfinite(args.ready_timeout)):
         build_parser().error(f'--ready-timeout must be positive, got {args.ready_timeout}')
+    if args.bag and Path(args.bag).exists():
+        build_parser().error(f'--bag {args.bag} exists: a bag is never written over')
     try:
         return run(args)
     except (SceneError, ValueError, RuntimeError) as error:  # bad scene, ROS_DOMAIN_ID, no slot

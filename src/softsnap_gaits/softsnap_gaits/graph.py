@@ -9,7 +9,9 @@ once. For a scene with modules ``m1..mN`` in namespace ``/<scene>``:
 - ``driver_<m>``: one driver per module, bridging it to ``<m>/cable_length/*`` topics;
 - ``model_node``: forward/inverse services and the commanded/predicted shapes;
 - ``gait_node``: the scene's gait, publishing ``<m>/cable_length/command``;
-- ``rerun_logger``: records predicted versus commanded shapes to an ``.rrd`` file.
+- ``rerun_logger``: records predicted versus commanded shapes to an ``.rrd`` file;
+- ``bag_recorder`` (only with ``bag=``): ``bag record --all`` of the robot's ROS domain
+  to a rosbag2 directory (:mod:`softsnap_gaits.bag`).
 """
 from __future__ import annotations
 
@@ -25,13 +27,17 @@ __all__ = ['NodeSpec', 'robot_graph']
 
 @dataclasses.dataclass(frozen=True)
 class NodeSpec:
-    """One node of the graph: what ``ros2 run`` starts and its ROS parameters."""
+    """One node of the graph: what ``ros2 run`` starts and its ROS parameters.
+
+    `arguments` are the executable's own arguments, before ``--ros-args``.
+    """
 
     package: str
     executable: str
     name: str
     namespace: str
     parameters: dict[str, Any]
+    arguments: tuple[str, ...] = ()
 
     def ros_args(self) -> list[str]:
         """Command-line arguments: ``--ros-args -r __node:=... -r __ns:=... -p k:=v ...``."""
@@ -57,7 +63,8 @@ def robot_graph(scene: Scene, *, simulate: bool = True, gait: str | None = None,
                 poll_rate_hz: float = 20.0, recording: str | Path | None = None,
                 rerun_rate_hz: float = 30.0, rerun: bool = True,
                 autostart: bool = True,
-                sim_ports: Mapping[str, int] | None = None) -> list[NodeSpec]:
+                sim_ports: Mapping[str, int] | None = None,
+                bag: str | Path | None = None) -> list[NodeSpec]:
     """Nodes that run a scene's robot, in start order (modules and drivers first).
 
     Parameters
@@ -79,6 +86,9 @@ def robot_graph(scene: Scene, *, simulate: bool = True, gait: str | None = None,
     sim_ports : mapping, optional
         Loopback port per module name for the simulated modules (and their drivers);
         the scene's ports if None. Ignored with ``simulate=False``.
+    bag : path, optional
+        Record every topic of the ROS domain (but ``/parameter_events``) to this rosbag2
+        directory, which must not exist; no recorder if None.
     """
     ns = f'/{scene.name}'
     scene_ref = str(scene.path)
@@ -108,4 +118,9 @@ def robot_graph(scene: Scene, *, simulate: bool = True, gait: str | None = None,
         if recording is not None:
             params['output'] = str(recording)
         nodes.append(NodeSpec('softsnap_gaits', 'rerun_logger', 'rerun_logger', ns, params))
+    if bag is not None:
+        # Every topic, not a list: standard topics (markers, joint states, /diagnostics)
+        # and any added later are recorded without naming them here.
+        nodes.append(NodeSpec('softsnap_gaits', 'bag', 'bag_recorder', ns, {}, arguments=(
+            'record', '-o', str(bag), '--all', '--exclude', '^/parameter_events$')))
     return nodes

@@ -50,9 +50,12 @@ def graph_from_arguments(scene_name: str, arguments: dict[str, str]) -> list[Nod
 
 def node_action_kwargs(spec: NodeSpec) -> dict[str, Any]:
     """Keyword arguments of ``launch_ros.actions.Node`` for one node of the graph."""
-    return {'package': spec.package, 'executable': spec.executable, 'name': spec.name,
-            'namespace': spec.namespace, 'parameters': [dict(spec.parameters)],
-            'output': 'screen', 'emulate_tty': True}
+    kwargs = {'package': spec.package, 'executable': spec.executable, 'name': spec.name,
+              'namespace': spec.namespace, 'parameters': [dict(spec.parameters)],
+              'output': 'screen', 'emulate_tty': True}
+    if spec.arguments:
+        kwargs['arguments'] = list(spec.arguments)
+    return kwargs
 
 
 def generate_robot_launch_description(scene_name: str):
