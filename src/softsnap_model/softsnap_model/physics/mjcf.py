@@ -254,9 +254,10 @@ class Payload:
     size_m : float or sequence of 3 float
         Ball radius, or the box's half extents (m), each in (0, 0.2].
     position_m : sequence of 3 float, optional
-        Centre in the robot frame (m). None: the scene's default place (the ring's centre
-        on the ground; between the gripper's fingertips, held until
-        ``RobotSimulation.release_payload``).
+        Centre in the robot frame (m). None: the scene's default place: the ring's centre
+        on the ground; for the gripper, on the fingertips as the quasi-static model
+        closes them at the default gait's amplitude, held there by a weld until
+        ``RobotSimulation.release_payload`` (a hand placing it in the open gripper).
     """
 
     shape: str = 'ball'
@@ -406,10 +407,12 @@ def _add_ground(world, params: PhysicsParameters):
 def _add_module(parent, equality, tendons, *, name: str, skeleton: Skeleton,
                 threading_mm: np.ndarray, pos_m, quat_wxyz, mount_m: float,
                 params: PhysicsParameters, n_links: int, coupled: bool,
-                rgba: str, flat: bool) -> tuple[ModuleLayout, ET.Element]:
+                rgba: str, flat: bool,
+                rib_capsules: bool = False) -> tuple[ModuleLayout, ET.Element]:
     """Add one module under ``parent``; return its layout and its tip rib element.
 
     ``flat``: the ribs lie along the ground (module y horizontal in the robot frame).
+    ``rib_capsules``: every rib touches through a capsule along its length (payloads).
     """
     s = skeleton.spacing_mm * 1e-3
     t_half = max(0.5 * skeleton.rib_thickness_mm, 0.25) * 1e-3
@@ -452,14 +455,15 @@ def _add_module(parent, equality, tendons, *, name: str, skeleton: Skeleton,
 
     def add_rib(body, k_rib):
         # The box carries the mass and the picture; contact uses one sphere (ribs lying
-        # flat: their whole underside is at one height) or a capsule along the rib
-        # (ribs standing up): one or two contacts per rib instead of a box's four, which
-        # is most of the cost of a robot lying on the ground.
+        # flat on the ground and nothing else to touch: their whole underside is at one
+        # height) or a capsule along the rib (ribs standing up, or a payload that the
+        # rib ends must hold): one or two contacts per rib instead of a box's four,
+        # which is most of the cost of a robot lying on the ground.
         _box_inertia_geom(body, f'{name}/rib{k_rib}', (t_half, l_half, z_half), (0, 0, 0),
                           masses[k_rib], _VISUAL_CLASS, rgba)
         if k_rib == 0 or (n_ribs - 1 - k_rib) % params.contact_rib_stride:
             pass                       # rib 0: the motor box touches for it
-        elif flat:
+        elif flat and not rib_capsules:
             ET.SubElement(body, 'geom', name=f'{name}/rib{k_rib}/contact', type='sphere',
                           size=_f(z_half), mass='0', contype=str(_ROBOT_CLASS[0]),
                           conaffinity=str(_ROBOT_CLASS[1]), group='3',
@@ -728,12 +732,35 @@ def _default_payload_position(scene, payload: Payload) -> tuple:
         # On the ground at the ring's centre; the ground is at the modules' underside.
         return (0.0, 0.0, -0.5 * SKELETON_THICKNESS_MM * 1e-3 + r)
     if _hanging(scene):
-        # On the gripping axis, level with the lower third of the straight fingers.
-        z = np.mean([m.base_position_m[2] for m in scene.modules])
-        spine = scene.skeleton.n_segments * scene.skeleton.spacing_mm * 1e-3
-        return (0.0, 0.0, float(z - 0.7 * spine))
+        return _grasp_place(scene)
     raise ValueError(f'scene {scene.name!r} has no default payload place: give '
                      f'Payload(position_m=...) in the robot frame (m)')
+
+
+#: Contraction (mm) the gripper's payload place is computed for when the scene's
+#: default gait states no ``amplitude_mm`` (the gripper scene's grasp uses 45 mm).
+GRASP_CONTRACTION_MM = 45.0
+
+
+def _grasp_place(scene) -> tuple:
+    """Robot-frame centre (m) of a payload for the gripper to hold.
+
+    The centroid of the fingertips (rib centres of the tip ribs) in the fingers' closed
+    quasi-static shape at the default gait's amplitude, without the payload: the open
+    fingers clear it, and closing they press on it where they would otherwise meet, as
+    when the gripper closes on an object between its fingers.
+    """
+    from ..forward import solve_forward
+    gait = scene.gaits.get(scene.default_gait, {})
+    amp = float(gait.get('amplitude_mm', GRASP_CONTRACTION_MM))
+    tips = []
+    for m in scene.modules:
+        length = scene.skeleton.straight_length_mm(m.threading_mm) - amp
+        tip = solve_forward(scene.skeleton, m.threading_mm, length).rib_centers[-1] * 1e-3
+        tips.append(np.array(m.base_position_m)
+                    + _rot(m.base_orientation_xyzw) @ [tip[0], tip[1], 0.0])
+    centre = np.mean(tips, axis=0)
+    return (float(centre[0]), float(centre[1]), float(centre[2]))
 
 
 def _flat(rot: np.ndarray) -> bool:
@@ -830,7 +857,8 @@ def robot_mjcf_layout(scene, *, links_per_segment: int = DEFAULT_LINKS_PER_SEGME
                                skeleton=scene.skeleton, threading_mm=np.array(m.threading_mm),
                                pos_m=pos, quat_wxyz=quat, mount_m=mount, params=params,
                                n_links=n, coupled=coupled, rgba=colors[m.name],
-                               flat=_flat(_rot(m.base_orientation_xyzw)))
+                               flat=_flat(_rot(m.base_orientation_xyzw)),
+                               rib_capsules=payload is not None)
         layouts[m.name] = lay
         tips[m.name] = tip
 
