@@ -174,7 +174,8 @@ class RobotSimulation:
         return np.array(ids, dtype=int)
 
     def _lowest_point_z(self) -> float:
-        """Lowest world z (m) over the robot's collision geoms (boxes, cylinders, spheres)."""
+        """Lowest world z (m) over the robot's collision geoms (boxes, cylinders, capsules,
+        spheres; anything else by its bounding sphere)."""
         m, d = self.model, self.data
         low = math.inf
         for g in self._robot_geoms:
@@ -186,6 +187,8 @@ class RobotSimulation:
             elif kind == mujoco.mjtGeom.mjGEOM_CYLINDER:
                 az = abs(r[2, 2])
                 ext = az * size[1] + size[0] * math.sqrt(max(0.0, 1.0 - az * az))
+            elif kind == mujoco.mjtGeom.mjGEOM_CAPSULE:
+                ext = abs(r[2, 2]) * size[1] + size[0]
             else:
                 ext = float(m.geom_rbound[g])
             low = min(low, float(d.geom_xpos[g][2]) - ext)
