@@ -264,3 +264,30 @@ def test_cli_physics_refuses_bad_input(capsys):
     assert main(['physics', '--scene', 'gripper', '--contraction', '-5',
                  '--cases', 'fidelity']) == 2
     assert 'contraction' in capsys.readouterr().err
+
+
+def test_ring_cages_its_payload_on_the_ground():
+    sim = RobotSimulation('ring', payload=Payload('ball', 0.02, 0.03))
+    start, _ = sim.payload_pose()
+    robot, _ = sim.robot_base_pose()
+    assert np.linalg.norm(start[:2] - robot[:2]) < 1e-6          # at the ring's centre
+    for m in sim.module_names:
+        sim.ramp_cable_length(m, sim.straight_cable_length(m) - 0.03, 0.06)
+    sim.step(1.0)
+    end, _ = sim.payload_pose()
+    assert end[2] == pytest.approx(0.03, abs=2e-3)               # resting on the ground
+    assert np.linalg.norm(end[:2] - sim.robot_base_pose()[0][:2]) < 0.1   # still inside
+
+
+def test_reset_restores_the_start_and_repeats_the_run():
+    sim = RobotSimulation('brittle_star')
+    q0 = sim.data.qpos.copy()
+    sim.set_cable_length('yellow', sim.straight_cable_length('yellow') - 0.005)
+    sim.step(0.2)
+    first = sim.data.qpos.copy()
+    sim.reset()
+    assert sim.time_s == 0.0 and np.array_equal(sim.data.qpos, q0)
+    assert sim.cable_length('yellow') > sim.straight_cable_length('yellow')   # slack again
+    sim.set_cable_length('yellow', sim.straight_cable_length('yellow') - 0.005)
+    sim.step(0.2)
+    assert np.array_equal(sim.data.qpos, first)
