@@ -47,7 +47,7 @@ import math
 import numbers
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
-from typing import Any, Mapping, Sequence
+from typing import Any, Mapping
 
 import numpy as np
 
@@ -711,7 +711,8 @@ def _connector_geom(body, scene, params: PhysicsParameters):
         thick = min(float(c.get('thickness_mm', 15.0)), extent) * 1e-3
         volume = 2.5 * side * apothem * thick          # pentagon area 5 s a / 2
         ET.SubElement(body, 'geom', name='connector', type='cylinder',
-                      size=_f(apothem, 0.5 * thick), mass=_f(volume * params.connector_density_kg_m3),
+                      size=_f(apothem, 0.5 * thick),
+                      mass=_f(volume * params.connector_density_kg_m3),
                       contype=str(_ROBOT_CLASS[0]), conaffinity=str(_ROBOT_CLASS[1]),
                       friction=_f(params.rib_friction, 0.005, 0.0001), rgba='0.3 0.45 0.8 1')
     elif kind == 'cuboid':

@@ -13,10 +13,11 @@ ground at z = 0).
 
 Examples
 --------
->>> sim = RobotSimulation('brittle_star', links_per_segment=2)      # doctest: +SKIP
->>> sim.set_cable_length('yellow', sim.straight_cable_length('yellow') - 0.02)
->>> sim.step(1.0); round(sim.cable_tension('yellow'), 2) > 0
-True
+>>> sim = RobotSimulation('brittle_star')
+>>> sim.ramp_cable_length('yellow', sim.straight_cable_length('yellow') - 0.02, 0.05)
+>>> steps = sim.step(0.5)                # 250 fixed steps of 2 ms
+>>> bool(sim.cable_tension('yellow') > 0.5), sim.rib_centers('yellow').shape
+(True, (12, 3))
 """
 from __future__ import annotations
 
@@ -31,7 +32,8 @@ from ..skeleton import Skeleton
 from .mjcf import (DEFAULT_LINKS_PER_SEGMENT, PhysicsParameters, Payload, RobotLayout,
                    module_mjcf_layout, robot_mjcf_layout)
 
-__all__ = ['RobotSimulation', 'SettleResult', 'GROUND_CLEARANCE_M', 'SETTLE_SPEED_TOL', 'SETTLE_HOLD_S']
+__all__ = ['RobotSimulation', 'SettleResult', 'GROUND_CLEARANCE_M', 'SETTLE_SPEED_TOL',
+           'SETTLE_HOLD_S']
 
 #: Gap (m) left between a free robot's lowest point and the ground when it is placed.
 GROUND_CLEARANCE_M = 2e-4
