@@ -46,7 +46,7 @@ from __future__ import annotations
 import math
 import numbers
 import xml.etree.ElementTree as ET
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Mapping
 
 import numpy as np
@@ -373,6 +373,16 @@ def link_lengths(spacing, n_links: int) -> tuple[float, float]:
     return c, (spacing - 2.0 * c) / (n - 1)
 
 
+def _parameters(parameters, bending_stiffness_nmm) -> PhysicsParameters:
+    """The parameter table, with ``bending_stiffness_nmm`` (N mm/rad^2) overriding its K."""
+    params = PhysicsParameters() if parameters is None else parameters
+    if not isinstance(params, PhysicsParameters):
+        raise ValueError(f'parameters must be PhysicsParameters, got {type(params).__name__}')
+    if bending_stiffness_nmm is not None:
+        params = replace(params, bending_stiffness_nmm=bending_stiffness_nmm)   # validated
+    return params
+
+
 def _check_links(links_per_segment) -> int:
     n = links_per_segment
     if isinstance(n, bool) or not isinstance(n, numbers.Integral) \
@@ -542,7 +552,8 @@ def module_mjcf_layout(skeleton: Skeleton | None = None, threading=None, *,
                        parameters: PhysicsParameters | None = None, gravity: bool = True,
                        ground: bool = False, base_position_m=(0.0, 0.0, 0.0),
                        base_orientation_wxyz=(1.0, 0.0, 0.0, 0.0), coupled: bool = True,
-                       name: str = 'module') -> tuple[str, RobotLayout]:
+                       name: str = 'module', bending_stiffness_nmm: float | None = None
+                       ) -> tuple[str, RobotLayout]:
     """MJCF of one module clamped at its base (motor box fixed in the world).
 
     Parameters
@@ -565,6 +576,8 @@ def module_mjcf_layout(skeleton: Skeleton | None = None, threading=None, *,
         Keep each segment's hinges equal (constant curvature).
     name : str
         Prefix of the element names.
+    bending_stiffness_nmm : float, optional
+        ``K`` (N mm/rad^2), overriding ``parameters.bending_stiffness_nmm``.
 
     Returns
     -------
@@ -577,9 +590,7 @@ def module_mjcf_layout(skeleton: Skeleton | None = None, threading=None, *,
         raise ValueError('a threading is needed: one hole per rib, rib 0 first')
     d = skeleton.threading_mm(threading)
     n = _check_links(links_per_segment)
-    params = PhysicsParameters() if parameters is None else parameters
-    if not isinstance(params, PhysicsParameters):
-        raise ValueError(f'parameters must be PhysicsParameters, got {type(params).__name__}')
+    params = _parameters(parameters, bending_stiffness_nmm)
     pos = _vector('base_position_m', base_position_m, 3)
     quat = _unit_quaternion('base_orientation_wxyz', base_orientation_wxyz)
     root = _root(name, params, gravity)
@@ -780,7 +791,8 @@ def robot_mjcf_layout(scene, *, links_per_segment: int = DEFAULT_LINKS_PER_SEGME
                       ground: bool = True, payload: Payload | None = None,
                       base: str = 'auto', coupled: bool = True,
                       base_height_m: float | None = None,
-                      chain: str = 'weld') -> tuple[str, RobotLayout]:
+                      chain: str = 'weld', bending_stiffness_nmm: float | None = None
+                      ) -> tuple[str, RobotLayout]:
     """MJCF of a whole robot from a scene, and the names of its parts.
 
     Parameters
@@ -809,6 +821,8 @@ def robot_mjcf_layout(scene, *, links_per_segment: int = DEFAULT_LINKS_PER_SEGME
         its own tree, held to its parent's tip by a weld equality; cheaper, the links
         slightly compliant) or ``'tree'`` (nested bodies, rigid links; the ring's loop
         is still closed by a weld).
+    bending_stiffness_nmm : float, optional
+        ``K`` (N mm/rad^2), overriding ``parameters.bending_stiffness_nmm``.
 
     Raises
     ------
@@ -822,9 +836,7 @@ def robot_mjcf_layout(scene, *, links_per_segment: int = DEFAULT_LINKS_PER_SEGME
             raise ValueError(f'scene must be a Scene or a scene name, got {scene!r}')
         scene = load_scene(scene)
     n = _check_links(links_per_segment)
-    params = PhysicsParameters() if parameters is None else parameters
-    if not isinstance(params, PhysicsParameters):
-        raise ValueError(f'parameters must be PhysicsParameters, got {type(params).__name__}')
+    params = _parameters(parameters, bending_stiffness_nmm)
     if payload is not None and not isinstance(payload, Payload):
         raise ValueError(f'payload must be a Payload or None, got {type(payload).__name__}')
     if chain not in ('weld', 'tree'):
