@@ -22,7 +22,7 @@ Model of one module (conventions of :mod:`softsnap_model.geometry`, FACTS.md)
   the local bending moment), which the constant-curvature model leaves out.
 * Damping per hinge ``c_h = k_h * damping_time_s``: each segment relaxes with that time
   constant (viscoelastic TPU; an estimate, see :class:`PhysicsParameters`). MuJoCo's
-  implicit damping also keeps the light links stable at a millisecond step.
+  implicit damping also keeps the light links stable at the 2 ms step.
 * Rib contact: every hinge is limited to ``|q| <= a_c / N`` (``a_c`` =
   ``Skeleton.contact_angle_rad``), so a coupled segment stops at the contact angle.
 * The cable is a spatial tendon through one site per rib at the threaded hole
