@@ -162,8 +162,12 @@ def test_topic_filter():
     everything = TopicFilter(all=True, exclude=('^/parameter_events$',))
     assert everything.matches('/diagnostics') and everything.matches('/rosout')
     assert not everything.matches('/parameter_events')
-    with pytest.raises(BagError, match='absolute'):
-        TopicFilter(topics=('relative',))
+    with pytest.raises(BagError, match='empty'):
+        TopicFilter(topics=('/',))
+    relative = TopicFilter(topics=('yellow/state',), namespaces=('/abs/',)).resolved(
+        lambda name: name if name.startswith('/') else '/ns/' + name)
+    assert relative.topics == ('/ns/yellow/state',) and relative.namespaces == ('/abs',)
+    assert relative.matches('/ns/yellow/state') and relative.matches('/abs/x')
     with pytest.raises(BagError, match='nothing to record'):
         TopicFilter()
     with pytest.raises(BagError, match=r'\[unclosed'):
@@ -226,6 +230,9 @@ def test_cli_info_and_errors(tmp_path):
     bad = _bag_cli('record', '-o', str(tmp_path / 'c'))
     assert bad.returncode == 1 and 'nothing to record' in bad.stderr
     assert not Path(tmp_path / 'c').exists()
+    bad = _bag_cli('record', '-o', str(tmp_path / 'd'), 'bad name!')
+    assert bad.returncode == 1 and 'bad topic or namespace name' in bad.stderr
+    assert not Path(tmp_path / 'd').exists()  # a recorder that never started leaves no bag
 
 
 def test_robot_graph_adds_a_recorder_of_every_topic_only_when_asked(tmp_path):

@@ -207,7 +207,8 @@ class TopicFilter:
     A topic is taken when it is one of `topics`, or lies under one of `namespaces`, or
     `all` is set; and it matches none of `exclude` (regular expressions, searched in the
     absolute topic name). Hidden topics (a name part starting with ``_``) only when named
-    in `topics`. Names are absolute (``/brittle_star/yellow/state``).
+    in `topics`. ``matches`` compares absolute names (``/brittle_star/yellow/state``);
+    ``resolved`` turns relative ones into absolute names the way a node does.
     """
 
     topics: tuple[str, ...] = ()
@@ -217,8 +218,8 @@ class TopicFilter:
 
     def __post_init__(self):
         for name in (*self.topics, *self.namespaces):
-            if not name.startswith('/'):
-                raise BagError(f'topic and namespace names must be absolute, got {name!r}')
+            if not name.strip('/'):
+                raise BagError(f'empty topic or namespace name: {name!r}')
         for pattern in self.exclude:
             try:
                 re.compile(pattern)
@@ -226,6 +227,12 @@ class TopicFilter:
                 raise BagError(f'bad --exclude regular expression {pattern!r}: {error}') from None
         if not (self.topics or self.namespaces or self.all):
             raise BagError('nothing to record: name topics, a --namespace or --all')
+
+    def resolved(self, resolve: Callable[[str], str]) -> 'TopicFilter':
+        """The same filter with every name passed through `resolve` (for example a node's
+        ``resolve_topic_name``: relative names under its namespace, remappings applied)."""
+        return dataclasses.replace(self, topics=tuple(resolve(t) for t in self.topics),
+                                   namespaces=tuple(resolve(n.rstrip('/')) for n in self.namespaces))
 
     def matches(self, topic: str) -> bool:
         if any(re.search(p, topic) for p in self.exclude):
@@ -471,7 +478,8 @@ def build_parser() -> argparse.ArgumentParser:
         'back, or show what one holds. ROS arguments (--ros-args ...) go last.')
     commands = parser.add_subparsers(dest='command', required=True)
     record = commands.add_parser('record', help='record topics until Ctrl-C (SIGINT/SIGTERM)')
-    record.add_argument('topics', nargs='*', help='topics to record (absolute names)')
+    record.add_argument('topics', nargs='*',
+                        help="topics to record (relative names are under the recorder's namespace)")
     record.add_argument('-o', '--output', required=True,
                         help='the bag directory to create (must not exist)')
     record.add_argument('-a', '--all', action='store_true', help='every topic of the ROS domain')
@@ -532,8 +540,8 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == 'record':
             if not (math.isfinite(args.discovery_period) and 0.05 <= args.discovery_period <= 60):
                 parser.error(f'--discovery-period must be 0.05-60 s, got {args.discovery_period}')
-            selection = TopicFilter(_absolute(args.topics), _absolute(args.namespace),
-                                    args.all, tuple(args.exclude))
+            selection = TopicFilter(tuple(args.topics), tuple(args.namespace), args.all,
+                                    tuple(args.exclude))
             from .bag_node import record
             return record(Path(args.output), selection, args.discovery_period, ros_args)
         if not (math.isfinite(args.delay) and 0.0 <= args.delay <= 60.0):

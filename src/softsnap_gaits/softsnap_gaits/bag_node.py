@@ -15,6 +15,7 @@ that spins also writes, so a signal never lands in the middle of a write.
 from __future__ import annotations
 
 import importlib
+import shutil
 import signal
 import time
 from pathlib import Path
@@ -91,7 +92,10 @@ class BagRecorder(Node):
     def __init__(self, writer: BagWriter, selection: TopicFilter, discovery_period_s: float, **kwargs):
         super().__init__('bag_recorder', **kwargs)
         self.writer = writer
-        self.selection = selection
+        try:
+            self.selection = selection.resolved(self.resolve_topic_name)
+        except Exception as error:  # rclpy's invalid-name exceptions
+            raise BagError(f'bad topic or namespace name: {error}') from None
         self.received: dict[str, int] = {}
         self._skipped: set[str] = set()  # topics that cannot be recorded (logged once)
         self._recorded = {}
@@ -152,6 +156,7 @@ def record(output: Path, selection: TopicFilter, discovery_period_s: float,
     stop = _StopFlag()
     context = rclpy.Context()
     node = None
+    recording = False
     try:
         # rclpy's own handlers would shut the context down under the writer; ours set a flag.
         rclpy.init(args=['bag', *ros_args], context=context,
@@ -160,10 +165,13 @@ def record(output: Path, selection: TopicFilter, discovery_period_s: float,
         node.discover_callback()
         executor = SingleThreadedExecutor(context=context)
         executor.add_node(node)
+        recording = True
         while not stop and context.ok():
             executor.spin_once(timeout_sec=SPIN_STEP_S)
     finally:
         summary = writer.close()
+        if not recording and summary.message_count == 0:
+            shutil.rmtree(output, ignore_errors=True)  # never started: leave no empty bag
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown(context=context)
