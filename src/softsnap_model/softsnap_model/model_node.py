@@ -204,7 +204,9 @@ class ModelNode(SoftSnapNode):
         self._simulated = None
         self.create_subscription(RobotShape, 'model/shape/simulated',
                                  self.simulated_shape_callback, 1)
-        self._marker_cache: dict[tuple[str, str], tuple] = {}  # (module, source) -> (key, markers)
+        # (module, source) -> (shape, base pose, its markers);
+        # ('', 'simulated') -> (the RobotShape drawn, its markers).
+        self._marker_cache: dict[tuple[str, str], tuple] = {}
         self.marker_arrays_published = 0
         self.joint_states_published = 0
         self._health_reported = None
