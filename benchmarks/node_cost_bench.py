@@ -38,6 +38,7 @@ import argparse
 import math
 import os
 import random
+import re
 import signal
 import statistics
 import subprocess
@@ -111,18 +112,41 @@ def cpu_seconds(ps: psutil.Process) -> float:
     return t.user + t.system
 
 
-def measure(proc: subprocess.Popen, warmup: float, seconds: float, log: Path) -> float:
-    """CPU of ``proc`` over ``seconds`` after ``warmup`` s, in % of one core."""
+def read_counters(path: Path) -> dict[str, float]:
+    """The counters a listener child last wrote ('name value' lines; {} before any)."""
+    try:
+        return {k: float(v) for k, v in (line.split() for line in path.read_text().splitlines())}
+    except (OSError, ValueError):
+        return {}
+
+
+def measure(proc: subprocess.Popen, warmup: float, seconds: float, log: Path,
+            counters: Path | None = None, ready=None) -> tuple[float, dict[str, float]]:
+    """(CPU of ``proc`` over ``seconds`` in % of one core, rates per second of the node's
+    own counters over the same window, read from ``counters``).
+
+    The window starts ``warmup`` s after the node is working: its counters move (or
+    ``ready()`` is true), so that start-up (imports take seconds on a loaded machine)
+    is never measured.
+    """
+    deadline = time.monotonic() + 180.0
+    while ready is not None and not ready():
+        if proc.poll() is not None or time.monotonic() > deadline:
+            raise RuntimeError(f'node not working after 180 s:\n{log.read_text()[-3000:]}')
+        time.sleep(0.2)
     time.sleep(warmup)
     if proc.poll() is not None:
         raise RuntimeError(f'process ended early:\n{log.read_text()[-3000:]}')
     ps = psutil.Process(proc.pid)
+    n0 = read_counters(counters) if counters else {}
     c0, t0 = cpu_seconds(ps), time.monotonic()
     time.sleep(seconds)
     c1, t1 = cpu_seconds(ps), time.monotonic()
+    n1 = read_counters(counters) if counters else {}
     if proc.poll() is not None:
         raise RuntimeError(f'process ended early:\n{log.read_text()[-3000:]}')
-    return 100.0 * (c1 - c0) / (t1 - t0)
+    rates = {k: (n1[k] - n0.get(k, 0.0)) / (t1 - t0) for k in n1}
+    return 100.0 * (c1 - c0) / (t1 - t0), rates
 
 
 # ------------------------------------------------------------------ load generators
@@ -271,7 +295,11 @@ def write_scene(path: Path, n_modules: int) -> Path:
         modules.append(leg)
     data['name'] = f'synthetic_{n_modules}'
     data['modules'] = modules
-    data.pop('gaits', None)
+    names = [m['name'] for m in modules]
+    walk = dict(data['gaits'][data['default_gait']])
+    walk['groups'] = [names[0::2], names[1::2]]
+    data['gaits'] = {'walk': walk}
+    data['default_gait'] = 'walk'
     path.write_text(yaml.safe_dump(data, sort_keys=False))
     return path
 
@@ -285,27 +313,50 @@ def case_model(code_dir, work: Path, scene: str, moving: bool | None, warmup, se
     """model_node with lengths from a publisher process (None: no lengths at all) and
     both RobotShape topics subscribed by a listener process."""
     log = work / 'model.log'
-    node = start_ros_node('model_node', model_args(scene), code_dir, log)
-    helpers = [start(run_child('listen'), None, work / 'listen.log')]
+    node = start_ros_node('model_node', model_args(scene, ['-p', 'diagnostics_period:=0.5']),
+                          code_dir, log)
+    helpers = [start(run_child('listen', 'model', str(work / 'counters')), None,
+                     work / 'listen.log')]
     if moving is not None:
         helpers.append(start(run_child('lengths', scene, '100', str(int(moving))), None,
                              work / 'lengths.log'))
+    def working() -> bool:  # diagnostics arrive, and lengths are taken unless idle
+        counters = read_counters(work / 'counters')
+        return 'solves' in counters and (moving is None or counters['lengths'] > 0)
+
     try:
-        return measure(node, warmup, seconds, log)
+        return measure(node, warmup, seconds, log, work / 'counters', working)
     finally:
         for p in helpers:
             stop(p)
         stop(node)
 
 
-def listen() -> None:
-    """(child process) Subscribe to both RobotShape topics, as the rerun logger does."""
+def listen(kind: str, out: str) -> None:
+    """(child process) Subscribe like the demo's consumers and write the node's own
+    counters to ``out``: model: both RobotShape topics (as the rerun logger) and
+    model/diagnostics (solves, lengths taken); driver: m1/state (commands received,
+    targets sent)."""
     import rclpy
-    from softsnap_interfaces.msg import RobotShape
+    from softsnap_interfaces.msg import ModelDiagnostics, ModuleState, RobotShape
     rclpy.init()
-    node = rclpy.create_node('shape_listener')
-    for source in ('commanded', 'predicted'):
-        node.create_subscription(RobotShape, f'{NS}/model/shape/{source}', lambda m: None, 10)
+    node = rclpy.create_node('bench_listener')
+    path = Path(out)
+
+    def write(values: dict) -> None:
+        tmp = path.with_suffix('.tmp')
+        tmp.write_text(''.join(f'{k} {v}\n' for k, v in values.items()))
+        tmp.rename(path)
+
+    if kind == 'model':
+        for source in ('commanded', 'predicted'):
+            node.create_subscription(RobotShape, f'{NS}/model/shape/{source}', lambda m: None, 10)
+        node.create_subscription(ModelDiagnostics, f'{NS}/model/diagnostics', lambda m: write({
+            'solves': m.solves,
+            'lengths': sum(m.commanded_lengths) + sum(m.measured_lengths)}), 10)
+    else:
+        node.create_subscription(ModuleState, f'{NS}/m1/state', lambda m: write({
+            'commands': m.commands_received, 'targets': m.targets_sent}), 10)
     try:
         rclpy.spin(node)
     except BaseException:
@@ -314,23 +365,27 @@ def listen() -> None:
 
 def case_driver(code_dir, work: Path, warmup, seconds):
     log = work / 'driver.log'
-    sim = start(run_child('sim'), None, work / 'sim.log')
-    port_file = work / 'sim.port'
-    deadline = time.monotonic() + 30
-    while not port_file.exists() and time.monotonic() < deadline:
-        time.sleep(0.1)
-    port = int(port_file.read_text())
-    node = start_ros_node('driver_node', [
-        '-r', f'__ns:={NS}', '-p', 'module:=m1', '-p', f'port:={port}',
-        '-p', 'counts_per_mm:=89.13', '-p', 'straight_length_m:=0.198', '-p', 'pwm_power:=255',
-        '-p', 'poll_rate_hz:=10.0', '-p', 'command_timeout_s:=0.0'], code_dir, log)
-    cmds = start(run_child('commands', '50', '0.198'), None, work / 'commands.log')
+    procs = [start(run_child('sim'), None, work / 'sim.log')]
     try:
-        return measure(node, warmup, seconds, log)
+        port_file = work / 'sim.port'
+        deadline = time.monotonic() + 60
+        while not port_file.exists() and time.monotonic() < deadline:
+            time.sleep(0.1)
+        port = int(port_file.read_text())
+        node = start_ros_node('driver_node', [
+            '-r', f'__ns:={NS}', '-p', 'module:=m1', '-p', f'port:={port}',
+            '-p', 'counts_per_mm:=89.13', '-p', 'straight_length_m:=0.198',
+            '-p', 'pwm_power:=255', '-p', 'poll_rate_hz:=10.0', '-p', 'command_timeout_s:=0.0'],
+            code_dir, log)
+        procs.append(node)
+        procs.append(start(run_child('listen', 'driver', str(work / 'counters')), None,
+                           work / 'listen.log'))
+        procs.append(start(run_child('commands', '50', '0.198'), None, work / 'commands.log'))
+        return measure(node, warmup, seconds, log, work / 'counters',
+                       lambda: read_counters(work / 'counters').get('commands', 0) > 0)
     finally:
-        stop(cmds)
-        stop(node)
-        stop(sim)
+        for p in reversed(procs):
+            stop(p)
 
 
 def run_sim(work: str) -> None:
@@ -353,11 +408,17 @@ def case_rerun(code_dir, work: Path, warmup, seconds, recording: Path):
         '-r', f'__ns:={NS}', '-p', f'output:={recording}', '-p', 'scene:=brittle_star'],
         code_dir, log)
     pub = start(run_child('robot', '50'), None, work / 'robot.log')
+
+    def recording_grows() -> bool:  # the node logs: its file has grown past the static part
+        return recording.exists() and recording.stat().st_size > 200_000
+
     try:
-        return measure(node, warmup, seconds, log)
+        return measure(node, warmup, seconds, log, ready=recording_grows)
     finally:
         stop(pub)
         stop(node)
+        logged = re.search(r'(\d+) messages logged', log.read_text(errors='replace'))
+        print(f'    rerun_logger: {logged.group(0) if logged else "no summary line"}', flush=True)
 
 
 def case_baseline(code_dir, work: Path, warmup, seconds):
@@ -379,6 +440,9 @@ def extract(ref: str, into: Path) -> Path:
     archive = subprocess.run(['git', '-C', str(ROOT), 'archive', ref, 'src'],
                              check=True, capture_output=True).stdout
     subprocess.run(['tar', '-x', '-C', str(into)], input=archive, check=True)
+    # Compiled once here: the nodes run with PYTHONDONTWRITEBYTECODE and would otherwise
+    # compile the old sources at every start.
+    subprocess.run([sys.executable, '-m', 'compileall', '-q', str(into / 'src')], check=True)
     return into
 
 
@@ -404,7 +468,7 @@ def main() -> int:
         {'lengths': lambda: publish_lengths(rest[0], float(rest[1]), bool(int(rest[2]))),
          'commands': lambda: publish_driver_commands(float(rest[0]), float(rest[1])),
          'robot': lambda: publish_robot(float(rest[0])),
-         'listen': listen,
+         'listen': lambda: listen(rest[0], rest[1]),
          'sim': lambda: run_sim(os.environ['NODE_COST_WORK'])}[kind]()
         return 0
 
@@ -419,6 +483,7 @@ def main() -> int:
                     'after': None}
     results: dict[tuple[str, str], list[float]] = {}
     recordings: dict[str, Path] = {}
+    throughput: dict[tuple[str, str, str], list[float]] = {}
     for repeat in range(args.repeats):
         for case in args.cases:
             for label, code_dir in versions.items():
@@ -435,14 +500,18 @@ def main() -> int:
                 elif case == 'model_idle':
                     cpu = case_model(code_dir, run_dir, 'brittle_star', None, w, s)
                 elif case == 'model50':
-                    cpu = case_model(code_dir, run_dir, str(scene50), True, w + 4.0, s)
+                    cpu = case_model(code_dir, run_dir, str(scene50), True, w, s)
                 elif case == 'driver':
                     cpu = case_driver(code_dir, run_dir, w, s)
                 else:
                     recordings[label] = run_dir / 'robot.rrd'
                     cpu = case_rerun(code_dir, run_dir, w, s, recordings[label])
+                cpu, rates = cpu
                 results.setdefault((case, label), []).append(cpu)
-                print(f'  repeat {repeat + 1}: {case:10s} {label:6s} {cpu:6.1f}% of a core',
+                for name, rate in rates.items():
+                    throughput.setdefault((case, label, name), []).append(rate)
+                print(f'  repeat {repeat + 1}: {case:10s} {label:6s} {cpu:6.1f}% of a core'
+                      + ''.join(f', {name} {rate:.0f}/s' for name, rate in rates.items()),
                       flush=True)
 
     per_module = {'baseline': 1, 'model5': 5, 'model_idle': 5, 'model50': 50, 'driver': 1,
@@ -465,6 +534,9 @@ def main() -> int:
                  if before and after and statistics.median(before) > 0 else '-')
         print(f'{what[case]:56s} {summary(before):>22s} {summary(after):>22s} {ratio:>12s} '
               f'{statistics.median(after) / per_module[case]:15.2f}%')
+    for (case, label, name), rates in sorted(throughput.items()):
+        print(f'  {case} {label}: {name} {statistics.median(rates):.0f}/s '
+              f'[{min(rates):.0f}-{max(rates):.0f}]')
     if 'model_idle' in args.cases:
         idle = statistics.median(results[('model_idle', 'after')])
         print(f'model_node idle tick (after): {idle / 100 * 10:.3f} ms of CPU per 10 ms tick')
