@@ -534,9 +534,13 @@ def main() -> int:
                  if before and after and statistics.median(before) > 0 else '-')
         print(f'{what[case]:56s} {summary(before):>22s} {summary(after):>22s} {ratio:>12s} '
               f'{statistics.median(after) / per_module[case]:15.2f}%')
+    print('The nodes\' own counters over the same windows (median [range] per second), and '
+          'CPU per event (the machine\'s load changes how many events a starved node takes):')
     for (case, label, name), rates in sorted(throughput.items()):
-        print(f'  {case} {label}: {name} {statistics.median(rates):.0f}/s '
-              f'[{min(rates):.0f}-{max(rates):.0f}]')
+        cpu = statistics.median(results[(case, label)])
+        rate = statistics.median(rates)
+        per = f', {cpu * 1e4 / rate:.0f} µs of CPU per {name[:-1]}' if rate > 0 else ''
+        print(f'  {case} {label}: {name} {rate:.0f}/s [{min(rates):.0f}-{max(rates):.0f}]{per}')
     if 'model_idle' in args.cases:
         idle = statistics.median(results[('model_idle', 'after')])
         print(f'model_node idle tick (after): {idle / 100 * 10:.3f} ms of CPU per 10 ms tick')

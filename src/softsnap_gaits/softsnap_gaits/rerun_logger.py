@@ -60,7 +60,7 @@ SUBSCRIPTION_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=50,
 MAX_RATE_HZ = 1000.0
 #: Default of the flush_period parameter (s): a live viewer lags by at most this much;
 #: longer periods cost less CPU (one send_columns per entity and flush).
-DEFAULT_FLUSH_PERIOD_S = 0.25
+DEFAULT_FLUSH_PERIOD_S = 1.0
 #: How often the inbox is drained (s): the most a message waits before it is handled.
 DRAIN_PERIOD_S = 0.05
 
