@@ -311,8 +311,8 @@ class ModelNode(SoftSnapNode):
     def _subscribers(self, publisher) -> int:
         """Subscription count of one of our publishers, refreshed every SUBSCRIBERS_REFRESH_S.
 
-        Asking DDS costs a few microseconds a publisher; with two publishers per module
-        at 100 Hz that was a large part of a tick. A new subscriber is served within
+        Asking DDS costs a few microseconds a publisher, and every tick asked it for the
+        robot's and every module's publishers. A new subscriber is served within
         SUBSCRIBERS_REFRESH_S (discovery itself takes longer).
         """
         now = time.monotonic()
