@@ -183,3 +183,43 @@ def test_a_solver_refusal_at_tick_time_keeps_the_last_shape(brittle_star):
     assert predictor.shapes('predicted')[0] is first
     assert predictor.errors == [('yellow', 'predicted', 'refused 160.0')]
     assert predictor.counters.refused == 1
+
+
+def test_one_batched_solve_per_tick_gives_the_shapes_of_single_solves(brittle_star):
+    # Every module and source changes every tick: one solve_forward_batch call per tick
+    # must give what one solve_forward per module gives (a slack length included).
+    batched, single = RobotPredictor(brittle_star), RobotPredictor(brittle_star, batch=False)
+    assert batched.batch and not single.batch
+    for tick in range(3):
+        for predictor in (batched, single):
+            for i, m in enumerate(brittle_star.modules):
+                contraction = -2.0 if (i == 3 and tick == 1) else 10.0 + 7.0 * i + 3.0 * tick
+                predictor.submit('commanded', m.name, m.straight_length_mm - contraction)
+                predictor.submit('predicted', m.name, m.straight_length_mm - contraction - 0.7)
+        got, want = batched.tick(rib_centers=True), single.tick(rib_centers=True)
+        for source in ('commanded', 'predicted'):
+            assert [s.module for s in got[source]] == list(brittle_star.module_names)
+            for a, b in zip(got[source], want[source]):
+                np.testing.assert_allclose(a.angles, b.angles, atol=1e-9)
+                np.testing.assert_allclose(a.rib_centers_mm, b.rib_centers_mm, atol=1e-7)
+                assert a.cable_length_mm == b.cable_length_mm
+                assert a.converged and b.converged
+                assert a.tension == pytest.approx(b.tension, rel=1e-6, abs=1e-12)
+                assert a.solve_time_s > 0.0
+        if tick == 1:  # red's commanded length is slack: the straight shape
+            assert got['commanded'][3].tension == 0.0
+            np.testing.assert_array_equal(got['commanded'][3].angles, 0.0)
+    assert batched.counters.solves == single.counters.solves == 30
+
+
+def test_an_idle_tick_has_nothing_pending_and_returns_no_shapes(brittle_star):
+    predictor = RobotPredictor(brittle_star)
+    assert not predictor.has_pending
+    predictor.submit('predicted', 'green', straight(brittle_star, 'green') - 12.0)
+    assert predictor.has_pending
+    assert len(predictor.tick()['predicted']) == 1
+    assert not predictor.has_pending
+    assert predictor.tick() == {'commanded': [], 'predicted': []}
+    # The same length again is skipped at submit: still nothing pending.
+    predictor.submit('predicted', 'green', straight(brittle_star, 'green') - 12.0)
+    assert not predictor.has_pending and predictor.counters.skipped_unchanged == 1

@@ -103,10 +103,10 @@ POSES = {'yellow': ((0.05, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0)),
          'blue': ((-0.05, 0.0, 0.0), (0.0, 0.0, 1.0, 0.0))}  # blue turned by pi about z
 
 
-def write_robot(path, n=10, rate_hz=0.0, modules=None, threadings=None):
+def write_robot(path, n=10, rate_hz=0.0, modules=None, threadings=None, **options):
     rec = rec_mod.open_recording(path, blueprint=rec_mod.build_blueprint())
     recorder = rec_mod.RobotRecorder(rec, modules=modules, threadings_mm=threadings,
-                                     rate_hz=rate_hz)
+                                     rate_hz=rate_hz, **options)
     recorder.base_poses(STAMP0, POSES)
     for stamp, module, commanded, predicted in robot_frames(n):
         recorder.shape(stamp, module, 'commanded', commanded, solve_time_s=0.002)
@@ -114,6 +114,7 @@ def write_robot(path, n=10, rate_hz=0.0, modules=None, threadings=None):
         recorder.cable_length(stamp, module, 'commanded', 0.2 - 0.001 * stamp_index(stamp))
         recorder.cable_length(stamp, module, 'measured', 0.2 - 0.0009 * stamp_index(stamp))
         recorder.module_state(stamp, module, 7.4)
+    recorder.flush()
     rec_mod.close_recording(rec)
     return recorder
 
@@ -205,6 +206,50 @@ def test_robot_recording_entity_tree_frames_and_values(tmp_path, read_rrd):
     assert len(tip) == 19
     np.testing.assert_allclose(tip[2::2], expected_tip[1:], atol=1e-9)
     assert tip[0] == pytest.approx(0.0, abs=1e-12)
+
+
+def test_column_batches_record_the_same_rows_as_one_log_per_row(tmp_path, read_rrd):
+    # flush_period_s > 0 sends buffered rows with send_columns: the file must hold the
+    # same entities, stamps and values as logging every row at once.
+    threadings = {'yellow': [3.0] * 8 + [6.5, 6.5, 10.0, 10.0]}
+    write_robot(tmp_path / 'rows.rrd', n=12, threadings=threadings)
+    ticks = iter(range(10**6))
+    recorder = write_robot(tmp_path / 'columns.rrd', n=12, threadings=threadings,
+                           flush_period_s=0.05, clock=lambda: 0.01 * next(ticks))
+    assert recorder.logged == 12 * 2 * 5
+    rows, columns = read_rrd(tmp_path / 'rows.rrd'), read_rrd(tmp_path / 'columns.rrd')
+    assert columns.entities == rows.entities
+    static = {e: v for e, v in rows.static.items() if e != '__properties'}  # start time
+    assert {e: v for e, v in columns.static.items() if e != '__properties'} == static
+    for entity in rows.rows:
+        assert columns.times(entity) == rows.times(entity), entity
+    for entity, component in (('robot/yellow/predicted/spine', 'LineStrips3D:strips'),
+                              ('robot/blue/commanded/ribs', 'LineStrips3D:strips'),
+                              ('robot/yellow/commanded/cable', 'LineStrips3D:strips')):
+        got, want = columns.values(entity, component), rows.values(entity, component)
+        assert len(got) == len(want) == 12
+        for a, b in zip(got, want):
+            assert len(a) == len(b)
+            np.testing.assert_array_equal(np.asarray(a, dtype=float), np.asarray(b, dtype=float))
+    for entity in ('plots/tip_error_mm/yellow', 'plots/cable_length_mm/blue/measured',
+                   'plots/solve_time_ms/yellow/predicted', 'plots/battery_v/blue'):
+        assert columns.scalars(entity) == rows.scalars(entity), entity
+
+
+def test_unchanged_shapes_are_logged_once(tmp_path, read_rrd):
+    rec = rec_mod.open_recording(tmp_path / 'still.rrd')
+    recorder = rec_mod.RobotRecorder(rec, rate_hz=0.0, skip_unchanged=True, flush_period_s=1.0)
+    for tick in range(5):
+        stamp = STAMP0 + tick * PERIOD
+        # yellow holds still after tick 1; blue bends further every tick.
+        recorder.shape(stamp, 'yellow', 'predicted', arc_angles(0.1 * min(tick, 1)))
+        recorder.shape(stamp, 'blue', 'predicted', arc_angles(0.1 * tick))
+    recorder.flush()
+    rec_mod.close_recording(rec)
+    rrd = read_rrd(tmp_path / 'still.rrd')
+    assert rrd.times('robot/yellow/predicted/spine') == [STAMP0, STAMP0 + PERIOD]
+    assert rrd.times('robot/blue/predicted/spine') == [STAMP0 + i * PERIOD for i in range(5)]
+    assert recorder.unchanged == 3 and recorder.logged == 7
 
 
 def test_rate_limit_and_module_filter_reduce_what_is_logged(tmp_path, read_rrd):

@@ -252,3 +252,29 @@ def test_predictions_go_on_during_an_inverse_design(brittle_star_node, ros_node)
         assert future.result().success, future.result().message
         assert len(future.result().alternatives) == 3
     assert len(diagnostics) > n_before  # the diagnostics timer kept running
+
+
+def test_tick_thread_ticks_until_stopped_and_follows_a_new_period():
+    # The model node's predictions run on this thread instead of an executor timer.
+    import threading
+    import time
+
+    from softsnap_model.model_node import TickThread
+
+    ticks = []
+    moved = threading.Event()
+    ticker = TickThread('test_tick', 0.01, lambda: (ticks.append(1), moved.set()))
+    ticker.start()
+    deadline = time.monotonic() + 30.0
+    while len(ticks) < 5 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert len(ticks) >= 5
+    ticker.period_s = 3600.0  # a new rate applies from the next tick on
+    time.sleep(0.2)
+    settled = len(ticks)
+    time.sleep(0.5)
+    assert len(ticks) <= settled + 1
+    assert ticker.stop(5.0)  # a pending wait ends at once
+    stopped = len(ticks)
+    time.sleep(0.1)
+    assert len(ticks) == stopped

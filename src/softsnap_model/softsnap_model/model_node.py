@@ -30,6 +30,7 @@ All science lives in :mod:`softsnap_model.predictor`, :mod:`.forward`, :mod:`.lo
 """
 from __future__ import annotations
 
+import array
 import gc
 import math
 import os
@@ -74,6 +75,12 @@ LENGTH_TOPIC = {'commanded': 'cable_length/command', 'predicted': 'cable_length/
 DESIGN_STOP_WAIT_S = 0.5
 #: Period of DesignThreading feedback while a goal runs (s).
 FEEDBACK_PERIOD_S = 0.1
+#: On shutdown, how long the prediction thread may take to finish its tick (s).
+TICK_STOP_WAIT_S = 0.5
+#: How long a publisher's subscription count is trusted before DDS is asked again (s).
+SUBSCRIBERS_REFRESH_S = 0.25
+#: Pose messages kept for reuse (fixed module bases hit it every tick).
+POSE_CACHE_SIZE = 1024
 
 
 class DesignWorker:
@@ -102,10 +109,55 @@ class DesignWorker:
         return not self._thread.is_alive()
 
 
+class TickThread:
+    """Calls ``tick()`` every ``period_s`` seconds on a daemon thread until :meth:`stop`.
+
+    Why not an rclpy timer: every executor wake rebuilds the wait set over all of the
+    node's entities in Python, which cost more than a whole idle tick (0.5 ms against
+    0.04 ms, measured on the development machine); a sleeping thread wakes for a few
+    microseconds. ``tick`` must catch its own exceptions. A tick that overruns its
+    period is followed at once by the next one, and a backlog of more than a period is
+    dropped (no burst of catch-up ticks).
+    """
+
+    def __init__(self, name: str, period_s: float, tick):
+        self.period_s = float(period_s)  # read at every tick: a new rate applies at once
+        self._tick = tick
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def _run(self) -> None:
+        next_at = time.monotonic()
+        while True:
+            next_at += self.period_s
+            delay = next_at - time.monotonic()
+            if delay < -self.period_s:
+                next_at, delay = time.monotonic(), 0.0
+            if self._stop.wait(max(delay, 0.0)):
+                return
+            self._tick()
+
+    def stop(self, timeout: float) -> bool:
+        """Stop after the current tick; True if the thread ended within timeout (s)."""
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout)
+        return not self._thread.is_alive()
+
+
 def _points_m(points_mm) -> list[Point]:
-    """(N, 2) or (N, 3) array in mm -> geometry_msgs/Point list in metres."""
-    return [Point(x=float(p[0]) / MM_PER_M, y=float(p[1]) / MM_PER_M,
-                  z=float(p[2]) / MM_PER_M if len(p) > 2 else 0.0) for p in points_mm]
+    """(N, 2) or (N, 3) array in mm -> geometry_msgs/Point list in metres.
+
+    Built without the generated per-field type checks (``check_fields=False``): every
+    value is a Python float made here, and the checks were most of the cost of a
+    shape message (12 points per module, every tick).
+    """
+    rows = (np.asarray(points_mm, dtype=float) / MM_PER_M).tolist()
+    return [Point(x=p[0], y=p[1], z=p[2] if len(p) > 2 else 0.0, check_fields=False)
+            for p in rows]
 
 
 class ModelNode(SoftSnapNode):
@@ -166,6 +218,9 @@ class ModelNode(SoftSnapNode):
         self.service_failures = 0
         self._last_msgs: dict[tuple[str, str], tuple] = {}  # (shape, its message)
         self._solve_time_reported = (0, 0.0)
+        self._subscriber_counts: dict = {}  # publisher -> subscription count (cached)
+        self._subscribers_at = -math.inf    # monotonic s of the last refresh
+        self._pose_msgs: dict[tuple, Pose] = {}
 
         # Lengths are a stream where only the newest matters: sensor-data QoS would drop
         # messages under load; keep a small reliable queue so no command is lost silently.
@@ -233,11 +288,15 @@ class ModelNode(SoftSnapNode):
             goal_callback=self.design_goal_callback,
             cancel_callback=self.design_cancel_callback,
             callback_group=self._design_group)
-        self.tick_timer = self.create_timer(1.0 / self.get_parameter('rate').value, self.tick_callback)
+        # Predictions run on their own thread (TickThread says why); only that thread
+        # touches the predictor, the inbox and the shape publishers' caches.
+        self.ticker = TickThread('prediction_tick', 1.0 / self.get_parameter('rate').value,
+                                 self.tick_callback)
         self.diagnostics_timer = self.create_timer(
             self.get_parameter('diagnostics_period').value, self.diagnostics_callback)
         self.marker_timer = self.create_timer(
             1.0 / self.get_parameter('marker_rate').value, self.marker_callback)
+        self.ticker.start()  # last: the node is complete
         self.get_logger().info(
             f'scene {self.scene.name!r}: {len(self.scene.modules)} modules '
             f'({", ".join(self.scene.module_names)}), predicting at '
@@ -266,8 +325,7 @@ class ModelNode(SoftSnapNode):
             elif param.name == 'length_tolerance':
                 self.predictor.length_tol_mm = float(param.value) * MM_PER_M
             elif param.name == 'rate':
-                self.tick_timer.cancel()
-                self.tick_timer = self.create_timer(1.0 / float(param.value), self.tick_callback)
+                self.ticker.period_s = 1.0 / float(param.value)
             elif param.name == 'marker_rate':
                 self.marker_timer.cancel()
                 self.marker_timer = self.create_timer(1.0 / float(param.value),
@@ -285,15 +343,33 @@ class ModelNode(SoftSnapNode):
                 f'refused {source} length for {module!r}: {error}; keeping the last valid shape',
                 throttle_duration_sec=1.0)
 
+    def _subscribers(self, publisher) -> int:
+        """Subscription count of one of our publishers, refreshed every SUBSCRIBERS_REFRESH_S.
+
+        Asking DDS costs a few microseconds a publisher, and every tick asked it for the
+        robot's and every module's publishers. A new subscriber is served within
+        SUBSCRIBERS_REFRESH_S (discovery itself takes longer).
+        """
+        now = time.monotonic()
+        if now - self._subscribers_at > SUBSCRIBERS_REFRESH_S:
+            self._subscriber_counts.clear()
+            self._subscribers_at = now
+        count = self._subscriber_counts.get(publisher)
+        if count is None:
+            count = self._subscriber_counts[publisher] = publisher.get_subscription_count()
+        return count
+
     def _want_rib_centers(self, source: str) -> bool:
         if self.rib_centers_mode != 'auto':
             return self.rib_centers_mode == 'always'
-        if self.robot_publishers[source].get_subscription_count() > 0:
+        if self._subscribers(self.robot_publishers[source]) > 0:
             return True
-        return any(self.module_publishers[(m.name, source)].get_subscription_count() > 0
+        return any(self._subscribers(self.module_publishers[(m.name, source)]) > 0
                    for m in self.scene.modules)
 
     def tick_callback(self) -> None:
+        if not self.context.ok():
+            return  # shutting down: the publishers may be gone
         try:
             self._tick()
         except Exception as error:  # never let one bad tick stop the predictions
@@ -308,6 +384,8 @@ class ModelNode(SoftSnapNode):
 
     def _tick(self) -> None:
         self._drain_lengths()
+        if not self.predictor.has_pending:
+            return  # nothing new: no solve, no message (an idle tick costs the drain only)
         want = {source: self._want_rib_centers(source) for source in SOURCES}
         updated = self.predictor.tick(want)
         for module, source, reason in self.predictor.errors:
@@ -319,7 +397,7 @@ class ModelNode(SoftSnapNode):
         for source in SOURCES:
             if not updated[source]:
                 continue
-            if self.joint_state_publishers[source].get_subscription_count() > 0:
+            if self._subscribers(self.joint_state_publishers[source]) > 0:
                 for joint_state in standard.joint_states(updated[source]):
                     self.joint_state_publishers[source].publish(joint_state)
                     self.joint_states_published += 1
@@ -327,25 +405,34 @@ class ModelNode(SoftSnapNode):
             # a shape's message is built once, only when some topic needs it.
             for shape in updated[source]:
                 publisher = self.module_publishers[(shape.module, source)]
-                if publisher.get_subscription_count() > 0:
+                if self._subscribers(publisher) > 0:
                     publisher.publish(self._message_for(shape, stamp))
-            if self.robot_publishers[source].get_subscription_count() == 0:
+            if self._subscribers(self.robot_publishers[source]) == 0:
                 continue
-            robot = RobotShape()
+            robot = RobotShape(check_fields=False)  # its parts are built and checked here
             robot.header.stamp = stamp
             robot.header.frame_id = self.scene.name
             robot.robot = self.scene.name
-            for module, shape, (position, orientation) in zip(
-                    self.scene.modules, self.predictor.shapes(source),
-                    self.predictor.base_poses(source)):
-                robot.modules.append(ModuleShape(module=module.name, source=source)
-                                     if shape is None else self._message_for(shape, stamp))
-                pose = Pose()
-                pose.position.x, pose.position.y, pose.position.z = position
-                (pose.orientation.x, pose.orientation.y,
-                 pose.orientation.z, pose.orientation.w) = orientation
-                robot.base_poses.append(pose)
+            robot.modules = [self._message_for(shape, stamp) if shape is not None
+                             else ModuleShape(module=module.name, source=source)
+                             for module, shape in zip(self.scene.modules,
+                                                      self.predictor.shapes(source))]
+            robot.base_poses = [self._pose_msg(pose)
+                                for pose in self.predictor.base_poses(source)]
             self.robot_publishers[source].publish(robot)
+
+    def _pose_msg(self, pose) -> Pose:
+        """Pose message of a (position m, quaternion xyzw) pair; fixed bases reuse theirs."""
+        msg = self._pose_msgs.get(pose)
+        if msg is None:
+            msg = Pose()
+            msg.position.x, msg.position.y, msg.position.z = pose[0]
+            (msg.orientation.x, msg.orientation.y,
+             msg.orientation.z, msg.orientation.w) = pose[1]
+            if len(self._pose_msgs) > POSE_CACHE_SIZE:  # moving chains: do not grow forever
+                self._pose_msgs.clear()
+            self._pose_msgs[pose] = msg
+        return msg
 
     def _message_for(self, shape, stamp) -> ModuleShape:
         """The message of a shape, built on first use and reused while the shape is current."""
@@ -357,7 +444,7 @@ class ModelNode(SoftSnapNode):
         return cached[1]
 
     def _shape_msg(self, shape, stamp) -> ModuleShape:
-        msg = ModuleShape()
+        msg = ModuleShape(check_fields=False)  # fields set here from typed values
         # A shape is the state at the time its length was commanded or measured: keep
         # that stamp (end-to-end latency is then arrival time minus stamp).
         if shape.stamp_ns > 0:
@@ -367,15 +454,15 @@ class ModelNode(SoftSnapNode):
         msg.header.frame_id = f'{self.scene.name}/{shape.module}'
         msg.module = shape.module
         msg.source = shape.source
-        msg.cable_length = shape.cable_length_mm / MM_PER_M
-        msg.angles = shape.angles.tolist()
+        msg.cable_length = float(shape.cable_length_mm) / MM_PER_M
+        msg.angles = array.array('d', shape.angles)
         if shape.rib_centers_mm is not None:
             msg.rib_centers = _points_m(shape.rib_centers_mm)
-        msg.tension = shape.tension * MM_PER_M  # rad^2/mm -> rad^2/m
-        msg.energy = shape.energy
-        msg.converged = shape.converged
-        msg.residual = shape.residual
-        msg.solve_time = shape.solve_time_s
+        msg.tension = float(shape.tension) * MM_PER_M  # rad^2/mm -> rad^2/m
+        msg.energy = float(shape.energy)
+        msg.converged = bool(shape.converged)
+        msg.residual = float(shape.residual)
+        msg.solve_time = float(shape.solve_time_s)
         return msg
 
     # ------------------------------------------------------------------ standard outputs
@@ -752,6 +839,8 @@ class ModelNode(SoftSnapNode):
         # Stop every design (they poll this between steps), then give the workers a
         # bounded moment: SIGINT must end the node within 2 s whatever it is doing.
         self._stopping.set()
+        if not self.ticker.stop(TICK_STOP_WAIT_S):
+            self.get_logger().warning('the prediction tick did not stop in time')
         end = time.monotonic() + DESIGN_STOP_WAIT_S
         for worker in (self._service_worker, self._action_worker):
             if not worker.stop(max(0.0, end - time.monotonic())):
@@ -785,9 +874,9 @@ def main(args=None):
         rclpy.logging.get_logger('model_node').fatal(f'cannot start: {error}')
         rclpy.try_shutdown()
         raise SystemExit(2)
-    # One thread runs every callback (no locks needed around the predictor; lower latency
-    # than the multi-threaded executor); inverse designs run on the node's worker threads,
-    # which destroy_node stops within DESIGN_STOP_WAIT_S.
+    # One thread runs every callback (lower latency than the multi-threaded executor);
+    # predictions run on the node's tick thread and inverse designs on its worker
+    # threads, which destroy_node stops within TICK_STOP_WAIT_S and DESIGN_STOP_WAIT_S.
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     try:

@@ -10,7 +10,13 @@ not need, and counts what it skipped:
 - modules with the same threading, stiffness and length in one tick share one solve (a
   snake of five identical modules given the same command costs one solve), across both
   sources;
-- every solve is warm-started from that module's previous shape;
+- all problems of one tick are solved together in one vectorised
+  :func:`~softsnap_model.forward.solve_forward_batch` call (the batch's per-item cost is
+  a small fraction of a single solve's; a warm start changes only the cost, never the
+  answer, so the batch gives the same shapes); a lone problem is solved on its own,
+  warm-started from that module's previous shape;
+- a tick with nothing pending costs a dictionary look-up: only slots with a new length
+  are visited;
 - rib centres are handed on only when the caller asks for them (someone subscribes), so
   the node builds point messages only for subscribers.
 
@@ -26,7 +32,7 @@ from typing import Callable, Mapping
 import numpy as np
 
 from . import geometry
-from .forward import reachable_range, solve_forward
+from .forward import reachable_range, solve_forward, solve_forward_batch
 from .scene import Scene, compose_base_pose, quaternion_to_matrix
 
 __all__ = ['SOURCES', 'ModulePrediction', 'PredictorCounters', 'RobotPredictor']
@@ -117,10 +123,13 @@ class RobotPredictor:
         Skip unneeded work (unchanged lengths, duplicate problems, unrequested rib
         centres). False solves every length received, separately, with rib centres: the
         reference the benchmark compares against.
+    batch : bool
+        Solve the problems of one tick in one :func:`solve_forward_batch` call (only with
+        the default solver and ``skip``); False solves them one by one (the reference).
     """
 
     def __init__(self, scene: Scene, length_tol_mm: float = DEFAULT_LENGTH_TOL_MM,
-                 solver: Callable = solve_forward, skip: bool = True):
+                 solver: Callable = solve_forward, skip: bool = True, batch: bool = True):
         if not (math.isfinite(length_tol_mm) and length_tol_mm >= 0.0):
             raise ValueError(f'length_tol_mm must be finite and >= 0, got {length_tol_mm!r}')
         self.scene = scene
@@ -128,6 +137,8 @@ class RobotPredictor:
         self.length_tol_mm = float(length_tol_mm)
         self._solver = solver
         self.skip = bool(skip)
+        # A custom solver (tests, other models) is called one problem at a time.
+        self.batch = bool(batch) and self.skip and solver is solve_forward
         self.counters = PredictorCounters()
         #: (module, source, reason) of lengths the solver refused at tick time; the caller
         #: reports and clears them.
@@ -141,6 +152,9 @@ class RobotPredictor:
             ranges[key] = reachable_range(self.skeleton, np.asarray(key))
         self.reachable_mm = {name: ranges[self._threading_key[name]] for name in self._index}
         self._slots = {(name, source): _Slot() for name in self._index for source in SOURCES}
+        # Slots holding a length not solved yet, in arrival order (a dict as ordered set):
+        # an idle tick visits none.
+        self._pending: dict[tuple[str, str], None] = {}
 
     # ------------------------------------------------------------------ input
     def submit(self, source: str, module: str, cable_length_mm: float, stamp_ns: int = 0) -> None:
@@ -175,9 +189,11 @@ class RobotPredictor:
         if self.skip and solved is not None and abs(length - solved) <= self.length_tol_mm:
             self.counters.skipped_unchanged += 1
             slot.pending_mm = None
+            self._pending.pop((module, source), None)
             return
         slot.pending_mm = length
         slot.pending_stamp_ns = int(stamp_ns)
+        self._pending[(module, source)] = None
 
     # ------------------------------------------------------------------ solving
     def tick(self, rib_centers: bool | Mapping[str, bool] = False) -> dict[str, list[ModulePrediction]]:
@@ -188,11 +204,13 @@ class RobotPredictor:
         rib_centers : bool or mapping source -> bool
             Whether the new shapes carry rib centres (per source if a mapping).
         """
+        updated: dict[str, list[ModulePrediction]] = {source: [] for source in SOURCES}
+        if not self._pending:
+            return updated
         want = rib_centers if isinstance(rib_centers, Mapping) else dict.fromkeys(SOURCES, rib_centers)
         if not self.skip:
             want = dict.fromkeys(SOURCES, True)
-        pending = [(name, source) for (name, source), slot in self._slots.items()
-                   if slot.pending_mm is not None]
+        pending, self._pending = self._pending, {}
         # Group identical problems (threading, length) across modules and sources.
         groups: dict[tuple, list[tuple[str, str]]] = {}
         for name, source in pending:
@@ -200,29 +218,18 @@ class RobotPredictor:
             if not self.skip:
                 key += (name, source)  # every module and source solved on its own
             groups.setdefault(key, []).append((name, source))
-        updated: dict[str, list[ModulePrediction]] = {source: [] for source in SOURCES}
-        for key, members in groups.items():
-            length = key[1]
-            first = self._slots[members[0]]
-            initial = first.shape.angles if first.shape is not None else None
-            start = time.perf_counter()
-            try:
-                result = self._solver(self.skeleton, self._threading[members[0][0]], length,
-                                      initial=initial)
-            except ValueError as error:
-                # e.g. a length inside a snap-through the solver refuses: keep the last
-                # valid shapes, report why.
+        for key, members, result, elapsed in self._solve_groups(groups):
+            if result is None:  # refused: keep the last valid shapes, report why
                 for name, source in members:
                     self._slots[(name, source)].pending_mm = None
-                    self.errors.append((name, source, str(error)))
+                    self.errors.append((name, source, elapsed))
                 self.counters.refused += len(members)
                 continue
-            elapsed = time.perf_counter() - start
+            length = key[1]
             self.counters.solves += 1
             self.counters.solve_time_s += elapsed
             self.counters.skipped_duplicate += len(members) - 1
-            angles = np.array(result.angles, dtype=float)
-            centers = np.asarray(result.rib_centers, dtype=float)  # the solve's own rib poses
+            angles, centers, tension, energy, converged, residual = result
             for i, (name, source) in enumerate(members):
                 slot = self._slots[(name, source)]
                 if not want.get(source, False):
@@ -230,16 +237,64 @@ class RobotPredictor:
                 slot.shape = ModulePrediction(
                     module=name, source=source, cable_length_mm=length, angles=angles,
                     rib_centers_mm=centers if want.get(source, False) else None,
-                    tension=float(result.tension), energy=float(result.energy),
-                    converged=bool(result.converged), residual=float(result.residual),
+                    tension=tension, energy=energy, converged=converged, residual=residual,
                     solve_time_s=elapsed if i == 0 else 0.0, stamp_ns=slot.pending_stamp_ns)
                 slot.pending_mm = None
                 updated[source].append(slot.shape)
         for source in SOURCES:
-            updated[source].sort(key=lambda shape: self._index[shape.module])
+            if len(updated[source]) > 1:
+                updated[source].sort(key=lambda shape: self._index[shape.module])
         return updated
 
+    def _solve_groups(self, groups: dict[tuple, list[tuple[str, str]]]):
+        """Yield (key, members, fields or None, solve time s or the refusal) per group.
+
+        fields = (angles, rib centres, tension, energy, converged, residual). Several
+        groups go through one batch solve, whose time is shared out evenly; a batch the
+        solver refuses (one bad length refuses all) is solved again one by one, so only
+        the bad group is refused.
+        """
+        if self.batch and len(groups) > 1:
+            keys = list(groups)
+            lengths = np.fromiter((key[1] for key in keys), dtype=float, count=len(keys))
+            threadings = [self._threading[groups[key][0][0]] for key in keys]
+            start = time.perf_counter()
+            try:
+                batch = solve_forward_batch(self.skeleton, threadings, lengths)
+            except ValueError:
+                batch = None
+            if batch is not None:
+                each = (time.perf_counter() - start) / len(keys)
+                # One conversion per array, not per item: Python floats and bools.
+                tension, energy = batch.tension.tolist(), batch.energy.tolist()
+                converged, residual = batch.converged.tolist(), batch.residual.tolist()
+                for i, key in enumerate(keys):
+                    yield key, groups[key], (batch.angles[i], batch.rib_centers[i], tension[i],
+                                             energy[i], converged[i], residual[i]), each
+                return
+        for key, members in groups.items():
+            first = self._slots[members[0]]
+            initial = first.shape.angles if first.shape is not None else None
+            start = time.perf_counter()
+            try:
+                result = self._solver(self.skeleton, self._threading[members[0][0]], key[1],
+                                      initial=initial)
+            except ValueError as error:
+                # e.g. a length inside a snap-through the solver refuses
+                yield key, members, None, str(error)
+                continue
+            elapsed = time.perf_counter() - start
+            yield key, members, (np.array(result.angles, dtype=float),
+                                 np.asarray(result.rib_centers, dtype=float),
+                                 float(result.tension), float(result.energy),
+                                 bool(result.converged), float(result.residual)), elapsed
+
     # ------------------------------------------------------------------ queries
+    @property
+    def has_pending(self) -> bool:
+        """True if some length waits for the next :meth:`tick`."""
+        return bool(self._pending)
+
     def shapes(self, source: str) -> list[ModulePrediction | None]:
         """Last solved shape per module in scene order (None before the first length)."""
         return [self._slots[(m.name, source)].shape for m in self.scene.modules]

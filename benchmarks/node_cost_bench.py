@@ -1,0 +1,560 @@
+#!/usr/bin/env python3
+"""Node CPU benchmark: model_node, driver_node and rerun_logger, before and after, per module.
+
+Every node runs as its own process and talks over DDS to load generators in other
+processes; its CPU is read from the kernel (psutil ``cpu_times``, user + system) over a
+measuring window after a warm-up. Cases:
+
+- ``baseline``: an rclpy node doing nothing but a 100 Hz empty timer: the floor any
+  rclpy process pays on this machine, in the same run.
+- ``model5``: model_node predicting the 5-module brittle star at 100 Hz, commanded and
+  measured lengths of every module changing every 10 ms (a length publisher process
+  stands in for the gait and the drivers), both RobotShape topics subscribed (like the
+  rerun logger in the demo).
+- ``model_idle``: the same node with no lengths arriving: CPU per idle tick.
+- ``model50``: a synthetic 50-module scene (written by this script) at 100 Hz, every
+  length changing every tick, from a length publisher process.
+- ``driver``: driver_node polling a simulated module at 10 Hz and taking 50 Hz commands
+  (a new length each time), the simulated module in a separate process.
+- ``rerun``: rerun_logger recording the 5-module robot: both RobotShape topics at 50 Hz
+  (commanded shapes change every message, predicted ones at 20 Hz: in between the
+  model node re-sends them unchanged), commands at 50 Hz, measured lengths and states at
+  20 Hz, the logger's default 30 Hz rate limit. The recordings of "before" and "after"
+  are read back and their entity sets compared (they must be equal).
+
+``--before REF`` also runs every case with the nodes' code as of git revision REF
+(extracted with ``git archive`` to a temporary directory and put first on PYTHONPATH;
+messages and the rest of the environment are shared), interleaved with the current
+code, so both see the same machine load. Each case is repeated ``--repeats`` times;
+the table gives the median and range, and the ratio after/before of the medians.
+The load average is printed at the start and the end.
+
+Usage: .venv/bin/python benchmarks/node_cost_bench.py [--seconds 10] [--repeats 3]
+       [--before b3d97c3] [--cases baseline model5 model_idle model50 driver rerun]
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import random
+import re
+import signal
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import psutil
+import yaml
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+NS = '/bench'
+PACKAGES = ('softsnap_model', 'softsnap_driver', 'softsnap_gaits')
+MAIN = {  # node -> (module with main(), what main needs in argv)
+    'model_node': 'softsnap_model.model_node',
+    'driver_node': 'softsnap_driver.driver_node',
+    'rerun_logger': 'softsnap_gaits.rerun_logger',
+}
+CASES = ('baseline', 'model5', 'model_idle', 'model50', 'driver', 'rerun')
+
+BASELINE_NODE = '''
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+rclpy.init()
+node = rclpy.create_node('idle_baseline')
+node.create_timer(0.01, lambda: None)
+executor = SingleThreadedExecutor()
+executor.add_node(node)
+try:
+    executor.spin()
+except BaseException:
+    pass
+'''
+
+
+# ------------------------------------------------------------------ processes
+def _env(code_dir: Path | None, log_home: str) -> dict:
+    env = dict(os.environ, ROS_HOME=log_home, PYTHONUNBUFFERED='1')
+    if code_dir is not None:
+        paths = [str(code_dir / 'src' / pkg) for pkg in PACKAGES]
+        env['PYTHONPATH'] = os.pathsep.join(paths + [env.get('PYTHONPATH', '')]).rstrip(os.pathsep)
+    return env
+
+
+def start(argv: list[str], code_dir: Path | None, log: Path) -> subprocess.Popen:
+    out = open(log, 'w')
+    return subprocess.Popen(argv, stdout=out, stderr=subprocess.STDOUT, start_new_session=True,
+                            env=_env(code_dir, tempfile.mkdtemp()), stdin=subprocess.DEVNULL)
+
+
+def start_ros_node(node: str, ros_args: list[str], code_dir: Path | None, log: Path):
+    """A node's main() in a fresh interpreter, from ``code_dir`` (None: the current code)."""
+    code = f'from {MAIN[node]} import main; import sys; sys.exit(main())'
+    return start([sys.executable, '-c', code, '--ros-args', *ros_args], code_dir, log)
+
+
+def stop(proc: subprocess.Popen) -> None:
+    if proc.poll() is None:
+        os.killpg(proc.pid, signal.SIGINT)
+    try:
+        proc.wait(15)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+
+
+def cpu_seconds(ps: psutil.Process) -> float:
+    t = ps.cpu_times()
+    return t.user + t.system
+
+
+def read_counters(path: Path) -> dict[str, float]:
+    """The counters a listener child last wrote ('name value' lines; {} before any)."""
+    try:
+        return {k: float(v) for k, v in (line.split() for line in path.read_text().splitlines())}
+    except (OSError, ValueError):
+        return {}
+
+
+def measure(proc: subprocess.Popen, warmup: float, seconds: float, log: Path,
+            counters: Path | None = None, ready=None) -> tuple[float, dict[str, float]]:
+    """(CPU of ``proc`` over ``seconds`` in % of one core, rates per second of the node's
+    own counters over the same window, read from ``counters``).
+
+    The window starts ``warmup`` s after the node is working: its counters move (or
+    ``ready()`` is true), so that start-up (imports take seconds on a loaded machine)
+    is never measured.
+    """
+    deadline = time.monotonic() + 180.0
+    while ready is not None and not ready():
+        if proc.poll() is not None or time.monotonic() > deadline:
+            raise RuntimeError(f'node not working after 180 s:\n{log.read_text()[-3000:]}')
+        time.sleep(0.2)
+    time.sleep(warmup)
+    if proc.poll() is not None:
+        raise RuntimeError(f'process ended early:\n{log.read_text()[-3000:]}')
+    ps = psutil.Process(proc.pid)
+    n0 = read_counters(counters) if counters else {}
+    c0, t0 = cpu_seconds(ps), time.monotonic()
+    time.sleep(seconds)
+    c1, t1 = cpu_seconds(ps), time.monotonic()
+    n1 = read_counters(counters) if counters else {}
+    if proc.poll() is not None:
+        raise RuntimeError(f'process ended early:\n{log.read_text()[-3000:]}')
+    rates = {k: (n1[k] - n0.get(k, 0.0)) / (t1 - t0) for k in n1}
+    return 100.0 * (c1 - c0) / (t1 - t0), rates
+
+
+# ------------------------------------------------------------------ load generators
+def publish_lengths(scene_path: str, rate: float, moving: bool) -> None:
+    """(child process) Commanded and measured lengths of every module at ``rate`` Hz."""
+    import rclpy
+    from softsnap_interfaces.msg import CableLength
+    from softsnap_model.scene import load_scene
+
+    scene = load_scene(scene_path)
+    rclpy.init()
+    node = rclpy.create_node('length_publisher')
+    pubs = [(m, node.create_publisher(CableLength, f'{NS}/{m.name}/cable_length/{topic}', 10), off)
+            for m in scene.modules for topic, off in (('command', 0.0), ('measured', 0.7))]
+    msg = CableLength()
+    period = 1.0 / rate
+    start = time.monotonic()
+    tick = 0
+    try:
+        while True:
+            for i, (m, pub, offset) in enumerate(pubs):
+                contraction = (30.0 + 20.0 * ((tick * 0.013 + 0.037 * i) % 1.0)) if moving else 30.0
+                msg.cable_length = (m.straight_length_mm - contraction - offset) / 1000.0
+                pub.publish(msg)
+            tick += 1
+            time.sleep(max(0.0, start + tick * period - time.monotonic()))
+    except KeyboardInterrupt:
+        pass
+
+
+def publish_driver_commands(rate: float, straight_m: float) -> None:
+    """(child process) 50 Hz cable-length commands to module m1, a new length each time."""
+    import rclpy
+    from softsnap_interfaces.msg import CableLength
+
+    rclpy.init()
+    node = rclpy.create_node('command_publisher')
+    pub = node.create_publisher(CableLength, f'{NS}/m1/cable_length/command', 10)
+    msg = CableLength()
+    period = 1.0 / rate
+    start = time.monotonic()
+    tick = 0
+    try:
+        while True:
+            msg.header.stamp = node.get_clock().now().to_msg()
+            msg.cable_length = straight_m - 0.010 - 0.030 * ((tick * 0.01) % 1.0)
+            pub.publish(msg)
+            tick += 1
+            time.sleep(max(0.0, start + tick * period - time.monotonic()))
+    except KeyboardInterrupt:
+        pass
+
+
+def publish_robot(rate: float) -> None:
+    """(child process) What the rerun logger sees in the demo of the 5-module brittle star."""
+    import rclpy
+    from geometry_msgs.msg import Point, Pose
+    from softsnap_interfaces.msg import CableLength, ModuleShape, ModuleState, RobotShape
+    from softsnap_model import geometry
+    from softsnap_model.scene import load_scene
+
+    scene = load_scene('brittle_star')
+    rclpy.init()
+    node = rclpy.create_node('robot_publisher')
+    shape_pubs = {s: node.create_publisher(RobotShape, f'{NS}/model/shape/{s}', 10)
+                  for s in ('commanded', 'predicted')}
+    pubs = {(m.name, kind): node.create_publisher(
+        ModuleState if kind == 'state' else CableLength,
+        f'{NS}/{m.name}/' + {'command': 'cable_length/command',
+                             'measured': 'cable_length/measured', 'state': 'state'}[kind], 10)
+        for m in scene.modules for kind in ('command', 'measured', 'state')}
+    poses = []
+    for m in scene.modules:
+        pose = Pose()
+        pose.position.x, pose.position.y, pose.position.z = m.base_position_m
+        (pose.orientation.x, pose.orientation.y, pose.orientation.z,
+         pose.orientation.w) = m.base_orientation_xyzw
+        poses.append(pose)
+    spacing = scene.skeleton.spacing_mm
+    cached: dict = {}
+
+    def module_shape(m, i, source, phase, stamp):
+        key = (m.name, source, phase)
+        if key not in cached:  # like the model node: one message per solved shape
+            total = 0.4 * math.sin(phase * 0.07 + i) * (1.0 if source == 'commanded' else 0.9)
+            angles = [total / 11] * 11
+            shape = ModuleShape(module=m.name, source=source, converged=True, solve_time=1.5e-4)
+            shape.header.stamp = stamp
+            shape.angles = angles
+            shape.rib_centers = [Point(x=float(x) / 1000, y=float(y) / 1000, z=0.0)
+                                 for x, y in geometry.rib_centers(angles, spacing)]
+            cached.clear() if len(cached) > 100 else None
+            cached[key] = shape
+        return cached[key]
+
+    period = 1.0 / rate
+    start = time.monotonic()
+    tick = 0
+    try:
+        while True:
+            stamp = node.get_clock().now().to_msg()
+            for source, phase in (('commanded', tick), ('predicted', tick * 2 // 5)):
+                robot = RobotShape(robot='brittle_star')
+                robot.header.stamp = stamp
+                robot.modules = [module_shape(m, i, source, phase, stamp)
+                                 for i, m in enumerate(scene.modules)]
+                robot.base_poses = poses
+                shape_pubs[source].publish(robot)
+            for i, m in enumerate(scene.modules):
+                length = CableLength(cable_length=0.17 + 0.01 * math.sin(tick * 0.07 + i))
+                length.header.stamp = stamp
+                pubs[(m.name, 'command')].publish(length)
+                if tick % 5 in (0, 2):  # 20 Hz at a 50 Hz tick
+                    pubs[(m.name, 'measured')].publish(length)
+                    state = ModuleState(module=m.name, online=True, battery_voltage=7.4)
+                    state.header.stamp = stamp
+                    pubs[(m.name, 'state')].publish(state)
+            tick += 1
+            time.sleep(max(0.0, start + tick * period - time.monotonic()))
+    except KeyboardInterrupt:
+        pass
+
+
+def run_child(kind: str, *args: str) -> list[str]:
+    return [sys.executable, str(Path(__file__).resolve()), '--child', kind, *args]
+
+
+# ------------------------------------------------------------------ scenes
+def write_scene(path: Path, n_modules: int) -> Path:
+    """A synthetic scene: the brittle star's connector and its five threadings repeated
+    to ``n_modules`` legs named m00, m01, ..., spread around the connector."""
+    data = yaml.safe_load((ROOT / 'src/softsnap_gaits/scenes/brittle_star.yaml').read_text())
+    legs = data['modules']
+    modules = []
+    for i in range(n_modules):
+        leg = dict(legs[i % len(legs)])
+        leg['name'] = f'm{i:02d}'
+        leg['color'] = leg.get('color', 'grey')
+        leg['port'] = 9000 + i
+        yaw = 360.0 * i / n_modules
+        radius = 72.5 + 30.0 * (i // len(legs))
+        leg['base'] = {'position_mm': [radius * math.cos(math.radians(yaw)),
+                                       radius * math.sin(math.radians(yaw)), 0.0],
+                       'rpy_deg': [0.0, 0.0, yaw]}
+        leg.pop('parent', None)
+        modules.append(leg)
+    data['name'] = f'synthetic_{n_modules}'
+    data['modules'] = modules
+    names = [m['name'] for m in modules]
+    walk = dict(data['gaits'][data['default_gait']])
+    walk['groups'] = [names[0::2], names[1::2]]
+    data['gaits'] = {'walk': walk}
+    data['default_gait'] = 'walk'
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return path
+
+
+# ------------------------------------------------------------------ cases
+def model_args(scene: str, extra=()) -> list[str]:
+    return ['-r', f'__ns:={NS}', '-p', f'scene:={scene}', '-p', 'rate:=100.0', *extra]
+
+
+def case_model(code_dir, work: Path, scene: str, moving: bool | None, warmup, seconds):
+    """model_node with lengths from a publisher process (None: no lengths at all) and
+    both RobotShape topics subscribed by a listener process."""
+    log = work / 'model.log'
+    node = start_ros_node('model_node', model_args(scene, ['-p', 'diagnostics_period:=0.5']),
+                          code_dir, log)
+    helpers = [start(run_child('listen', 'model', str(work / 'counters')), None,
+                     work / 'listen.log')]
+    if moving is not None:
+        helpers.append(start(run_child('lengths', scene, '100', str(int(moving))), None,
+                             work / 'lengths.log'))
+    def working() -> bool:  # diagnostics arrive, and lengths are taken unless idle
+        counters = read_counters(work / 'counters')
+        return 'solves' in counters and (moving is None or counters['lengths'] > 0)
+
+    try:
+        return measure(node, warmup, seconds, log, work / 'counters', working)
+    finally:
+        for p in helpers:
+            stop(p)
+        stop(node)
+
+
+def listen(kind: str, out: str) -> None:
+    """(child process) Subscribe like the demo's consumers and write the node's own
+    counters to ``out``: model: both RobotShape topics (as the rerun logger) and
+    model/diagnostics (solves, lengths taken); driver: m1/state (commands received,
+    targets sent)."""
+    import rclpy
+    from softsnap_interfaces.msg import ModelDiagnostics, ModuleState, RobotShape
+    rclpy.init()
+    node = rclpy.create_node('bench_listener')
+    path = Path(out)
+
+    def write(values: dict) -> None:
+        tmp = path.with_suffix('.tmp')
+        tmp.write_text(''.join(f'{k} {v}\n' for k, v in values.items()))
+        tmp.rename(path)
+
+    if kind == 'model':
+        for source in ('commanded', 'predicted'):
+            node.create_subscription(RobotShape, f'{NS}/model/shape/{source}', lambda m: None, 10)
+        node.create_subscription(ModelDiagnostics, f'{NS}/model/diagnostics', lambda m: write({
+            'solves': m.solves,
+            'lengths': sum(m.commanded_lengths) + sum(m.measured_lengths)}), 10)
+    else:
+        node.create_subscription(ModuleState, f'{NS}/m1/state', lambda m: write({
+            'commands': m.commands_received, 'targets': m.targets_sent}), 10)
+    try:
+        rclpy.spin(node)
+    except BaseException:
+        pass
+
+
+def case_driver(code_dir, work: Path, warmup, seconds):
+    log = work / 'driver.log'
+    procs = [start(run_child('sim'), None, work / 'sim.log')]
+    try:
+        port_file = work / 'sim.port'
+        deadline = time.monotonic() + 60
+        while not port_file.exists() and time.monotonic() < deadline:
+            time.sleep(0.1)
+        port = int(port_file.read_text())
+        node = start_ros_node('driver_node', [
+            '-r', f'__ns:={NS}', '-p', 'module:=m1', '-p', f'port:={port}',
+            '-p', 'counts_per_mm:=89.13', '-p', 'straight_length_m:=0.198',
+            '-p', 'pwm_power:=255', '-p', 'poll_rate_hz:=10.0', '-p', 'command_timeout_s:=0.0'],
+            code_dir, log)
+        procs.append(node)
+        procs.append(start(run_child('listen', 'driver', str(work / 'counters')), None,
+                           work / 'listen.log'))
+        procs.append(start(run_child('commands', '50', '0.198'), None, work / 'commands.log'))
+        return measure(node, warmup, seconds, log, work / 'counters',
+                       lambda: read_counters(work / 'counters').get('commands', 0) > 0)
+    finally:
+        for p in reversed(procs):
+            stop(p)
+
+
+def run_sim(work: str) -> None:
+    """(child process) One simulated module; writes its port to <work>/sim.port."""
+    from softsnap_driver.sim_module import SimServer
+    with SimServer() as server:
+        tmp = Path(work) / 'sim.port.tmp'
+        tmp.write_text(str(server.port))
+        tmp.rename(Path(work) / 'sim.port')
+        try:
+            while True:
+                time.sleep(1.0)
+        except KeyboardInterrupt:
+            pass
+
+
+def case_rerun(code_dir, work: Path, warmup, seconds, recording: Path):
+    log = work / 'rerun.log'
+    node = start_ros_node('rerun_logger', [
+        '-r', f'__ns:={NS}', '-p', f'output:={recording}', '-p', 'scene:=brittle_star'],
+        code_dir, log)
+    pub = start(run_child('robot', '50'), None, work / 'robot.log')
+
+    def recording_grows() -> bool:  # the node logs: its file has grown past the static part
+        return recording.exists() and recording.stat().st_size > 200_000
+
+    try:
+        return measure(node, warmup, seconds, log, ready=recording_grows)
+    finally:
+        stop(pub)
+        stop(node)
+        logged = re.search(r'(\d+) messages logged', log.read_text(errors='replace'))
+        print(f'    rerun_logger: {logged.group(0) if logged else "no summary line"}', flush=True)
+
+
+def case_baseline(code_dir, work: Path, warmup, seconds):
+    log = work / 'baseline.log'
+    node = start([sys.executable, '-c', BASELINE_NODE], None, log)
+    try:
+        return measure(node, warmup, seconds, log)
+    finally:
+        stop(node)
+
+
+def entities(path: Path) -> set[str]:
+    from rerun.chunk import RrdReader
+    return {c.entity_path.lstrip('/') for c in RrdReader(str(path)).stream().to_chunks()}
+
+
+# ------------------------------------------------------------------ main
+def extract(ref: str, into: Path) -> Path:
+    archive = subprocess.run(['git', '-C', str(ROOT), 'archive', ref, 'src'],
+                             check=True, capture_output=True).stdout
+    subprocess.run(['tar', '-x', '-C', str(into)], input=archive, check=True)
+    # Compiled once here: the nodes run with PYTHONDONTWRITEBYTECODE and would otherwise
+    # compile the old sources at every start.
+    subprocess.run([sys.executable, '-m', 'compileall', '-q', str(into / 'src')], check=True)
+    return into
+
+
+def summary(values: list[float]) -> str:
+    if not values:
+        return '-'
+    return f'{statistics.median(values):6.2f} [{min(values):.2f}-{max(values):.2f}]'
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument('--seconds', type=float, default=10.0, help='measuring window (s)')
+    parser.add_argument('--warmup', type=float, default=4.0, help='before the window (s)')
+    parser.add_argument('--repeats', type=int, default=3)
+    parser.add_argument('--before', default='', help='git revision to compare against')
+    parser.add_argument('--cases', nargs='+', default=list(CASES), choices=CASES)
+    parser.add_argument('--child', nargs='+', help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    os.environ.setdefault('ROS_DOMAIN_ID', str(random.randint(120, 200) % 101 + 100))
+    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    if args.child:
+        kind, rest = args.child[0], args.child[1:]
+        {'lengths': lambda: publish_lengths(rest[0], float(rest[1]), bool(int(rest[2]))),
+         'commands': lambda: publish_driver_commands(float(rest[0]), float(rest[1])),
+         'robot': lambda: publish_robot(float(rest[0])),
+         'listen': lambda: listen(rest[0], rest[1]),
+         'sim': lambda: run_sim(os.environ['NODE_COST_WORK'])}[kind]()
+        return 0
+
+    print(f'load average at start: {" ".join(f"{v:.2f}" for v in os.getloadavg())} '
+          f'({os.cpu_count()} cores)', flush=True)
+    work = Path(tempfile.mkdtemp(prefix='node_cost_'))
+    os.environ['NODE_COST_WORK'] = str(work)
+    scene50 = write_scene(work / 'synthetic_50.yaml', 50)
+    versions = {'after': None}
+    if args.before:
+        versions = {'before': extract(args.before, Path(tempfile.mkdtemp(prefix='before_'))),
+                    'after': None}
+    results: dict[tuple[str, str], list[float]] = {}
+    recordings: dict[str, Path] = {}
+    throughput: dict[tuple[str, str, str], list[float]] = {}
+    for repeat in range(args.repeats):
+        for case in args.cases:
+            for label, code_dir in versions.items():
+                if case == 'baseline' and label == 'before':
+                    continue
+                run_dir = work / f'{case}-{label}-{repeat}'
+                run_dir.mkdir()
+                os.environ['NODE_COST_WORK'] = str(run_dir)
+                w, s = args.warmup, args.seconds
+                if case == 'baseline':
+                    cpu = case_baseline(code_dir, run_dir, w, s)
+                elif case == 'model5':
+                    cpu = case_model(code_dir, run_dir, 'brittle_star', True, w, s)
+                elif case == 'model_idle':
+                    cpu = case_model(code_dir, run_dir, 'brittle_star', None, w, s)
+                elif case == 'model50':
+                    cpu = case_model(code_dir, run_dir, str(scene50), True, w, s)
+                elif case == 'driver':
+                    cpu = case_driver(code_dir, run_dir, w, s)
+                else:
+                    recordings[label] = run_dir / 'robot.rrd'
+                    cpu = case_rerun(code_dir, run_dir, w, s, recordings[label])
+                cpu, rates = cpu
+                results.setdefault((case, label), []).append(cpu)
+                for name, rate in rates.items():
+                    throughput.setdefault((case, label, name), []).append(rate)
+                print(f'  repeat {repeat + 1}: {case:10s} {label:6s} {cpu:6.1f}% of a core'
+                      + ''.join(f', {name} {rate:.0f}/s' for name, rate in rates.items()),
+                      flush=True)
+
+    per_module = {'baseline': 1, 'model5': 5, 'model_idle': 5, 'model50': 50, 'driver': 1,
+                  'rerun': 5}
+    what = {'baseline': 'idle rclpy node, 100 Hz empty timer',
+            'model5': 'model_node, 5 modules, 100 Hz, all lengths changing',
+            'model_idle': 'model_node, 5 modules, 100 Hz, no lengths (idle)',
+            'model50': 'model_node, 50 modules, 100 Hz, all lengths changing',
+            'driver': 'driver_node, 10 Hz polls + 50 Hz commands',
+            'rerun': 'rerun_logger, 5 modules at 50 Hz'}
+    print()
+    print(f'CPU in % of one core, median [range] of {args.repeats} runs of {args.seconds:g} s'
+          + (f'; before = {args.before}' if args.before else ''))
+    print(f'{"case":56s} {"before":>22s} {"after":>22s} {"after/before":>12s} '
+          f'{"after per module":>16s}')
+    for case in args.cases:
+        before = results.get((case, 'before'), [])
+        after = results.get((case, 'after'), [])
+        ratio = (f'{statistics.median(after) / statistics.median(before):.2f}'
+                 if before and after and statistics.median(before) > 0 else '-')
+        print(f'{what[case]:56s} {summary(before):>22s} {summary(after):>22s} {ratio:>12s} '
+              f'{statistics.median(after) / per_module[case]:15.2f}%')
+    print('The nodes\' own counters over the same windows (median [range] per second), and '
+          'CPU per event (the machine\'s load changes how many events a starved node takes):')
+    for (case, label, name), rates in sorted(throughput.items()):
+        cpu = statistics.median(results[(case, label)])
+        rate = statistics.median(rates)
+        per = f', {cpu * 1e4 / rate:.0f} µs of CPU per {name[:-1]}' if rate > 0 else ''
+        print(f'  {case} {label}: {name} {rate:.0f}/s [{min(rates):.0f}-{max(rates):.0f}]{per}')
+    if 'model_idle' in args.cases:
+        idle = statistics.median(results[('model_idle', 'after')])
+        print(f'model_node idle tick (after): {idle / 100 * 10:.3f} ms of CPU per 10 ms tick')
+    if 'before' in recordings and 'after' in recordings:
+        e_before, e_after = entities(recordings['before']), entities(recordings['after'])
+        same = e_before == e_after
+        print(f'rerun recordings: {len(e_after)} entities after, {len(e_before)} before: '
+              f'{"the same set" if same else "DIFFERENT: " + str(e_before ^ e_after)}')
+    print(f'load average at end: {" ".join(f"{v:.2f}" for v in os.getloadavg())}')
+    print(f'(python {sys.version.split()[0]}; logs in {work})')
+    if 'before' in recordings and 'after' in recordings and not same:
+        return 1
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
