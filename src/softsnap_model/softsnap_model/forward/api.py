@@ -11,7 +11,6 @@ import numbers
 
 import numpy as np
 
-from ..geometry import half_angle_functions
 from ..skeleton import Skeleton
 from .newton import _solve_single
 from .path import _check_length, _describe, _problem, _single, _threading_tuple
@@ -43,24 +42,33 @@ def reachable_range(skeleton: Skeleton, threading) -> tuple[float, float]:
     return (prob.min_mm, prob.straight_mm)
 
 
-def _frames_single(angles, s, d):
-    """Rib centres and hole positions for one shape (few numpy calls)."""
-    n = angles.shape[0]
-    theta = np.zeros(n + 1)
-    np.cumsum(angles, out=theta[1:])
+def _frames(angles, s, d):
+    """Rib centres and hole positions (..., n + 1, 2) for angles (..., n), few numpy calls.
+
+    Points are complex numbers ``x + i y`` here: one ``exp`` gives both the cosine and
+    the sine of every rib orientation ``theta``, and the chord of segment ``i`` points
+    along ``theta_i + a_i / 2`` (``exp(i theta_i) exp(i a_i / 2)``) with length
+    ``s sin(a_i/2) / (a_i/2)`` (closed form, well conditioned; 1 at ``a_i = 0``). The
+    hole of rib ``k`` is ``d_k`` to its right: ``-i d_k exp(i theta_k)``.
+    """
+    lead, n = angles.shape[:-1], angles.shape[-1]
+    theta = np.zeros(lead + (n + 1,))
+    np.cumsum(angles, axis=-1, out=theta[..., 1:])
     half = 0.5 * angles
-    chord = s * half_angle_functions(half)[0]
-    mid = theta[:-1] + half
-    centers = np.zeros((n + 1, 2))
-    np.cumsum(chord * np.cos(mid), out=centers[1:, 0])
-    np.cumsum(chord * np.sin(mid), out=centers[1:, 1])
-    holes = centers.copy()
-    holes[:, 0] += d * np.sin(theta)
-    holes[:, 1] -= d * np.cos(theta)
-    return centers, holes
+    rot = np.exp(1j * theta)
+    sinc = np.divide(np.sin(half), half, out=np.ones(half.shape), where=half != 0.0)
+    points = np.zeros((2,) + lead + (n + 1,), dtype=complex)
+    centers = points[0]
+    np.cumsum((s * sinc) * (rot[..., :-1] * np.exp(1j * half)), axis=-1,
+              out=centers[..., 1:])
+    points[1] = centers - 1j * d * rot
+    xy = points.view(float).reshape((2,) + lead + (n + 1, 2))
+    return xy[0], xy[1]
 
 
 def _as_length(value, name='cable_length_mm') -> float:
+    if type(value) is float:    # the common case, without the abstract-class checks
+        return value
     if isinstance(value, bool) or not isinstance(value, (numbers.Real, np.floating,
                                                          np.integer)):
         raise ValueError(f'{name} must be a real number (mm), got {value!r}')
@@ -144,7 +152,8 @@ def solve_forward(skeleton: Skeleton, threading, cable_length_mm, initial=None, 
     _check_skeleton(skeleton)
     d = _threading_tuple(skeleton, threading)
     L = _as_length(cable_length_mm)
-    if isinstance(max_iter, bool) or not isinstance(max_iter, numbers.Integral) \
+    if type(max_iter) is not int and (isinstance(max_iter, bool)
+                                      or not isinstance(max_iter, numbers.Integral)) \
             or max_iter < 0:
         raise ValueError(f'max_iter must be an integer >= 0, got {max_iter!r}')
     prob, P, S = _single(skeleton, d)
@@ -165,13 +174,13 @@ def solve_forward(skeleton: Skeleton, threading, cable_length_mm, initial=None, 
     else:
         out = _solve_single(S, L, lam0, a0, max_iter=int(max_iter))
     angles = out['angles']
-    tie_break = S['mirror'] & (angles != 0.0)
+    tie_break = S['mirror'] & (angles != 0.0) if S['has_mirror'] else None
     if flip:
         # The mirror image of those segments: L(-a) = L(a) when d2 = -d1, so every
         # residual and the second-order check carry over unchanged.
         angles = angles.copy()
         angles[list(flip)] *= -1.0
-    centers, holes = _frames_single(angles, prob.s, prob.d)
+    centers, holes = _frames(angles, prob.s, prob.d)
     slack = bool(out['slack'])
     converged = bool(out['converged'])
     if slack:
@@ -192,7 +201,8 @@ def solve_forward(skeleton: Skeleton, threading, cable_length_mm, initial=None, 
         stationarity_residual=float(out['stationarity_residual']),
         is_minimum=bool(out['is_minimum']), min_curvature=float(out['min_curvature']),
         slack=slack, at_contact=out['at_contact'], cable_length_mm=L, message=message,
-        tie_break_segments=tuple(int(j) for j in np.nonzero(tie_break)[0]),
+        tie_break_segments=(tuple(np.flatnonzero(tie_break).tolist())
+                            if S['has_mirror'] else ()),
         mirror_flip=flip)
 
 

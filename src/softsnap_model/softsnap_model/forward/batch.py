@@ -11,9 +11,9 @@ import numbers
 import numpy as np
 
 from ..skeleton import Skeleton
-from .api import _check_skeleton
+from .api import _check_skeleton, _frames
 from .newton import _solve_arrays
-from .path import _check_length, _describe, _problem, _stack
+from .path import _check_length, _describe, _problem, _stack, _threading_tuple
 from .results import MAX_ITER, BatchResult, SweepResult
 
 
@@ -52,14 +52,7 @@ def solve_forward_batch(skeleton: Skeleton, threadings, cable_lengths_mm, *,
         items = list(threadings)
         if len(items) != nb:
             raise ValueError(f'expected {nb} threadings (one per length), got {len(items)}')
-        keys: dict = {}
-        ds, index = [], np.empty(nb, dtype=int)
-        for i, t in enumerate(items):
-            key = tuple(skeleton.threading_mm(t).tolist())
-            if key not in keys:
-                keys[key] = len(ds)
-                ds.append(np.array(key))
-            index[i] = keys[key]
+        ds, index = _group_threadings(skeleton, items)
     probs = [_problem(skeleton, tuple(d.tolist())) for d in ds]
     for j, prob in enumerate(probs):
         sel = lengths[index == j]
@@ -76,10 +69,39 @@ def solve_forward_batch(skeleton: Skeleton, threadings, cable_lengths_mm, *,
     return _batch_result(BatchResult, P, out, lengths)
 
 
+def _group_threadings(skeleton: Skeleton, items: list):
+    """Distinct threadings (offset arrays) of ``items`` and each item's index into them.
+
+    Converting a threading costs ~10-20 us (:meth:`Skeleton.threading_mm`), more than
+    solving it in a batch, so each distinct item is converted once: items that are the
+    same object (a list repeated) share one lookup, hashable ones go through the
+    memoised conversion, and a 2-D array of offsets is grouped by rows at once.
+    """
+    first = items[0] if items else None
+    if (isinstance(first, np.ndarray) and first.ndim == 1
+            and all(isinstance(t, np.ndarray) and t.shape == first.shape
+                    and t.dtype.kind in 'fiu' for t in items)):
+        uniq, index = np.unique(np.asarray(items, dtype=float), axis=0, return_inverse=True)
+        ds = [skeleton.threading_mm(row) for row in uniq]     # validates each once
+        return ds, index.reshape(-1)
+    keys: dict = {}
+    by_id: dict = {}
+    ds, index = [], np.empty(len(items), dtype=int)
+    for i, t in enumerate(items):
+        j = by_id.get(id(t))
+        if j is None:
+            key = _threading_tuple(skeleton, t)
+            j = keys.get(key)
+            if j is None:
+                j = keys[key] = len(ds)
+                ds.append(np.array(key))
+            by_id[id(t)] = j     # items stay referenced by ``items``: ids are stable
+        index[i] = j
+    return ds, index
+
+
 def _batch_result(cls, P, out, lengths, **extra):
-    from ..geometry import _rib_frames
-    centers, theta = _rib_frames(out['angles'], P['s'])
-    holes = centers + P['d'][..., None] * np.stack([np.sin(theta), -np.cos(theta)], axis=-1)
+    centers, holes = _frames(out['angles'], P['s'], P['d'])
     return cls(angles=out['angles'], rib_centers=centers, cable_path=holes,
                energy=out['energy'], tension=out['tension'], iterations=out['iterations'],
                converged=out['converged'], residual=out['residual'],

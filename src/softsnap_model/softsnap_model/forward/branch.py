@@ -223,6 +223,25 @@ def _branch_solve(mu, table_mu, table_b, direction, d1, d2, s, iters=30):
     return _branch_refine(mu, cell, direction, d1, d2, s, iters)
 
 
+def _branch_solve_segments(mu, table_mu, table_b, direction, d1, d2, s, iters=30):
+    """:func:`_branch_solve` for tensions ``mu`` (P, n) on per-segment tables (n, M).
+
+    The same cells and refinement (identical results), found by one binary search per
+    segment column instead of comparing every tension with every table entry (the
+    path-table build of a new threading, P ~ 400).
+    """
+    n, m = table_mu.shape
+    idx = np.empty(mu.shape, dtype=np.intp)
+    for i in range(n):
+        idx[:, i] = table_mu[i].searchsorted(mu[:, i], side='left')
+    idx = np.clip(idx, 1, m - 1)
+    cols = np.arange(n)
+    cell = (table_b[cols, idx - 1], table_b[cols, idx], table_mu[cols, idx - 1],
+            table_mu[cols, idx], table_mu[:, 0], table_mu[:, -1], table_b[:, 0],
+            table_b[:, -1])
+    return _branch_refine(mu, cell, direction, d1, d2, s, iters)
+
+
 def _branch_solve_pairs(mu, pair, prof, s, iters=30):
     """:func:`_branch_solve` for flat ``mu`` (N,) on the stacked profiles ``prof`` of U
     distinct pairs, ``pair`` (N,) indexing them: each pair's table is searched once per

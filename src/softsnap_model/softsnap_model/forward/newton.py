@@ -14,7 +14,7 @@ import numpy as np
 
 from ..geometry import _g_series, segment_length_derivatives
 from .branch import _branch_solve
-from .path import _PER_ITEM
+from .path import _PER_ITEM, _Q_DEGREE
 from .results import CONSTRAINT_TOL_MM, MAX_ITER, STATIONARITY_TOL_RAD
 
 
@@ -31,6 +31,15 @@ _INNER_TOL_RAD = 1e-14
 WARM_START_RADIUS_RAD = 1e-6
 
 _CUBIC = np.arange(4, dtype=float)
+# The batch Newton iterates on the unconverged rows alone once they are at most this
+# fraction of the batch (slicing the per-row data costs about one iteration).
+_SHRINK_FRACTION = 0.5
+#: Constraint target of the Newton loops in units in the last place of the cable length:
+#: the inner target is ``max(1e-12 mm, _CONSTRAINT_ULPS ulp(L))`` (1e-12 mm up to 512 mm).
+_CONSTRAINT_ULPS = 16
+# Reductions without the ndarray-method wrappers (a single solve is call overhead).
+_add_reduce = np.add.reduce
+_max_reduce = np.maximum.reduce
 
 
 def _start_from_table(P, L_t):
@@ -120,6 +129,9 @@ def _newton(P, L_t, lam, b, lam_lo, lam_hi, max_iter, tol_mm, tol_rad, active=No
     iters = np.zeros(L_t.shape, dtype=int)
     active = np.ones(L_t.shape, dtype=bool) if active is None else active.copy()
     held = np.zeros(b.shape, dtype=bool)
+    # The constraint target scales with the cable: 1e-12 mm is ~2 ulp of a 3.5 m cable
+    # (192 ribs), below what a sum of 191 lengths resolves.
+    tol_mm = np.maximum(tol_mm, _CONSTRAINT_ULPS * np.spacing(np.abs(L_t)))
     for it in range(max_iter + 1):
         lamc = lam[:, None]
         if has_mirror:
@@ -138,8 +150,16 @@ def _newton(P, L_t, lam, b, lam_lo, lam_hi, max_iter, tol_mm, tol_rad, active=No
         f[fixed] = 0.0
         stat = np.abs(f).max(axis=1)
         active &= (np.abs(g) > tol_mm) | (stat > tol_rad)
-        if it == max_iter or not active.any():
+        n_active = int(np.count_nonzero(active))
+        if it == max_iter or n_active == 0:
             break
+        if n_active <= _SHRINK_FRACTION * active.shape[0] and n_active < active.shape[0]:
+            # Most rows are done: iterate on the rest only (converged rows keep this
+            # evaluation, which is what certifies them).
+            return _newton_rest(P, L_t, lam, b, lam_lo, lam_hi, max_iter - it, tol_mm,
+                                tol_rad, active, iters, dict(
+                                    lam=lam, b=b, length=length, lp=lp, l_aa=l_aa, g=g,
+                                    stat=stat, held=held, contact=contact))
         iters += active
         inv = 1.0 / lp
         ft = -two_k * b * inv - lamc                  # k phi(b) - lambda
@@ -170,15 +190,55 @@ def _newton(P, L_t, lam, b, lam_lo, lam_hi, max_iter, tol_mm, tol_rad, active=No
                 held=held, contact=contact, curv=curv, iters=iters)
 
 
+def _eval_single(b, S):
+    """``l, l', l''`` of one problem's segments: :func:`_branch_eval` in fewer numpy calls.
+
+    A single solve costs numpy's per-call overhead, not arithmetic (11-element arrays),
+    so this evaluates ``Q = l^2 = (d1 - d2)^2 + g(b) (s + e1 b)(s + e2 b)`` as one
+    polynomial in ``b`` per segment, whose coefficients for ``Q, Q', Q''``
+    (``S['q_coef']``, :func:`_q_coefficients`) are the same truncated series of ``g``
+    multiplied out: powers of ``b`` by one cumulative product (``pow`` costs more than
+    the rest on small arrays), the three polynomials by one batched matrix product.
+    Then ``l = sqrt(Q)``, ``l' = Q' / 2l``, ``l'' = (Q'' - 2 l'^2) / 2l``, the algebra
+    of :func:`_branch_eval`; the two agree to a few ulp.
+    """
+    powers = np.repeat(b[:, None], _Q_DEGREE + 1, axis=1)
+    powers[:, 0] = 1.0
+    np.multiply.accumulate(powers, axis=1, out=powers)
+    q = np.matmul(powers[:, None, :], S['q_coef'])[:, 0, :]
+    length = np.sqrt(q[:, 0])
+    half_inv = 0.5 / length
+    lp = q[:, 1] * half_inv
+    lpp = (q[:, 2] - 2.0 * lp * lp) * half_inv
+    return length, lp, lpp
+
+
+def _newton_rest(P, L_t, lam, b, lam_lo, lam_hi, max_iter, tol_mm, tol_rad, active,
+                 iters, state):
+    """Finish :func:`_newton` on its still-active rows as a sub-batch; merge the rest."""
+    rows = np.nonzero(active)[0]
+    sub = {key: (val[rows] if key in _PER_ITEM else val) for key, val in P.items()}
+    st = _newton(sub, L_t[rows], lam[rows], b[rows], lam_lo[rows], lam_hi[rows], max_iter,
+                 tol_mm[rows], tol_rad)
+    out = {key: val.copy() for key, val in state.items()}
+    for key in out:
+        out[key][rows] = st[key]
+    out['iters'] = iters.copy()
+    out['iters'][rows] += st['iters']
+    out['curv'] = _curvature(P, out['lam'], out['b'], out['lp'], out['l_aa'], out['held'])
+    return out
+
+
 def _newton_single(S, L_t, lam, b, lam_lo, lam_hi, max_iter, tol_mm, tol_rad,
                    derive_lam=False):
     """:func:`_newton` for one problem with plain-float control flow.
 
     Same iteration and safeguards; 1-D arrays over segments and Python floats for the
-    tension, so an iteration is ~40 small numpy calls (the cost of a single solve).
+    tension, so an iteration is ~30 small numpy calls (the cost of a single solve).
     With ``derive_lam`` the tension is first replaced by the least-squares multiplier
     of the angles ``b`` (``min ||2 k b + lambda l'||`` over the segments neither
-    straight nor at their branch end), from the first evaluation.
+    straight nor at their branch end), from the first evaluation. Call it inside
+    ``np.errstate(all='ignore')`` (divisions by zero only occur in masked entries).
     """
     lam_c, lam_end, b_end = S['lam_c'], S['lam_end'], S['b_end']
     two_k, inv_two_k = S['two_k'], S['inv_two_k']
@@ -188,7 +248,7 @@ def _newton_single(S, L_t, lam, b, lam_lo, lam_hi, max_iter, tol_mm, tol_rad,
     it = 0
     first = None
     if derive_lam:
-        first = _branch_eval(b, S)
+        first = _eval_single(b, S)
         lp = np.where((b < b_end) & ((b > 0.0) | ~mirror), first[1], 0.0)
         den = float(lp @ lp)
         if den > 0:
@@ -205,14 +265,14 @@ def _newton_single(S, L_t, lam, b, lam_lo, lam_hi, max_iter, tol_mm, tol_rad,
         if fixed is not None and not fixed.any():
             fixed = None
         if first is None:
-            length, lp, l_aa = _branch_eval(b, S)
+            length, lp, l_aa = _eval_single(b, S)
         else:
             (length, lp, l_aa), first = first, None
-        g = float(length.sum()) - L_t
+        g = float(_add_reduce(length)) - L_t
         f = b + lam * inv_two_k * lp
         if fixed is not None:
             f[fixed] = 0.0
-        stat = float(np.abs(f).max())
+        stat = float(_max_reduce(np.abs(f)))
         if (abs(g) <= tol_mm and stat <= tol_rad) or it == max_iter:
             break
         it += 1
@@ -223,7 +283,7 @@ def _newton_single(S, L_t, lam, b, lam_lo, lam_hi, max_iter, tol_mm, tol_rad,
         if fixed is not None:
             ft[fixed] = 0.0
             w[fixed] = 0.0
-        dlam = (float(w @ ft) - g) / float(w.sum())
+        dlam = (float(w @ ft) - g) / float(_add_reduce(w))
         db = (dlam - ft) / jac
         if fixed is not None:
             db[fixed] = 0.0
@@ -379,19 +439,27 @@ def _solve_single(S, L, lam0=None, a0=None, max_iter=MAX_ITER, fallback=True):
     only if it already meets the inner tolerances (no Newton step); otherwise the solve
     is exactly the cold one. So a warm start never costs Newton iterations or accuracy.
     """
+    # One floating-point context for the whole solve (entering one costs as much as a
+    # few numpy calls): divisions by zero only occur in masked-out entries.
+    with np.errstate(all='ignore'):
+        return _solve_single_inner(S, L, lam0, a0, max_iter, fallback)
+
+
+def _solve_single_inner(S, L, lam0, a0, max_iter, fallback):
+    tol_mm = max(_INNER_TOL_MM, _CONSTRAINT_ULPS * math.ulp(L))
     m = S['n_path']
-    j = int(np.searchsorted(S['neg_path_len'], -L, side='left'))
+    j = int(S['neg_path_len'].searchsorted(-L, side='left'))
     j = min(max(j, 1), m - 1)
-    len_lo, len_hi = -S['neg_path_len'][j - 1], -S['neg_path_len'][j]
-    lam_lo, lam_hi = float(S['path_lam'][j - 1]), float(S['path_lam'][j])
+    len_lo, len_hi = S['path_len_list'][j - 1], S['path_len_list'][j]
+    lam_lo, lam_hi = S['path_lam_list'][j - 1], S['path_lam_list'][j]
     w = (len_lo - L) / (len_lo - len_hi) if len_lo > len_hi else 0.5
-    start = (w ** _CUBIC) @ S['path_poly'][j - 1]
+    start = np.array([1.0, w, w * w, w * w * w]) @ S['path_poly'][j - 1]
     b, lam = start[:-1], float(start[-1])
     st = None
     if a0 is not None:
         # Cheap screen first: the max-norm distance can be within the radius only if
         # the sums are within n times it (a NaN or inf angle fails here and raises).
-        gap = float(S['direction'] @ a0) - float(S['ones'] @ b)
+        gap = float(S['direction'] @ a0) - float(b.sum())
         if not math.isfinite(gap):
             raise ValueError(f'initial: angles must be finite, got {a0.tolist()}')
         if (abs(gap) <= b.size * WARM_START_RADIUS_RAD
@@ -400,33 +468,36 @@ def _solve_single(S, L, lam0=None, a0=None, max_iter=MAX_ITER, fallback=True):
             # tension, given or derived from it); keep it only if it already is.
             b_w = np.fmin(np.fmax(S['direction'] * a0, 0.0), S['b_end'])
             given = lam0 is not None and lam_lo <= lam0 <= lam_hi
-            with np.errstate(all='ignore'):
-                st = _newton_single(S, L, lam0 if given else lam, b_w, lam_lo, lam_hi, 0,
-                                    _INNER_TOL_MM, _INNER_TOL_RAD, not given)
-            if not (abs(st['g']) <= _INNER_TOL_MM and st['stat'] <= _INNER_TOL_RAD):
+            st = _newton_single(S, L, lam0 if given else lam, b_w, lam_lo, lam_hi, 0,
+                                tol_mm, _INNER_TOL_RAD, not given)
+            if not (abs(st['g']) <= tol_mm and st['stat'] <= _INNER_TOL_RAD):
                 st = None
     if st is None:
         if S['has_mirror']:
             past = S['mirror'] & (lam > S['lam_c']) & (lam < S['lam_1'])
             if past.any():
                 b = np.where(past, _kick_b(S['P'], np.array([lam]))[0], b)
-        with np.errstate(all='ignore'):
-            st = _newton_single(S, L, lam, b, lam_lo, lam_hi, max_iter, _INNER_TOL_MM,
-                                _INNER_TOL_RAD)
-    with np.errstate(all='ignore'):
-        curv = _curvature(S['P'], np.array([st['lam']]), st['b'][None], st['lp'][None],
-                          st['l_aa'][None], st['held'][None])[0]
-    curv_min = float(np.min(curv, where=~st['contact'], initial=np.inf))
-    ok = (abs(st['g']) <= CONSTRAINT_TOL_MM and st['stat'] <= STATIONARITY_TOL_RAD
-          and curv_min > 0)
-    if not ok and fallback:
-        out = _solve_arrays(S['P'], np.array([L]), max_iter=max_iter)
-        return {key: val[0] for key, val in out.items()}
-    b = st['b']
-    angles = S['direction'] * b
+        st = _newton_single(S, L, lam, b, lam_lo, lam_hi, max_iter, tol_mm,
+                            _INNER_TOL_RAD)
+    b, lp, l_aa, contact = st['b'], st['lp'], st['l_aa'], st['contact']
+    # Second-order check (:func:`_curvature` for one problem): the equilibrium form
+    # (l' - b l'')/l' per free segment, its series next to a pitchfork, and the plain
+    # form for mirror segments held straight.
+    curv = (lp - b * l_aa) / lp
+    if S['has_mirror']:
+        near_pitchfork = S['mirror'] & (b < 1e-3)
+        curv = np.where(near_pitchfork, S['two_beta'] * b * b, curv)
+        curv = np.where(st['held'], 1.0 + st['lam'] * l_aa * S['inv_two_k'], curv)
+    curv_min = float(np.min(curv, where=~contact, initial=np.inf))
     g = abs(st['g'])
+    ok = g <= CONSTRAINT_TOL_MM and st['stat'] <= STATIONARITY_TOL_RAD and curv_min > 0
+    if not ok and fallback:
+        out = _solve_arrays_inner(S['P'], np.array([L]), max_iter, _INNER_TOL_MM,
+                                  _INNER_TOL_RAD)
+        return {key: val[0] for key, val in out.items()}
+    angles = S['direction'] * b
     return dict(angles=angles, tension=st['lam'], energy=float(S['k'] @ (angles * angles)),
                 iterations=st['iters'], converged=ok, constraint_residual=g,
                 stationarity_residual=st['stat'], residual=max(g, st['stat']),
                 is_minimum=curv_min > 0, min_curvature=curv_min if curv_min < np.inf else 1.0,
-                slack=False, at_contact=st['contact'])
+                slack=False, at_contact=contact)

@@ -14,9 +14,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..geometry import _G_COEF, _G_TERMS
 from ..skeleton import Skeleton
-from .branch import _BRANCH_SAMPLES, _branch_derivs, _branch_solve, _pair_profiles
+from .branch import _BRANCH_SAMPLES, _branch_derivs, _branch_solve_segments, _pair_profiles
 from .results import InfeasibleLengthError, SnapThroughError
+
+
+#: Threadings whose problem data and path tables stay cached (least recently used
+#: first out; about 0.3 MB each, so a full cache holds about 0.7 GB). Large enough that a
+#: loop over every threading of 7 ribs with 3 holes (3^7 = 2187) or a robot's modules
+#: never rebuilds a table per solve (a rebuild costs a few ms).
+_THREADINGS_CACHED = 2560
 
 
 @dataclass(frozen=True)
@@ -46,7 +54,7 @@ class _Problem:
     path_poly: np.ndarray    # (P-1, 4, n+1) start polynomial per cell, see _path_polynomials
 
 
-@functools.lru_cache(maxsize=256)
+@functools.lru_cache(maxsize=_THREADINGS_CACHED)
 def _problem(skeleton: Skeleton, d: tuple) -> _Problem:
     s = skeleton.spacing_mm
     b_max = skeleton.contact_angle_rad
@@ -79,11 +87,7 @@ def _problem(skeleton: Skeleton, d: tuple) -> _Problem:
         lam_path = np.unique(np.concatenate([lam_path[keep], lam_c, lam_end, [lam_top]]))
         lam_path = lam_path[lam_path <= lam_top]
     mu = lam_path[:, None] / k[None, :]
-    shape = mu.shape
-    tm = np.broadcast_to(table_mu, shape + table_mu.shape[-1:])
-    tb = np.broadcast_to(table_b, shape + table_b.shape[-1:])
-    bb = _branch_solve(mu, tm, tb, np.broadcast_to(direction, shape),
-                       np.broadcast_to(d1, shape), np.broadcast_to(d2, shape), s)
+    bb = _branch_solve_segments(mu, table_mu, table_b, direction, d1, d2, s)
     lengths, lp, lpp = _branch_derivs(bb, direction, d1, d2, s)
     path_len = np.minimum.accumulate(lengths.sum(axis=1))
     path_len[0] = straight
@@ -168,7 +172,7 @@ def _describe(skeleton: Skeleton, d: np.ndarray) -> str:
     return ' '.join(n if n is not None else f'{v:g}' for n, v in zip(names, d))
 
 
-@functools.lru_cache(maxsize=1024)
+@functools.lru_cache(maxsize=2 * _THREADINGS_CACHED)
 def _threading_cached(skeleton: Skeleton, key: tuple) -> tuple:
     return tuple(skeleton.threading_mm(list(key)).tolist())
 
@@ -189,33 +193,79 @@ _PER_ITEM = ('uid', 'k', 'd', 'd1', 'd2', 'direction', 'lam_c', 'lam_end', 'mu_c
 
 
 def _stack(probs, index):
-    """Batch arrays: small per-item (B, n) arrays, tables once per distinct threading.
+    """Batch arrays: per-item (B, n) arrays, tables once per distinct threading.
 
     ``index`` (B,) maps batch rows to ``probs``; keys in :data:`_PER_ITEM` have the
-    batch as leading axis (and are what a sub-batch slices).
+    batch as leading axis (and are what a sub-batch slices). The per-segment fields are
+    computed once per threading and gathered for the rows in one indexing operation
+    (read-only views of it); with one threading they are broadcast views, no copy.
     """
-    def rows(attr):
-        return np.stack([getattr(p, attr) for p in probs])[index]
-    k, mu_c, beta = rows('k'), rows('mu_c'), rows('beta')
-    d1, d2, direction = rows('d1'), rows('d2'), rows('direction')
+    index = np.asarray(index)
+    nb = index.shape[0]
     tables_mu = np.stack([p.table_mu for p in probs])
     tables_b = np.stack([p.table_b for p in probs])
+    k = np.stack([p.k for p in probs])
+    mu_c = np.stack([p.mu_c for p in probs])
+    beta = np.stack([p.beta for p in probs])
+    d1 = np.stack([p.d1 for p in probs])
+    d2 = np.stack([p.d2 for p in probs])
+    direction = np.stack([p.direction for p in probs])
     mirror = mu_c > 0
-    return dict(
-        uid=np.asarray(index), s=probs[0].s, has_mirror=bool(mirror.any()),
-        tables_mu=tables_mu, tables_b=tables_b,
-        paths=[(p.path_len, p.path_lam, p.path_poly) for p in probs],
-        k=k, d=rows('d'), d1=d1, d2=d2, direction=direction, lam_c=rows('lam_c'),
-        lam_end=rows('lam_end'), mu_c=mu_c, beta=beta, b_end=rows('b_end'), mirror=mirror,
+    fields = dict(
+        k=k, d1=d1, d2=d2, direction=direction, lam_c=np.stack([p.lam_c for p in probs]),
+        lam_end=np.stack([p.lam_end for p in probs]), mu_c=mu_c, beta=beta,
+        b_end=np.stack([p.b_end for p in probs]),
         mu_c_safe=np.where(mirror, mu_c, 1.0), beta_safe=np.where(mirror, beta, 1.0),
-        mu_1=tables_mu[index, :, 1], lam_1=k * tables_mu[index, :, 1],
-        b_1=tables_b[index, :, 1],
+        mu_1=tables_mu[:, :, 1], lam_1=k * tables_mu[:, :, 1], b_1=tables_b[:, :, 1],
         e1=d1 * direction, e2=d2 * direction, two_e1e2=2.0 * d1 * d2, dd2=(d1 - d2) ** 2,
-        two_k=2.0 * k, inv_two_k=0.5 / k,
-        straight=np.array([p.straight_mm for p in probs])[index])
+        two_k=2.0 * k, inv_two_k=0.5 / k)
+    names = list(fields)
+    table = np.stack([fields[name] for name in names], axis=1)        # (U, F, n)
+    d = np.stack([p.d for p in probs])
+    straight = np.array([p.straight_mm for p in probs])
+    if len(probs) == 1:
+        rows = np.broadcast_to(table[0], (nb,) + table.shape[1:])
+        out = dict(d=np.broadcast_to(d[0], (nb, d.shape[1])),
+                   mirror=np.broadcast_to(mirror[0], (nb, mirror.shape[1])),
+                   straight=np.broadcast_to(straight[0], (nb,)))
+    else:
+        rows = table[index]
+        out = dict(d=d[index], mirror=mirror[index], straight=straight[index])
+    out.update({name: rows[:, f] for f, name in enumerate(names)})
+    out.update(uid=index, s=probs[0].s, has_mirror=bool(mirror.any()),
+               tables_mu=tables_mu, tables_b=tables_b,
+               paths=[(p.path_len, p.path_lam, p.path_poly) for p in probs])
+    return out
 
 
-@functools.lru_cache(maxsize=256)
+#: Degree in ``b`` of ``Q = l^2`` as evaluated by :func:`.newton._eval_single` (the series of
+#: ``g`` to ``b^(2 (_G_TERMS - 1))`` times a quadratic).
+_Q_DEGREE = 2 * _G_TERMS
+
+
+def _q_coefficients(dd2, s, e1, e2):
+    """(n, _Q_DEGREE + 1, 3) coefficients of ``Q, Q', Q''`` in powers of ``b`` per segment.
+
+    ``Q = dd2 + sum_j gamma_j b^(2j) (s^2 + s (e1 + e2) b + e1 e2 b^2)`` with ``gamma_j``
+    the series of ``g`` (:data:`softsnap_model.geometry._G_COEF`, column 0).
+    """
+    n = dd2.shape[0]
+    gamma = _G_COEF[:, 0]
+    q = np.zeros((n, _Q_DEGREE + 3))
+    q[:, 0] = dd2
+    t = gamma.shape[0]
+    q[:, 0:2 * t:2] += gamma * (s * s)
+    q[:, 1:2 * t + 1:2] += gamma * (s * (e1 + e2))[:, None]
+    q[:, 2:2 * t + 2:2] += gamma * (e1 * e2)[:, None]
+    m = np.arange(_Q_DEGREE + 1)
+    out = np.empty((n, _Q_DEGREE + 1, 3))
+    out[:, :, 0] = q[:, :_Q_DEGREE + 1]
+    out[:, :, 1] = (m + 1) * q[:, 1:_Q_DEGREE + 2]
+    out[:, :, 2] = (m + 1) * (m + 2) * q[:, 2:_Q_DEGREE + 3]
+    return out
+
+
+@functools.lru_cache(maxsize=_THREADINGS_CACHED)
 def _single(skeleton: Skeleton, d: tuple):
     """Problem data stacked as a batch of one, plus 1-D views for the single-solve path
     (memoised with the problem)."""
@@ -227,5 +277,9 @@ def _single(skeleton: Skeleton, d: tuple):
     S.update(P=P, lam_end_min=float(prob.lam_end.min()),
              neg_path_len=-prob.path_len, path_lam=prob.path_lam, path_poly=prob.path_poly,
              straight=prob.straight_mm, n_path=prob.path_len.size,
-             ones=np.ones(prob.k.shape), has_finite_end=bool(finite_end.size))
+             ones=np.ones(prob.k.shape), has_finite_end=bool(finite_end.size),
+             # For the single-solve evaluation (newton._eval_single): l^2 as polynomials
+             # in b; the cell search reads Python floats (cheaper than array items).
+             q_coef=_q_coefficients(S['dd2'], prob.s, S['e1'], S['e2']), two_beta=2.0 * prob.beta, path_len_list=prob.path_len.tolist(),
+             path_lam_list=prob.path_lam.tolist())
     return prob, P, S
