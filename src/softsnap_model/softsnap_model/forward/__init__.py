@@ -51,8 +51,10 @@ Layout of this subpackage
 
 Caches (the only process-wide state; each is a pure function of its key, so it changes
 the cost, never an answer): per hole-pair profiles (``branch._PROFILE_CACHE``), and
-per threading the problem and path tables (``path._problem``, ``path._single``) and the
-hole offsets of a threading given by name (``path._threading_cached``).
+per threading the problem and path tables (``path._problem``, ``path._single``,
+``path._single_named``) and the hole offsets of a threading given by name
+(``path._threading_cached``), least recently used out beyond
+``path._THREADINGS_CACHED`` (2560) threadings, about 0.3 MB each.
 :func:`clear_caches` empties them all (benchmarks use it to time a first solve).
 """
 from __future__ import annotations
@@ -62,7 +64,7 @@ from .batch import solve_forward_batch, sweep
 from .branch import (_PROFILE_CACHE, _PROFILE_LOCK, SegmentBranch, _branch_derivs, _branch_solve,
                      _pair_profile_array, segment_angle_at_tension, segment_branch)
 from .newton import WARM_START_RADIUS_RAD, _solve_single
-from .path import _problem, _single, _threading_cached
+from .path import _problem, _single, _single_named, _threading_cached
 from .results import (CONSTRAINT_TOL_MM, MAX_ITER, STATIONARITY_TOL_RAD, BatchResult,
                       ForwardResult, InfeasibleLengthError, SnapThroughError, SweepResult)
 
@@ -80,7 +82,7 @@ def clear_caches() -> None:
 
     Only the cost of the next solves changes; answers are the same.
     """
-    for cached in (_problem, _single, _threading_cached):
+    for cached in (_problem, _single, _single_named, _threading_cached):
         cached.cache_clear()
     with _PROFILE_LOCK:
         _PROFILE_CACHE.clear()

@@ -13,7 +13,7 @@ import numpy as np
 
 from ..skeleton import Skeleton
 from .newton import _solve_single
-from .path import _check_length, _describe, _problem, _single, _threading_tuple
+from .path import _check_length, _describe, _problem, _single_for
 from .results import MAX_ITER, ForwardResult
 
 
@@ -150,13 +150,12 @@ def solve_forward(skeleton: Skeleton, threading, cable_length_mm, initial=None, 
     (True, (11,), True)
     """
     _check_skeleton(skeleton)
-    d = _threading_tuple(skeleton, threading)
+    prob, P, S = _single_for(skeleton, threading)
     L = _as_length(cable_length_mm)
     if type(max_iter) is not int and (isinstance(max_iter, bool)
                                       or not isinstance(max_iter, numbers.Integral)) \
             or max_iter < 0:
         raise ValueError(f'max_iter must be an integer >= 0, got {max_iter!r}')
-    prob, P, S = _single(skeleton, d)
     flip = _mirror_flip_indices(mirror_flip, S['mirror'])
     if not (math.isfinite(L) and L > prob.min_mm):
         _check_length(prob, np.array([L]), skeleton, _describe(skeleton, prob.d))

@@ -3,7 +3,8 @@
 Owns :class:`_Problem` (everything about one skeleton and threading that does not depend
 on the length: per-segment tensions where branches start and end, the exact samples of
 the whole quasi-static path and its cubic start polynomials), the memoised builders
-(:func:`_problem`, :func:`_single`, :func:`_threading_cached`), the batch layout of
+(:func:`_problem`, :func:`_single`, :func:`_single_named`,
+:func:`_threading_cached`), the batch layout of
 problem data (:func:`_stack`) and the length checks that raise the documented errors.
 Every cache here is a pure function of its key.
 """
@@ -283,3 +284,20 @@ def _single(skeleton: Skeleton, d: tuple):
              q_coef=_q_coefficients(S['dd2'], prob.s, S['e1'], S['e2']), two_beta=2.0 * prob.beta, path_len_list=prob.path_len.tolist(),
              path_lam_list=prob.path_lam.tolist())
     return prob, P, S
+
+
+@functools.lru_cache(maxsize=2 * _THREADINGS_CACHED)
+def _single_named(skeleton: Skeleton, key: tuple):
+    """:func:`_single` for a threading given as a hashable tuple of names or offsets
+    (one cache lookup per solve instead of two; shares the entries of :func:`_single`)."""
+    return _single(skeleton, _threading_cached(skeleton, key))
+
+
+def _single_for(skeleton: Skeleton, threading):
+    """``(problem, P, S)`` of any accepted threading form (memoised for hashable input)."""
+    if isinstance(threading, (list, tuple)):
+        try:
+            return _single_named(skeleton, tuple(threading))
+        except TypeError:   # unhashable items: convert (and fail) the normal way
+            pass
+    return _single(skeleton, tuple(skeleton.threading_mm(threading).tolist()))
