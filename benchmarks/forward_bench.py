@@ -176,10 +176,57 @@ def threading_loop(n_lengths=2):
     return passes[0], passes[1], rss, len(ts)
 
 
+def load_before(rev):
+    """The single-file solver ``src/softsnap_model/softsnap_model/forward.py`` of git
+    revision ``rev`` (before the split of issue 17), as a module next to the current one,
+    so that both run side by side in this process on the same problems."""
+    import importlib.util
+    import subprocess
+    import tempfile
+    text = subprocess.run(['git', '-C', str(REPO), 'show',
+                           f'{rev}:src/softsnap_model/softsnap_model/forward.py'],
+                          check=True, capture_output=True, text=True).stdout
+    path = Path(tempfile.mkdtemp()) / 'forward_before.py'
+    path.write_text(text)
+    spec = importlib.util.spec_from_file_location('softsnap_model._forward_before', path)
+    module = importlib.util.module_from_spec(spec)
+    module.__package__ = 'softsnap_model'
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def side_by_side(before, probs, reps, rounds):
+    """Ratios (before / now) of CPU times, interleaved round by round: single cold solve
+    (median over problems), batch of one threading and of mixed threadings; plus the
+    largest angle difference between the two solvers."""
+    yellow = THREADINGS['yellow'].split()
+    yl = np.linspace(130.0, 198.0, 20000)
+    ts = [p[1] for p in probs] * (20000 // len(probs))
+    ls = [p[2] for p in probs] * (20000 // len(probs))
+    diff = max(float(np.max(np.abs(before.solve_forward(SK, t, length).angles
+                                   - solve_forward(SK, t, length).angles)))
+               for _, t, length in probs)
+    ratios = {'single': [], 'batch, one threading': [], 'batch, mixed': []}
+    for _ in range(rounds):
+        times = {}
+        for label, mod in (('before', before), ('now', fwd)):
+            times[label] = (
+                statistics.median(timed(lambda: mod.solve_forward(SK, t, length), reps,
+                                        time.thread_time)[0] for _, t, length in probs),
+                timed(lambda: mod.solve_forward_batch(SK, yellow, yl), 1, time.thread_time)[0],
+                timed(lambda: mod.solve_forward_batch(SK, ts, ls), 1, time.thread_time)[0])
+        for key, b, n in zip(ratios, times['before'], times['now']):
+            ratios[key].append(b / n)
+    return ratios, diff
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument('--quick', action='store_true', help='fewer problems and repeats')
     ap.add_argument('--rounds', type=int, default=5, help='repeats of each timed figure')
+    ap.add_argument('--before', metavar='REV', help='also time the single-file solver of '
+                    'this git revision side by side (e.g. b3d97c3, before issue 17)')
     args = ap.parse_args()
     print(load_line('start'))
     n_per = 2 if args.quick else 4
@@ -324,6 +371,15 @@ def main():
         print(f'  loop over {loop[3]} threadings, length-major: {loop[0] * 1e6:.0f} us per '
               f'solve (first pass), {loop[1] * 1e6:.0f} us (second pass; no table rebuilt); '
               f'peak RSS {loop[2]:.0f} MiB')
+    if args.before:
+        before = load_before(args.before)
+        for t in THREADINGS.values():     # build its tables before timing
+            before.reachable_range(SK, t.split())
+        ratios, diff = side_by_side(before, probs, reps, rounds)
+        print(f'side by side with the solver of {args.before} (CPU time ratio before / now, '
+              f'median (range) over {rounds} interleaved rounds; angles agree to {diff:.1e} rad):')
+        for key, values in ratios.items():
+            print(f'  {key}: {fmt_spread(values, 1, 2)}x')
     print(load_line('end'))
 
     import matplotlib
