@@ -196,7 +196,7 @@ def _eval_single(b, S):
     A single solve costs numpy's per-call overhead, not arithmetic (11-element arrays),
     so this evaluates ``Q = l^2 = (d1 - d2)^2 + g(b) (s + e1 b)(s + e2 b)`` as one
     polynomial in ``b`` per segment, whose coefficients for ``Q, Q', Q''``
-    (``S['q_coef']``, :func:`_q_coefficients`) are the same truncated series of ``g``
+    (``S['q_coef']``, :func:`.path._q_coefficients`) are the same truncated series of ``g``
     multiplied out: powers of ``b`` by one cumulative product (``pow`` costs more than
     the rest on small arrays), the three polynomials by one batched matrix product.
     Then ``l = sqrt(Q)``, ``l' = Q' / 2l``, ``l'' = (Q'' - 2 l'^2) / 2l``, the algebra
