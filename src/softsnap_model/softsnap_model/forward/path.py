@@ -281,7 +281,8 @@ def _single(skeleton: Skeleton, d: tuple):
              ones=np.ones(prob.k.shape), has_finite_end=bool(finite_end.size),
              # For the single-solve evaluation (newton._eval_single): l^2 as polynomials
              # in b; the cell search reads Python floats (cheaper than array items).
-             q_coef=_q_coefficients(S['dd2'], prob.s, S['e1'], S['e2']), two_beta=2.0 * prob.beta, path_len_list=prob.path_len.tolist(),
+             q_coef=_q_coefficients(S['dd2'], prob.s, S['e1'], S['e2']),
+             two_beta=2.0 * prob.beta, path_len_list=prob.path_len.tolist(),
              path_lam_list=prob.path_lam.tolist())
     return prob, P, S
 
