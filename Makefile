@@ -15,8 +15,11 @@ test: bootstrap
 demo: bootstrap
 	$(PY) -m softsnap_gaits.demo --scene $(SCENE) --seconds $(SECONDS) $(ARGS)
 
-# Every benchmark script; each prints its own table (several minutes in all).
+# Every benchmark script; each prints its own table (several minutes in all). The forward
+# solver's accuracy regression check runs first and stops the run if accuracy was lost
+# (it never fails on slowness).
 bench: bootstrap
+	@echo "== benchmarks/accuracy_check.py"; $(PY) benchmarks/accuracy_check.py || exit 1
 	@for script in benchmarks/*_bench.py; do echo "== $$script"; $(PY) $$script || exit 1; done
 
 clean:

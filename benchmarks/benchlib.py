@@ -1,5 +1,5 @@
-"""Helpers shared by the benchmark scripts: median timing, and starting and stopping
-installed nodes as processes."""
+"""Helpers shared by the benchmark scripts: median timing, repeats with their range,
+the machine's load average, and starting and stopping installed nodes as processes."""
 from __future__ import annotations
 
 import os
@@ -34,12 +34,35 @@ def stop(proc: subprocess.Popen) -> None:
         os.killpg(proc.pid, signal.SIGKILL)
 
 
-def timed(fn, repeat: int):
-    """(median wall time of ``repeat`` calls of ``fn`` in s, the last call's result)."""
+def timed(fn, repeat: int, clock=time.perf_counter):
+    """(median time of ``repeat`` calls of ``fn`` in s, the last call's result).
+
+    ``clock`` is wall time by default; ``time.thread_time`` gives the CPU time of the
+    calling thread, which on a shared machine does not count the time other processes
+    hold the cores (it still includes their cache and memory-bus contention).
+    """
     times = []
     out = None
     for _ in range(repeat):
-        t0 = time.perf_counter()
+        t0 = clock()
         out = fn()
-        times.append(time.perf_counter() - t0)
+        times.append(clock() - t0)
     return statistics.median(times), out
+
+
+def load_line(when: str) -> str:
+    """``'load average at <when>: 1m 5m 15m'`` (figures on a shared machine need it)."""
+    one, five, fifteen = os.getloadavg()
+    return f'load average at {when}: {one:.2f} {five:.2f} {fifteen:.2f} ({os.cpu_count()} cores)'
+
+
+def spread(values) -> tuple[float, float, float]:
+    """(median, min, max) of repeated measurements."""
+    values = list(values)
+    return statistics.median(values), min(values), max(values)
+
+
+def fmt_spread(values, scale: float = 1.0, digits: int = 1) -> str:
+    """``'median (min-max)'`` of ``values * scale``."""
+    med, lo, hi = spread(values)
+    return f'{med * scale:,.{digits}f} ({lo * scale:,.{digits}f}-{hi * scale:,.{digits}f})'

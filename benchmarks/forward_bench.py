@@ -1,4 +1,9 @@
-"""Work-precision benchmark of the forward solver (issue 3).
+"""Work-precision benchmark of the forward solver (issues 3 and 17).
+
+Every speed figure is also given as a ratio against a baseline measured in the same run
+(the machine is shared: absolute times vary 2-4x with its load, ratios much less), the
+load average is printed at the start and the end, and the timed figures are repeated
+(rounds) to give the median and the range over rounds.
 
 Compares, on the same problems and in the same run:
   (a) a re-implementation of the paper's Algorithm 1 procedure (scipy trust-constr over
@@ -10,7 +15,11 @@ Compares, on the same problems and in the same run:
   (d) warm starts as the model node makes them (previous shape, 0.26 mm steps on the
       brittle star's modules) against cold solves of the same lengths;
   (e) the first solve of a threading (path table built), with the per-pair branch
-      profiles shared from earlier threadings and with every cache empty.
+      profiles shared from earlier threadings and with every cache empty;
+  (f) a plain reference solver (benchmarks/accuracy_check.py: bracketing on the tension
+      and on every segment's angle, no tables), the second baseline;
+  (g) 192-rib batches (iterations per row, rows at the iteration cap) and a loop over
+      2187 threadings (3^7: the path-table caches must not rebuild per solve).
 Error = largest rib-centre distance (mm) to an mpmath reference (40 digits, KKT Newton
 refined from our answer; see test/model/mp_reference.py).
 
@@ -36,7 +45,8 @@ sys.path.insert(0, str(REPO / 'test' / 'model'))
 from mp_reference import kkt_reference, rib_centers_mp  # noqa: E402
 
 import softsnap_model.forward as fwd  # noqa: E402
-from benchlib import timed  # noqa: E402
+from accuracy_check import reference_solve  # noqa: E402
+from benchlib import fmt_spread, load_line, timed  # noqa: E402
 from softsnap_model.reference import BRITTLE_STAR_MODULES, PAPER_THREADINGS  # noqa: E402
 from softsnap_model import (Skeleton, reachable_range, rib_centers, segment_length,  # noqa: E402
                             solve_forward, solve_forward_batch, sweep)
@@ -93,10 +103,11 @@ def baseline_solve(threading, length):
 
 def clear_caches(profiles=False):
     """Forget every memoised threading (and, with ``profiles``, every pair profile)."""
-    for name in ('_problem', '_single', '_threading_cached'):
-        getattr(fwd, name).cache_clear()
     if profiles:
-        fwd._PROFILE_CACHE.clear()
+        fwd.clear_caches()
+    else:
+        for cached in (fwd._problem, fwd._single, fwd._single_named, fwd._threading_cached):
+            cached.cache_clear()
 
 
 def warm_vs_cold(step_mm=0.26):
@@ -129,11 +140,97 @@ def rib_error(angles, ref_centers):
                for i in range(len(ref_centers)))
 
 
+def single_round(probs, reps, clock=time.perf_counter):
+    """Median over problems of each problem's median cold solve time (s)."""
+    return statistics.median(timed(lambda: solve_forward(SK, t, length), reps, clock)[0]
+                             for _, t, length in probs)
+
+
+def long_batch(n_rows=4000):
+    """192-rib batch: (s per solve, max iterations, rows at the cap, all converged)."""
+    sk = Skeleton(n_ribs=192)
+    t = ['R1', 'R2', 'R3', 'R2'] * 48
+    lo, hi = reachable_range(sk, t)
+    lengths = np.linspace(hi - 0.01, lo + 0.02 * (hi - lo), n_rows)
+    solve_forward_batch(sk, t, lengths[:10])
+    dt, r = timed(lambda: solve_forward_batch(sk, t, lengths), 1)
+    return (dt / n_rows, int(r.iterations.max()), int(np.sum(r.iterations >= fwd.MAX_ITER)),
+            bool(r.converged.all()))
+
+
+def threading_loop(n_lengths=2):
+    """Solve every threading of 3^7 (the last 7 ribs R1/R2/R3) at a few lengths, twice,
+    length-major; (first pass s per solve, second pass s per solve, peak RSS MiB)."""
+    import itertools
+    import resource
+    ts = [['R1'] * 5 + list(tail) for tail in itertools.product(('R1', 'R2', 'R3'), repeat=7)]
+    ranges = [reachable_range(SK, t) for t in ts]   # builds every table (first pass)
+    passes = []
+    for _ in range(2):
+        t0 = time.perf_counter()
+        for frac in np.linspace(0.2, 0.6, n_lengths):
+            for t, (lo, hi) in zip(ts, ranges):
+                solve_forward(SK, t, hi - frac * (hi - lo))
+        passes.append((time.perf_counter() - t0) / (len(ts) * n_lengths))
+    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    return passes[0], passes[1], rss, len(ts)
+
+
+def load_before(rev):
+    """The single-file solver ``src/softsnap_model/softsnap_model/forward.py`` of git
+    revision ``rev`` (before the split of issue 17), as a module next to the current one,
+    so that both run side by side in this process on the same problems."""
+    import importlib.util
+    import subprocess
+    import tempfile
+    text = subprocess.run(['git', '-C', str(REPO), 'show',
+                           f'{rev}:src/softsnap_model/softsnap_model/forward.py'],
+                          check=True, capture_output=True, text=True).stdout
+    path = Path(tempfile.mkdtemp()) / 'forward_before.py'
+    path.write_text(text)
+    spec = importlib.util.spec_from_file_location('softsnap_model._forward_before', path)
+    module = importlib.util.module_from_spec(spec)
+    module.__package__ = 'softsnap_model'
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def side_by_side(before, probs, reps, rounds):
+    """Ratios (before / now) of CPU times, interleaved round by round: single cold solve
+    (median over problems), batch of one threading and of mixed threadings; plus the
+    largest angle difference between the two solvers."""
+    yellow = THREADINGS['yellow'].split()
+    yl = np.linspace(130.0, 198.0, 20000)
+    ts = [p[1] for p in probs] * (20000 // len(probs))
+    ls = [p[2] for p in probs] * (20000 // len(probs))
+    diff = max(float(np.max(np.abs(before.solve_forward(SK, t, length).angles
+                                   - solve_forward(SK, t, length).angles)))
+               for _, t, length in probs)
+    ratios = {'single': [], 'batch, one threading': [], 'batch, mixed': []}
+    for _ in range(rounds):
+        times = {}
+        for label, mod in (('before', before), ('now', fwd)):
+            times[label] = (
+                statistics.median(timed(lambda: mod.solve_forward(SK, t, length), reps,
+                                        time.thread_time)[0] for _, t, length in probs),
+                timed(lambda: mod.solve_forward_batch(SK, yellow, yl), 1, time.thread_time)[0],
+                timed(lambda: mod.solve_forward_batch(SK, ts, ls), 1, time.thread_time)[0])
+        for key, b, n in zip(ratios, times['before'], times['now']):
+            ratios[key].append(b / n)
+    return ratios, diff
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument('--quick', action='store_true', help='fewer problems and repeats')
+    ap.add_argument('--rounds', type=int, default=5, help='repeats of each timed figure')
+    ap.add_argument('--before', metavar='REV', help='also time the single-file solver of '
+                    'this git revision side by side (e.g. b3d97c3, before issue 17)')
     args = ap.parse_args()
+    print(load_line('start'))
     n_per = 2 if args.quick else 4
+    rounds = 3 if args.quick else args.rounds
     probs = problems(n_per)
 
     # Reference shapes (mpmath), from our certified answer refined at 40 digits.
@@ -150,25 +247,26 @@ def main():
     # First call per threading (path tables built, then memoised): with the per-pair
     # profiles already built by earlier threadings, and with every cache empty.
     first, first_empty = [], []
-    for name, text in THREADINGS.items():
-        for out, profiles in ((first_empty, True), (first, False)):
-            clear_caches(profiles)
-            t0 = time.perf_counter()
-            solve_forward(SK, text.split(), SK.straight_length_mm(text.split()) - 30.0)
-            out.append(time.perf_counter() - t0)
-            if profiles:    # rebuild the profiles shared by the other threadings
-                for other in THREADINGS.values():
-                    reachable_range(SK, other.split())
+    for _ in range(2 if args.quick else 3):
+        for name, text in THREADINGS.items():
+            for out, profiles in ((first_empty, True), (first, False)):
+                clear_caches(profiles)
+                t0 = time.perf_counter()
+                solve_forward(SK, text.split(), SK.straight_length_mm(text.split()) - 30.0)
+                out.append(time.perf_counter() - t0)
+                if profiles:    # rebuild the profiles shared by the other threadings
+                    for other in THREADINGS.values():
+                        reachable_range(SK, other.split())
 
     # (b) ours, default (certified) cold solves: no initial guess; per-threading tables
-    # are memoised pure data, built by the first calls above.
+    # are memoised pure data, built by the first calls above. Repeated in rounds.
     reps = 50 if args.quick else 200
-    times, errs = [], []
+    errs = []
     for (name, t, length), ref in zip(probs, refs):
-        dt, r = timed(lambda: solve_forward(SK, t, length), reps)
-        times.append(dt)
-        errs.append(rib_error(r.angles, ref))
-    ours_time = statistics.median(times)
+        errs.append(rib_error(solve_forward(SK, t, length).angles, ref))
+    single_rounds = [single_round(probs, reps) for _ in range(rounds)]
+    single_cpu = [single_round(probs, reps, time.thread_time) for _ in range(rounds)]
+    ours_time = statistics.median(single_rounds)
     rows.append(('ours, default (certified)', ours_time, statistics.median(errs), max(errs)))
 
     # (b') capped Newton without fallback: the work-precision knob.
@@ -183,21 +281,28 @@ def main():
         rows.append((f'ours, Newton capped at {cap}', statistics.median(times),
                      statistics.median(errs), max(errs)))
 
-    # (c) batch: all problems repeated to 20000 items.
+    # (c) batch: all problems repeated to 20000 items, and one threading.
     ts = [p[1] for p in probs]
     ls = [p[2] for p in probs]
     reps_b = 20000 // len(probs)
     big_t, big_l = ts * reps_b, ls * reps_b
     solve_forward_batch(SK, big_t, big_l)   # warm the stacking code
-    dt, b = timed(lambda: solve_forward_batch(SK, big_t, big_l), 3)
+    mixed, mixed_cpu = [], []
+    for _ in range(rounds):
+        dt, b = timed(lambda: solve_forward_batch(SK, big_t, big_l), 1)
+        mixed.append(len(big_l) / dt)
+        mixed_cpu.append(len(big_l) / timed(lambda: solve_forward_batch(SK, big_t, big_l), 1,
+                                            time.thread_time)[0])
     errs = [rib_error(b.angles[i], refs[i]) for i in range(len(probs))]
-    batch_rate = len(big_l) / dt
-    rows.append((f'ours, batch of {len(big_l)} (per solve)', dt / len(big_l),
+    rows.append((f'ours, batch of {len(big_l)} (per solve)', 1.0 / statistics.median(mixed),
                  statistics.median(errs), max(errs)))
-    # Batch of a single threading (the model node's case: one module, many lengths).
     yl = np.linspace(130.0, 198.0, 20000)
     solve_forward_batch(SK, THREADINGS['yellow'].split(), yl)
-    dt1, _ = timed(lambda: solve_forward_batch(SK, THREADINGS['yellow'].split(), yl), 3)
+    one, one_cpu = [], []
+    for _ in range(rounds):
+        for out, clock in ((one, time.perf_counter), (one_cpu, time.thread_time)):
+            out.append(len(yl) / timed(lambda: solve_forward_batch(
+                SK, THREADINGS['yellow'].split(), yl), 1, clock)[0])
 
     # Warm starts: the model node's case.
     cold_t, warm_t, it_cold, it_warm, n_warm = warm_vs_cold()
@@ -207,40 +312,75 @@ def main():
     sweep(SK, THREADINGS['yellow'].split(), c)
     sweep_time, _ = timed(lambda: sweep(SK, THREADINGS['yellow'].split(), c), 30)
 
-    # (a) baseline, capped: a few problems, one repetition each (seconds per solve).
+    # (g) 192 ribs, and a loop over 2187 threadings.
+    long_dt, long_max_it, long_capped, long_ok = long_batch(1000 if args.quick else 4000)
+    loop = None if args.quick else threading_loop()
+
+    # (a) baseline, capped: a few problems, one repetition each (seconds per solve), and
+    # (f) the plain reference solver on the same problems; ours on exactly those too.
     n_base = 3 if args.quick else 5
     base_idx = np.linspace(0, len(probs) - 1, n_base).astype(int)
-    times, errs = [], []
+    times, errs, plain, ours_same = [], [], [], []
     for i in base_idx:
         name, t, length = probs[i]
         dt, a = timed(lambda: baseline_solve(t, length), 1)
         times.append(dt)
         errs.append(rib_error(a, refs[i]))
+        plain.append(timed(lambda: reference_solve(SK, t, length), 1)[0])
+        ours_same.append(timed(lambda: solve_forward(SK, t, length), reps)[0])
     base_time = statistics.median(times)
+    plain_time = statistics.median(plain)
     rows.insert(0, ('baseline: paper Algorithm 1 (trust-constr)', base_time,
                     statistics.median(errs), max(errs)))
 
     # Table.
-    load = os.getloadavg()[0] if hasattr(os, 'getloadavg') else float('nan')
     print(f'# forward solver benchmark  ({platform.processor() or platform.machine()}, '
-          f'{os.cpu_count()} cores, load {load:.2f}, numpy {np.__version__})')
+          f'{os.cpu_count()} cores, numpy {np.__version__}, {rounds} rounds)')
     print(f'{"method":48s} {"median time":>14s} {"median err mm":>14s} {"max err mm":>11s}')
     for label, t, e_med, e_max in rows:
         unit = f'{t * 1e6:10.1f} us' if t < 0.1 else f'{t:10.3f} s '
         print(f'{label:48s} {unit:>14s} {e_med:14.2e} {e_max:11.2e}')
     print()
-    print(f'single cold solve median: {ours_time * 1e6:.1f} us  (target <= 200 us)')
-    print(f'baseline median: {base_time:.3f} s; speed-up: {base_time / ours_time:,.0f}x '
-          f'(target >= 5000x)')
-    print(f'batch (mixed threadings): {batch_rate:,.0f} solves/s; one threading: '
-          f'{len(yl) / dt1:,.0f} solves/s  (target >= 50,000/s)')
-    print(f'80-step workspace sweep: {sweep_time * 1e3:.2f} ms  (target < 10 ms)')
-    print(f'brittle star modules, 0.26 mm steps ({n_warm} solves): cold {cold_t * 1e6:.1f} us '
+    print('ratios (same run; median over the same problems):')
+    ours_base = statistics.median(ours_same)
+    print(f'  speed-up over the paper procedure: {base_time / ours_base:,.0f}x '
+          f'(target >= 10,000x; paper {base_time:.3f} s, ours {ours_base * 1e6:.1f} us)')
+    print(f'  speed-up over the plain reference solver: {plain_time / ours_base:,.0f}x '
+          f'(reference {plain_time * 1e3:.1f} ms)')
+    print(f'  batch (one threading) per solve vs a single cold solve: '
+          f'{ours_time * statistics.median(one):.1f}x faster')
+    print('absolute (median (range) over rounds, on the load printed above and below; wall '
+          'time, and CPU time of this thread, which does not count waiting for a core):')
+    print(f'  single cold solve: {fmt_spread(single_rounds, 1e6)} us wall, '
+          f'{fmt_spread(single_cpu, 1e6)} us CPU  (target <= 100 us)')
+    print(f'  batch, one threading: {fmt_spread(one, 1, 0)} solves/s wall, '
+          f'{fmt_spread(one_cpu, 1, 0)} CPU  (target >= 150,000/s)')
+    print(f'  batch, mixed threadings: {fmt_spread(mixed, 1, 0)} solves/s wall, '
+          f'{fmt_spread(mixed_cpu, 1, 0)} CPU  (target >= 100,000/s)')
+    print(f'  first solve of a new threading: {fmt_spread(first, 1e3, 2)} ms with shared pair '
+          f'profiles (target <= 1 ms), {fmt_spread(first_empty, 1e3, 2)} ms with every cache '
+          'empty')
+    print(f'  80-step workspace sweep: {sweep_time * 1e3:.2f} ms  (target < 10 ms)')
+    print(f'  brittle star modules, 0.26 mm steps ({n_warm} solves): cold {cold_t * 1e6:.1f} us '
           f'({it_cold:.2f} Newton iterations), warm from the previous shape '
           f'{warm_t * 1e6:.1f} us ({it_warm:.2f})')
-    print(f'first call per threading (path table build): median '
-          f'{statistics.median(first) * 1e3:.1f} ms with shared pair profiles, '
-          f'{statistics.median(first_empty) * 1e3:.1f} ms with every cache empty')
+    print(f'  192-rib batch: {long_dt * 1e6:.1f} us per solve, max {long_max_it} Newton '
+          f'iterations, {long_capped} rows at the {fwd.MAX_ITER}-iteration cap, '
+          f'all converged: {long_ok}')
+    if loop is not None:
+        print(f'  loop over {loop[3]} threadings, length-major: {loop[0] * 1e6:.0f} us per '
+              f'solve (first pass), {loop[1] * 1e6:.0f} us (second pass; no table rebuilt); '
+              f'peak RSS {loop[2]:.0f} MiB')
+    if args.before:
+        before = load_before(args.before)
+        for t in THREADINGS.values():     # build its tables before timing
+            before.reachable_range(SK, t.split())
+        ratios, diff = side_by_side(before, probs, reps, rounds)
+        print(f'side by side with the solver of {args.before} (CPU time ratio before / now, '
+              f'median (range) over {rounds} interleaved rounds; angles agree to {diff:.1e} rad):')
+        for key, values in ratios.items():
+            print(f'  {key}: {fmt_spread(values, 1, 2)}x')
+    print(load_line('end'))
 
     import matplotlib
     matplotlib.use('Agg')

@@ -10,7 +10,7 @@ segment ``i``'s length depends on ``a_i`` and every segment pulls its two ribs w
 equal and opposite forces, so by virtual work each segment is in equilibrium on its
 own, exactly as without friction::
 
-    2 k_i a_i + T_i dL_i/da_i(a_i) = 0          (on the branch forward.py follows)
+    2 k_i a_i + T_i dL_i/da_i(a_i) = 0          (on the branch softsnap_model.forward follows)
 
 At a hole ``k`` the cable turns by the wrap angle ``theta_k`` (the angle between the
 incoming and outgoing cable directions, from the exact straight-line path between the
@@ -537,7 +537,7 @@ def _make_result(ctx, x, L, modes, S_prev, direction, ok, iterations, why):
     contact, straight = _held_from_branch(ctx, A)
     c_res = abs(float(length.sum()) - L)
     held = contact | straight
-    # Stationarity as in forward.py, ``|a + T L'/(2k)|`` on free segments (near a mirror
+    # Stationarity as in softsnap_model.forward, ``|a + T L'/(2k)|`` on free segments (near a mirror
     # segment's buckling point ``a_branch(T)`` is infinitely steep, so ``|a - a_branch|``
     # would measure the tension's rounding); held segments must sit exactly at their
     # branch angle, and every free one on its branch (a loose check, for the branch).

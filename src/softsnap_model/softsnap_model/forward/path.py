@@ -1,0 +1,304 @@
+"""Per-threading problem data: the path tables and their caches.
+
+Owns :class:`_Problem` (everything about one skeleton and threading that does not depend
+on the length: per-segment tensions where branches start and end, the exact samples of
+the whole quasi-static path and its cubic start polynomials), the memoised builders
+(:func:`_problem`, :func:`_single`, :func:`_single_named`,
+:func:`_threading_cached`), the batch layout of
+problem data (:func:`_stack`) and the length checks that raise the documented errors.
+Every cache here is a pure function of its key.
+"""
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..geometry import _G_COEF, _G_TERMS
+from ..skeleton import Skeleton
+from .branch import _BRANCH_SAMPLES, _branch_derivs, _branch_solve_segments, _pair_profiles
+from .results import InfeasibleLengthError, SnapThroughError
+
+
+#: Threadings whose problem data and path tables stay cached (least recently used
+#: first out; about 0.3 MB each, so a full cache holds about 0.7 GB). Large enough that a
+#: loop over every threading of 7 ribs with 3 holes (3^7 = 2187) or a robot's modules
+#: never rebuilds a table per solve (a rebuild costs a few ms).
+_THREADINGS_CACHED = 2560
+
+
+@dataclass(frozen=True)
+class _Problem:
+    """Everything about one (skeleton, threading) that does not depend on the length."""
+
+    d: np.ndarray            # (n_ribs,) offsets mm
+    d1: np.ndarray           # (n,) proximal holes
+    d2: np.ndarray           # (n,) distal holes
+    k: np.ndarray            # (n,) stiffness
+    s: float
+    direction: np.ndarray    # (n,) +-1
+    lam_c: np.ndarray        # (n,) tension where the segment starts bending
+    mu_c: np.ndarray         # (n,) lam_c / k
+    beta: np.ndarray         # (n,) pitchfork coefficient (mirror segments), else 0
+    lam_end: np.ndarray      # (n,) tension where it reaches its branch end
+    b_end: np.ndarray        # (n,) angle magnitude at the branch end
+    kind: tuple              # per segment 'contact' | 'shortest' | 'fold'
+    table_mu: np.ndarray     # (n, M) per-unit-stiffness tension along each branch
+    table_b: np.ndarray      # (n, M) angle magnitude along each branch
+    straight_mm: float
+    min_mm: float            # infimum of reachable lengths (or length at the fold)
+    snap: bool               # the path ends at a fold (snap-through), not at contact
+    path_lam: np.ndarray     # (P,) increasing tensions along the whole path
+    path_len: np.ndarray     # (P,) non-increasing total length there
+    path_b: np.ndarray       # (P, n) exact branch magnitudes there
+    path_poly: np.ndarray    # (P-1, 4, n+1) start polynomial per cell, see _path_polynomials
+
+
+@functools.lru_cache(maxsize=_THREADINGS_CACHED)
+def _problem(skeleton: Skeleton, d: tuple) -> _Problem:
+    s = skeleton.spacing_mm
+    b_max = skeleton.contact_angle_rad
+    d_arr = np.array(d, dtype=float)
+    d1, d2 = d_arr[:-1], d_arr[1:]
+    k = skeleton.stiffness_array
+    prof = _pair_profiles(d1, d2, s, b_max)
+    direction, mu_c, beta = prof['direction'], prof['mu_c'], prof['beta']
+    mu_end, b_end = prof['mu_end'], prof['b_end']
+    kind = tuple(str(x) for x in prof['kind'])
+    table_mu, table_b = prof['mu'], prof['b']
+    lam_c, lam_end = k * mu_c, k * mu_end
+    straight = float(np.sum(np.hypot(s, d2 - d1)))
+    folds = [i for i, kd in enumerate(kind) if kd == 'fold']
+    snap = bool(folds)
+    # Path table: every tension where some segment's table has a sample, up to where the
+    # path ends (all segments at their ends, or the first fold).
+    lam_all = (k[:, None] * table_mu).ravel()
+    lam_all = lam_all[np.isfinite(lam_all)]
+    if snap:
+        lam_top = float(np.min(lam_end[folds]))
+    else:
+        finite = lam_end[np.isfinite(lam_end)]
+        lam_top = float(finite.max()) if finite.size else float(lam_all.max())
+    lam_path = np.unique(np.concatenate([[0.0], lam_all[lam_all <= lam_top], [lam_top]]))
+    if lam_path.size > 4 * _BRANCH_SAMPLES:
+        # Thin to a bounded table; keep the ends and every buckling tension.
+        keep = np.unique(np.concatenate([np.linspace(0, lam_path.size - 1,
+                                                     4 * _BRANCH_SAMPLES).astype(int)]))
+        lam_path = np.unique(np.concatenate([lam_path[keep], lam_c, lam_end, [lam_top]]))
+        lam_path = lam_path[lam_path <= lam_top]
+    mu = lam_path[:, None] / k[None, :]
+    bb = _branch_solve_segments(mu, table_mu, table_b, direction, d1, d2, s)
+    lengths, lp, lpp = _branch_derivs(bb, direction, d1, d2, s)
+    path_len = np.minimum.accumulate(lengths.sum(axis=1))
+    path_len[0] = straight
+    poly = _path_polynomials(lam_path, path_len, bb, lp, lpp, k, lam_c, lam_end)
+    if snap:
+        min_mm = float(path_len[-1])
+    else:
+        end_len, _, _ = _branch_derivs(b_end, direction, d1, d2, s)
+        min_mm = float(end_len.sum())
+    return _Problem(d=d_arr, d1=d1, d2=d2, k=k, s=s, direction=direction, lam_c=lam_c,
+                    mu_c=mu_c, beta=beta,
+                    lam_end=lam_end, b_end=b_end, kind=kind, table_mu=table_mu,
+                    table_b=table_b, straight_mm=straight, min_mm=min_mm, snap=snap,
+                    path_lam=lam_path, path_len=path_len, path_b=bb, path_poly=poly)
+
+
+def _path_polynomials(lam, length, b, lp, lpp, k, lam_c, lam_end):
+    """Cubic Hermite start polynomials of the path cells, in ``t in [0, 1]`` across a cell.
+
+    Cell ``j`` joins samples ``j`` and ``j + 1``. Along the path every free segment has
+    ``db/dlambda = 1 / (k phi'(b))`` and ``dT/dlambda = sum l' db/dlambda``, so the exact
+    samples also give the slopes of ``lambda`` and ``b`` in the length, one-sided at the
+    cell ends (a segment stops at contact, a mirror one starts at its buckling tension).
+    Returns ``c`` (P-1, 4, n+1): ``[b, lambda](t) = sum_p t^p c[j, p]``. Cells where a
+    slope is not finite (a pitchfork starts, nothing moves) or where the cubic would
+    leave the cell's hull keep the linear interpolant; constant entries stay exact.
+    """
+    vals = np.concatenate([b, lam[:, None]], axis=1)               # (P, n+1)
+    p0, p1 = vals[:-1], vals[1:]
+    h = (length[1:] - length[:-1])[:, None]                        # < 0 in a moving cell
+    with np.errstate(all='ignore'):
+        db_dlam = 1.0 / (2.0 * k * (b * lpp - lp) / (lp * lp))      # 1 / (k phi'(b))
+        # Segments moving across the whole cell (bent, not yet at their branch end).
+        free = (lam[:-1, None] >= lam_c) & (lam[1:, None] <= lam_end)
+        slopes = []
+        for at in (slice(None, -1), slice(1, None)):     # cell start, cell end
+            dbl = np.where(free, db_dlam[at], 0.0)
+            dT = np.sum(np.where(free, lp[at] * dbl, 0.0), axis=1, keepdims=True)
+            slopes.append(h * np.concatenate([dbl, np.ones_like(dT)], axis=1) / dT)
+        d0, d1 = slopes
+        c = np.stack([p0, d0, 3.0 * (p1 - p0) - 2.0 * d0 - d1, 2.0 * (p0 - p1) + d0 + d1],
+                     axis=1)
+        # Check the cubic on a few interior points: it must stay in the cell's hull.
+        t = np.array([0.25, 0.5, 0.75])
+        inner = np.einsum('tp,jpc->jtc', t[:, None] ** np.arange(4), c)
+        lo, hi = np.minimum(p0, p1)[:, None], np.maximum(p0, p1)[:, None]
+        tol = 1e-12 * (1.0 + np.abs(hi))
+        cubic = (np.all(np.isfinite(c), axis=(1, 2)) & (h[:, 0] < 0)
+                 & np.all((inner >= lo - tol) & (inner <= hi + tol), axis=(1, 2)))
+    linear = np.stack([p0, p1 - p0, np.zeros_like(p0), np.zeros_like(p0)], axis=1)
+    c = np.where(cubic[:, None, None], c, linear)
+    # Entries constant over a cell (held straight, at contact) stay exactly constant.
+    c[:, 1:] = np.where((p0 == p1)[:, None, :], 0.0, c[:, 1:])
+    return c
+
+
+def _check_length(prob: _Problem, length: np.ndarray, skeleton, threading_desc):
+    """Raise the documented errors for NaN/inf and unreachable lengths."""
+    if not np.all(np.isfinite(length)):
+        bad = length[~np.isfinite(length)].ravel()[0]
+        raise ValueError(f'cable_length_mm must be finite, got {bad!r}')
+    if np.any(length <= 0):
+        bad = length[length <= 0].ravel()[0]
+        raise ValueError(f'cable_length_mm must be > 0, got {bad!r}')
+    low = length <= prob.min_mm
+    if np.any(low):
+        bad = float(length[low].ravel()[0])
+        rng = (prob.min_mm, prob.straight_mm)
+        if prob.snap:
+            raise SnapThroughError(
+                f'cable length {bad!r} mm is past a snap-through of threading '
+                f'{threading_desc}: the quasi-static path folds at {rng[0]:.6f} mm; '
+                f'reachable range ({rng[0]:.6f}, {rng[1]:.6f}] mm', rng)
+        raise InfeasibleLengthError(
+            f'cable length {bad!r} mm is below what threading {threading_desc} can reach: '
+            f'reachable range ({rng[0]:.6f}, {rng[1]:.6f}] mm (the minimum is approached '
+            f'as every segment reaches rib contact)', rng)
+
+
+def _describe(skeleton: Skeleton, d: np.ndarray) -> str:
+    names = skeleton.hole_names(d)
+    return ' '.join(n if n is not None else f'{v:g}' for n, v in zip(names, d))
+
+
+@functools.lru_cache(maxsize=2 * _THREADINGS_CACHED)
+def _threading_cached(skeleton: Skeleton, key: tuple) -> tuple:
+    return tuple(skeleton.threading_mm(list(key)).tolist())
+
+
+def _threading_tuple(skeleton: Skeleton, threading) -> tuple:
+    """Offsets as a tuple via :meth:`Skeleton.threading_mm` (memoised for hashable input)."""
+    if isinstance(threading, (list, tuple)):
+        try:
+            return _threading_cached(skeleton, tuple(threading))
+        except TypeError:   # unhashable items: convert (and fail) the normal way
+            pass
+    return tuple(skeleton.threading_mm(threading).tolist())
+
+
+_PER_ITEM = ('uid', 'k', 'd', 'd1', 'd2', 'direction', 'lam_c', 'lam_end', 'mu_c', 'beta',
+             'b_end', 'mirror', 'mu_c_safe', 'beta_safe', 'mu_1', 'lam_1', 'b_1', 'e1', 'e2',
+             'two_e1e2', 'dd2', 'two_k', 'inv_two_k', 'straight')
+
+
+def _stack(probs, index):
+    """Batch arrays: per-item (B, n) arrays, tables once per distinct threading.
+
+    ``index`` (B,) maps batch rows to ``probs``; keys in :data:`_PER_ITEM` have the
+    batch as leading axis (and are what a sub-batch slices). The per-segment fields are
+    computed once per threading and gathered for the rows in one indexing operation
+    (read-only views of it); with one threading they are broadcast views, no copy.
+    """
+    index = np.asarray(index)
+    nb = index.shape[0]
+    tables_mu = np.stack([p.table_mu for p in probs])
+    tables_b = np.stack([p.table_b for p in probs])
+    k = np.stack([p.k for p in probs])
+    mu_c = np.stack([p.mu_c for p in probs])
+    beta = np.stack([p.beta for p in probs])
+    d1 = np.stack([p.d1 for p in probs])
+    d2 = np.stack([p.d2 for p in probs])
+    direction = np.stack([p.direction for p in probs])
+    mirror = mu_c > 0
+    fields = dict(
+        k=k, d1=d1, d2=d2, direction=direction, lam_c=np.stack([p.lam_c for p in probs]),
+        lam_end=np.stack([p.lam_end for p in probs]), mu_c=mu_c, beta=beta,
+        b_end=np.stack([p.b_end for p in probs]),
+        mu_c_safe=np.where(mirror, mu_c, 1.0), beta_safe=np.where(mirror, beta, 1.0),
+        mu_1=tables_mu[:, :, 1], lam_1=k * tables_mu[:, :, 1], b_1=tables_b[:, :, 1],
+        e1=d1 * direction, e2=d2 * direction, two_e1e2=2.0 * d1 * d2, dd2=(d1 - d2) ** 2,
+        two_k=2.0 * k, inv_two_k=0.5 / k)
+    names = list(fields)
+    table = np.stack([fields[name] for name in names], axis=1)        # (U, F, n)
+    d = np.stack([p.d for p in probs])
+    straight = np.array([p.straight_mm for p in probs])
+    if len(probs) == 1:
+        rows = np.broadcast_to(table[0], (nb,) + table.shape[1:])
+        out = dict(d=np.broadcast_to(d[0], (nb, d.shape[1])),
+                   mirror=np.broadcast_to(mirror[0], (nb, mirror.shape[1])),
+                   straight=np.broadcast_to(straight[0], (nb,)))
+    else:
+        rows = table[index]
+        out = dict(d=d[index], mirror=mirror[index], straight=straight[index])
+    out.update({name: rows[:, f] for f, name in enumerate(names)})
+    out.update(uid=index, s=probs[0].s, has_mirror=bool(mirror.any()),
+               tables_mu=tables_mu, tables_b=tables_b,
+               paths=[(p.path_len, p.path_lam, p.path_poly) for p in probs])
+    return out
+
+
+#: Degree in ``b`` of ``Q = l^2`` as evaluated by :func:`.newton._eval_single` (the series of
+#: ``g`` to ``b^(2 (_G_TERMS - 1))`` times a quadratic).
+_Q_DEGREE = 2 * _G_TERMS
+
+
+def _q_coefficients(dd2, s, e1, e2):
+    """(n, _Q_DEGREE + 1, 3) coefficients of ``Q, Q', Q''`` in powers of ``b`` per segment.
+
+    ``Q = dd2 + sum_j gamma_j b^(2j) (s^2 + s (e1 + e2) b + e1 e2 b^2)`` with ``gamma_j``
+    the series of ``g`` (:data:`softsnap_model.geometry._G_COEF`, column 0).
+    """
+    n = dd2.shape[0]
+    gamma = _G_COEF[:, 0]
+    q = np.zeros((n, _Q_DEGREE + 3))
+    q[:, 0] = dd2
+    t = gamma.shape[0]
+    q[:, 0:2 * t:2] += gamma * (s * s)
+    q[:, 1:2 * t + 1:2] += gamma * (s * (e1 + e2))[:, None]
+    q[:, 2:2 * t + 2:2] += gamma * (e1 * e2)[:, None]
+    m = np.arange(_Q_DEGREE + 1)
+    out = np.empty((n, _Q_DEGREE + 1, 3))
+    out[:, :, 0] = q[:, :_Q_DEGREE + 1]
+    out[:, :, 1] = (m + 1) * q[:, 1:_Q_DEGREE + 2]
+    out[:, :, 2] = (m + 1) * (m + 2) * q[:, 2:_Q_DEGREE + 3]
+    return out
+
+
+@functools.lru_cache(maxsize=_THREADINGS_CACHED)
+def _single(skeleton: Skeleton, d: tuple):
+    """Problem data stacked as a batch of one, plus 1-D views for the single-solve path
+    (memoised with the problem)."""
+    prob = _problem(skeleton, d)
+    P = _stack([prob], np.zeros(1, dtype=int))
+    S = {key: (val[0] if isinstance(val, np.ndarray) and val.ndim >= 1 else val)
+         for key, val in P.items()}
+    finite_end = prob.lam_end[np.isfinite(prob.lam_end)]
+    S.update(P=P, lam_end_min=float(prob.lam_end.min()),
+             neg_path_len=-prob.path_len, path_lam=prob.path_lam, path_poly=prob.path_poly,
+             straight=prob.straight_mm, n_path=prob.path_len.size,
+             ones=np.ones(prob.k.shape), has_finite_end=bool(finite_end.size),
+             # For the single-solve evaluation (newton._eval_single): l^2 as polynomials
+             # in b; the cell search reads Python floats (cheaper than array items).
+             q_coef=_q_coefficients(S['dd2'], prob.s, S['e1'], S['e2']),
+             two_beta=2.0 * prob.beta, path_len_list=prob.path_len.tolist(),
+             path_lam_list=prob.path_lam.tolist())
+    return prob, P, S
+
+
+@functools.lru_cache(maxsize=2 * _THREADINGS_CACHED)
+def _single_named(skeleton: Skeleton, key: tuple):
+    """:func:`_single` for a threading given as a hashable tuple of names or offsets
+    (one cache lookup per solve instead of two; shares the entries of :func:`_single`)."""
+    return _single(skeleton, _threading_cached(skeleton, key))
+
+
+def _single_for(skeleton: Skeleton, threading):
+    """``(problem, P, S)`` of any accepted threading form (memoised for hashable input)."""
+    if isinstance(threading, (list, tuple)):
+        try:
+            return _single_named(skeleton, tuple(threading))
+        except TypeError:   # unhashable items: convert (and fail) the normal way
+            pass
+    return _single(skeleton, tuple(skeleton.threading_mm(threading).tolist()))
