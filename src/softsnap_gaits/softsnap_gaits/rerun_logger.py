@@ -2,6 +2,8 @@
 
 Subscribes (relative names, so they live in the robot's namespace, e.g. /brittle_star):
   model/shape/commanded, model/shape/predicted   softsnap_interfaces/RobotShape
+  model/shape/simulated                          softsnap_interfaces/RobotShape (sim_robot)
+  sim/base_pose                                  geometry_msgs/PoseStamped (sim_robot)
   <module>/cable_length/command                  softsnap_interfaces/CableLength
   <module>/cable_length/measured                 softsnap_interfaces/CableLength
   <module>/state                                 softsnap_interfaces/ModuleState
@@ -24,6 +26,7 @@ Parameters (read-only except ``rate``):
   robot       robot name for the default file name ('' = the node's namespace)
   rib_spacing spine arc length between ribs, m, used when a shape has no rib centres
               (the scene's skeleton spacing wins when a scene is given)
+  world_view  3D view in the world frame, the robot moved by sim/base_pose (physics runs)
 """
 from __future__ import annotations
 
@@ -38,6 +41,7 @@ from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescr
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.logging import get_logger
 from rclpy.parameter import Parameter
+from geometry_msgs.msg import PoseStamped
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from softsnap_driver.ros_parameters import SoftSnapNode
@@ -105,6 +109,9 @@ class RerunLoggerNode(SoftSnapNode):
                         'that carry no rib centres',
             floating_point_range=[FloatingPointRange(from_value=0.001, to_value=0.1)],
             read_only=True))
+        self.declare_parameter('world_view', False, ParameterDescriptor(
+            description='3D view in the world frame: the robot moves by sim/base_pose '
+                        '(runs simulated in physics)', read_only=True))
         self.add_on_set_parameters_callback(self.parameters_callback)
 
         scene = self._load_scene(self.get_parameter('scene').value)
@@ -123,7 +130,9 @@ class RerunLoggerNode(SoftSnapNode):
         self.rec = recording.open_recording(self.output, viewer_url,
                                             serve_grpc_port=grpc_port or None,
                                             serve_bind_ip=bind_ip,
-                                            blueprint=recording.build_blueprint(colors, bounds),
+                                            blueprint=recording.build_blueprint(
+                                                colors, bounds,
+                                                self.get_parameter('world_view').value),
                                             application_id=f'softsnap_{robot}')
         self.web_url = None
         if web_port:
@@ -145,6 +154,11 @@ class RerunLoggerNode(SoftSnapNode):
                                  self.commanded_shape_callback, SUBSCRIPTION_QOS)
         self.create_subscription(RobotShape, 'model/shape/predicted',
                                  self.predicted_shape_callback, SUBSCRIPTION_QOS)
+        # sim_robot's shapes and robot pose; silent unless a physics simulation runs.
+        self.create_subscription(RobotShape, 'model/shape/simulated',
+                                 self.simulated_shape_callback, SUBSCRIPTION_QOS)
+        self.create_subscription(PoseStamped, 'sim/base_pose', self.base_pose_callback,
+                                 SUBSCRIPTION_QOS)
         self._module_subscriptions: dict[str, list] = {}
         for module in sorted(modules or ()):
             self._subscribe_module(module)
@@ -215,11 +229,24 @@ class RerunLoggerNode(SoftSnapNode):
     def predicted_shape_callback(self, msg: RobotShape) -> None:
         self._robot_shape(msg, 'predicted')
 
-    def _robot_shape(self, msg: RobotShape, source: str) -> None:
+    def simulated_shape_callback(self, msg: RobotShape) -> None:
+        # Its base poses are in the world: the module frames keep the model's poses in
+        # the robot frame, and the robot frame follows sim/base_pose.
+        self._robot_shape(msg, 'simulated', base_poses=False)
+
+    def base_pose_callback(self, msg: PoseStamped) -> None:
+        if not self._closed:
+            p, q = msg.pose.position, msg.pose.orientation
+            self.recorder.robot_pose(self._stamp(msg.header), (p.x, p.y, p.z),
+                                     (q.x, q.y, q.z, q.w))
+
+    def _robot_shape(self, msg: RobotShape, source: str, base_poses: bool = True) -> None:
         if self._closed:
             return
         stamp = self._stamp(msg.header)
-        if len(msg.base_poses) == len(msg.modules):
+        if not base_poses:
+            pass
+        elif len(msg.base_poses) == len(msg.modules):
             self.recorder.base_poses(stamp, {
                 shape.module: ((p.position.x, p.position.y, p.position.z),
                                (p.orientation.x, p.orientation.y, p.orientation.z,
