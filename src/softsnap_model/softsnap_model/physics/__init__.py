@@ -1,0 +1,15 @@
+"""Physics of SoftSnap modules and robots on MuJoCo (gravity, loads, ground, dynamics).
+
+:mod:`.mjcf` builds MJCF text from a :class:`~softsnap_model.Skeleton` or a scene
+(it needs no ``mujoco``); :mod:`.simulation` loads it into MuJoCo and steps it
+(``import softsnap_model.physics.simulation`` needs the ``mujoco`` package). Importing
+this package does not import ``mujoco``, so the quasi-static core stays usable without it.
+
+Units: the MJCF and every simulation interface are SI (m, kg, s, N, rad); the
+quasi-static core's millimetres appear only in names ending in ``_mm``.
+"""
+from .mjcf import (DEFAULT_LINKS_PER_SEGMENT, PhysicsParameters, Payload, RobotLayout,
+                   module_mjcf, robot_mjcf, robot_mjcf_layout)
+
+__all__ = ['DEFAULT_LINKS_PER_SEGMENT', 'PhysicsParameters', 'Payload', 'RobotLayout',
+           'module_mjcf', 'robot_mjcf', 'robot_mjcf_layout']
