@@ -88,6 +88,11 @@ PAYLOAD_SHAPES = ('none', 'ball', 'box')
 #: Default contraction (mm) every module must reach before a gripper's helper hold lets
 #: go of the payload (the grasp gait closes to 45 mm).
 DEFAULT_PAYLOAD_RELEASE_MM = 30.0
+#: Links per segment of sim_robot's MuJoCo model. The physics model's fidelity check puts
+#: N = 2 within 0.5 mm of the exact constant-curvature shape at 20 mm contraction (its
+#: default, 4, leaves a margin for the static comparisons); N = 2 steps about twice as
+#: fast, which a robot simulated live needs more (benchmarks/sim_robot_bench.py).
+DEFAULT_LINKS_PER_SEGMENT = 2
 
 
 class SimRobotError(ValueError):
@@ -528,7 +533,8 @@ OPTIONS = {
     'payload_release_mm': (float, DEFAULT_PAYLOAD_RELEASE_MM,
                            "a gripper's helper hold lets go of the payload once every "
                            'module has hauled in this much cable, mm'),
-    'links_per_segment': (int, 0, 'links per segment of the MuJoCo model (0: its default)'),
+    'links_per_segment': (int, DEFAULT_LINKS_PER_SEGMENT,
+                          "links per segment of the MuJoCo model (0: the model's default)"),
     'stall_torque_nm': (float, DEFAULT_STALL_TORQUE_NM, 'winch motor stall torque at 6 V, N m'),
     'no_load_rpm': (float, MotorModel.no_load_rpm, 'winch output speed at 6 V without load, rpm'),
     'battery_full_v': (float, BatteryModel.full_v, 'battery open-circuit voltage when full, V'),
