@@ -440,7 +440,8 @@ def physics_summary(scene, gait_name: str, observer: Observer, window_ns, sim_lo
             'payload_travel': payload, 'payload_mm_per_cycle': per_cycle(payload),
             'payload_first_grasp': first_grasp_hold(scene, gait_name, observer.phases,
                                                     observer.payload_positions),
-            'shape_error_mm': shape_error, 'real_time_factor': factor}
+            'shape_error_mm': shape_error, 'real_time_factor': factor,
+            'gait_phases_observed': len(observer.phases)}
 
 
 def print_physics(p: dict) -> None:
@@ -776,6 +777,13 @@ def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
         observer = Observer(scene, f'/{scene.name}', physics=args.physics)
         for spec in specs:
             processes.append(Process(spec, run_dir, env, pass_fds=(slot.lock_fd,)))
+            if spec.executable == 'sim_robot':
+                # The robot first: the gait starts once the simulation runs, so its first
+                # cycle (the gripper's first grasp) happens in the physics.
+                deadline = time.monotonic() + args.ready_timeout
+                while (not observer.base_positions and processes[-1].popen.poll() is None
+                       and not stop_requested and time.monotonic() < deadline):
+                    observer.spin_for(0.1)
 
         def check_children() -> bool:
             for p in processes:
