@@ -265,7 +265,8 @@ class RerunLoggerNode(SoftSnapNode):
             try:
                 self.recorder.shape(shape_stamp, shape.module,
                                     shape.source if shape.source in recording.SOURCES else source,
-                                    shape.angles, centres, shape.solve_time)
+                                    shape.angles, centres,
+                                    None if source == 'simulated' else shape.solve_time)
             except ValueError as exc:
                 self.get_logger().warning(f'{shape.module} {source} shape not logged: {exc}',
                                           throttle_duration_sec=5.0)

@@ -659,7 +659,9 @@ class RobotRecorder:
         log_module_shape(self.rec, module, source, frames, self.threadings_mm.get(module))
         if solve_time_s is not None:
             log_scalar(self.rec, plot_path('solve_time_ms', module, source), solve_time_s * 1e3)
-        other = self._latest.get((module, 'predicted' if source == 'commanded' else 'commanded'))
+        # The tip error plot compares the model's two shapes; a simulated one has no partner.
+        other = (None if source == 'simulated' else
+                 self._latest.get((module, 'predicted' if source == 'commanded' else 'commanded')))
         if other is not None and len(other.centres_m) == len(frames.centres_m):
             pair = (frames, other) if source == 'commanded' else (other, frames)
             log_scalar(self.rec, plot_path('tip_error_mm', module), tip_error_mm(*pair))
