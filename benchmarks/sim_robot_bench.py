@@ -29,7 +29,8 @@ import time
 
 import numpy as np
 
-from softsnap_driver.sim_robot import ScriptedCommands, SimRobot, build_payload, build_simulation, OPTIONS
+from softsnap_driver.sim_robot import (DEFAULT_LINKS_PER_SEGMENT, OPTIONS, ScriptedCommands, SimRobot,
+                                       build_payload, build_simulation)
 from softsnap_gaits.demo import PHYSICS_PAYLOADS
 from softsnap_gaits.gaits import make_gait
 from softsnap_model.scene import load_scene
@@ -76,8 +77,9 @@ def main() -> None:
     parser.add_argument('--seconds', type=float, default=3.0, help='simulated time per run, s')
     parser.add_argument('--repeat', type=int, default=3)
     parser.add_argument('--scenes', default=','.join(SCENES))
-    parser.add_argument('--links-per-segment', type=int, default=0,
-                        help="links per segment of the MuJoCo model (0: the model's default)")
+    parser.add_argument('--links-per-segment', type=int, default=DEFAULT_LINKS_PER_SEGMENT,
+                        help="links per segment of the MuJoCo model (default sim_robot's, "
+                             f"{DEFAULT_LINKS_PER_SEGMENT}; 0: the physics model's default)")
     args = parser.parse_args()
     if hasattr(os, 'sched_setaffinity'):
         os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})
@@ -85,7 +87,7 @@ def main() -> None:
           f'({os.cpu_count()} cores; this process pinned to one)')
     print(f'\nsim_robot real-time factor (simulated s per wall s), {args.seconds:g} s of the '
           f"default gait, {args.repeat} runs; links per segment: "
-          f"{args.links_per_segment or 'model default'}")
+          f"{args.links_per_segment or 'physics model default'}")
     header = (f"{'scene':13s} {'modules':>7s} {'build s':>8s} {'RTF median':>11s} "
               f"{'RTF range':>15s} {'CPU RTF':>8s}")
     print(header)
