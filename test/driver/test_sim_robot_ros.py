@@ -142,3 +142,28 @@ def test_a_winch_stalled_by_the_cable_tension_is_reported_by_its_driver(
     assert 0 < state.encoder_count < round(30.0 * 89.13) - DEADBAND_COUNTS
     for name, proc in procs.items():
         assert proc.stop() == 0, f'{name}: {proc.output()[-2000:]}'
+
+
+@pytest.mark.parametrize('params, reason', [
+    (['scene:=no_such_robot'], 'no_such_robot'),
+    (['scene:=brittle_star', 'payload:=ball'], 'payload'),
+    (['scene:=gripper', 'payload:=sphere'], "payload must be one of none, ball, box, got 'sphere'"),
+    (['scene:=gripper', 'time_factor:=-1.0'], 'time_factor'),
+])
+def test_bad_scene_or_payload_parameters_end_the_node_with_the_reason(start_node, params, reason):
+    args = ['--ros-args']
+    for p in params:
+        args += ['-p', p]
+    proc = start_node('softsnap_driver', 'sim_robot', *args)
+    assert proc.proc.wait(120) == 2, proc.output()
+    assert reason in proc.output() and 'Traceback' not in proc.output(), proc.output()
+
+
+def test_plain_command_line_refuses_a_bad_payload_without_ros():
+    import subprocess
+    import sys
+    out = subprocess.run([sys.executable, '-m', 'softsnap_driver.sim_robot', '--scene', 'ring',
+                          '--payload', 'ball', '--payload-mass-kg', '3'],
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 2
+    assert 'mass_kg' in out.stderr and 'Traceback' not in out.stderr, out.stderr
