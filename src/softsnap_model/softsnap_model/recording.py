@@ -254,11 +254,11 @@ def build_blueprint(colors: Mapping[str, RGB] | None = None,
         plot('Solver time (ms): commanded thin, predicted bold', 'solve_time_ms'),
         plot('Battery (V)', 'battery_v'),
     )
+    # The world view adds only what differs, so other recordings keep their view as is.
+    world = {'origin': '/', 'contents': f'{ROBOT_ROOT}/**'} if world_view else {'origin': ROBOT_ROOT}
     scene = rrb.Spatial3DView(
         name='Robot from above: commanded thin and muted, predicted bold',
-        origin='/' if world_view else ROBOT_ROOT,
-        contents=f'{ROBOT_ROOT}/**' if world_view else '$origin/**',
-        eye_controls=None if bounds is None else top_down_eye(bounds))
+        eye_controls=None if bounds is None else top_down_eye(bounds), **world)
     legend = rrb.TextDocumentView(name='Legend', origin=LEGEND_ROOT)
     left = rrb.Vertical(scene, legend, row_shares=[4, 1])
     return rrb.Blueprint(rrb.Horizontal(left, plots, column_shares=[3, 2]),
