@@ -70,8 +70,9 @@ from softsnap_driver.firmware import BatteryModel, Faults, MotorModel, SimModule
 from softsnap_driver.protocol import encode_set_request
 from softsnap_driver.sim_module import STOP_JOIN_S, SimServer
 
-#: Winch-physics coupling period, s: the firmware advances and the cable length is handed
-#: to the physics this often. The winch moves at most 0.6 mm of cable per period (123
+#: Winch-physics coupling period, s (rounded to whole physics timesteps: 4 ms with the
+#: model's 2 ms step): the firmware advances and the cable length is handed to the
+#: physics this often. The winch moves at most 0.6 mm of cable per period (123
 #: mm/s unloaded at 6 V, PWM 200), less than two firmware deadbands; the physics' cable
 #: constraint takes such a step smoothly (its time constant is 2 ms), and the Python
 #: work per period stays small next to the physics (5 ms: 5 % of a step's cost).
@@ -227,7 +228,8 @@ class SimRobot:
     stall_torque_nm : float
         Motor stall torque at 6 V and full PWM, N m.
     control_period_s : float
-        Winch-physics coupling period, s.
+        Winch-physics coupling period, s; rounded to a whole number of the physics'
+        fixed timesteps (at least one), so firmware and physics keep the same clock.
     snapshot_rate_hz : float
         How often :meth:`run` stores a :class:`RobotSnapshot`, Hz of simulation time.
     payload_release_mm : float
@@ -254,7 +256,8 @@ class SimRobot:
         motor = motor or MotorModel()
         self.scene = scene
         self.simulation = simulation
-        self.control_period_s = float(control_period_s)
+        timestep = float(getattr(simulation, 'timestep_s', control_period_s))
+        self.control_period_s = max(1, round(control_period_s / timestep)) * timestep
         self.snapshot_period_s = 1.0 / snapshot_rate_hz
         #: Guards the firmware state (modules, motors) shared with the server threads.
         self.lock = threading.Lock()

@@ -7,6 +7,7 @@ Examples::
     softsnap-model sweep --threading "R1 R1 R1 R1 R1 R1 R1 R1 R2 R2 R3 R3" --stop 80 --steps 81
     softsnap-model range --threading "R3 L3 R3 L3 R3 L3 R3 L3 R3 L3 R3 L3"
     softsnap-model calibrate --data docs/examples/calibration_example.yaml
+    softsnap-model physics --scene gripper --record physics.rrd     (needs mujoco)
 
 Errors are printed as JSON ``{"error": ..., "reachable_range_mm": ...}`` on stderr with
 exit status 2.
@@ -31,7 +32,7 @@ import numpy as np
 
 #: Subcommands contributed by other modules, ``'package.module:function'``.
 PLUGINS: list[str] = ['softsnap_model.inverse:add_cli', 'softsnap_model.recording:add_cli',
-                       'softsnap_model.calibration:add_cli']
+                       'softsnap_model.calibration:add_cli', 'softsnap_model.physics.cli:add_cli']
 
 
 def parse_threading(text: str) -> list:

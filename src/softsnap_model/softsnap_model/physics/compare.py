@@ -20,25 +20,17 @@ import numpy as np
 
 from ..forward import solve_forward
 from ..loads import Loads, solve_loaded
+from ..reference import PAPER_THREADINGS as _PAPER
 from ..skeleton import Skeleton
 from .mjcf import DEFAULT_LINKS_PER_SEGMENT, PhysicsParameters
 from .simulation import RobotSimulation
 
 __all__ = ['PAPER_THREADINGS', 'QUASI_STATIC_DAMPING_TIME_S', 'WINCH_TEST_SPEED_M_S',
-           'FidelityResult', 'static_fidelity', 'LoadCaseResult', 'load_case', 'LOAD_CASES']
+           'FidelityResult', 'static_fidelity', 'LoadCaseResult', 'load_case', 'LOAD_CASES',
+           'PayloadResult', 'payload_case', 'HOLD_DROP_TOL_M']
 
-#: The paper's threadings (FACTS.md), by name.
-PAPER_THREADINGS = {
-    'yellow': 'R1 R1 R1 R1 R1 R1 R1 R1 R2 R2 R3 R3',
-    'blue': 'R1 R2 R2 L2 L3 L3 L3 L3 L3 L3 L2 R2',
-    'green': 'R1 R1 R1 R1 R1 R2 R2 R2 R2 R3 R3 R3',
-    'red': 'R3 R3 R3 R3 R3 R2 R1 L3 L3 L3 L3 L3',
-    'orange': 'R3 R1 R1 R1 R1 R2 R2 R2 R2 R3 R3 R3',
-    'gripper': 'R1 R2 R2 L1 L3 L3 L3 L3 L3 L3 L3 L3',
-    'snake': 'R2 R3 R3 R3 L3 L3 L3 L3 R3 R3 R3 R3',
-    's': 'R3 R3 R3 R3 R3 R3 L3 L3 L3 L3 L3 L3',
-    'w': 'R3 R3 R3 R3 L2 L3 L2 R3 R3 R3 R3 R3',
-}
+#: The paper's threadings (FACTS.md), by name, as space-separated hole names.
+PAPER_THREADINGS = {name: ' '.join(holes) for name, holes in _PAPER.items()}
 #: Damping time (s) used for static comparisons: the settled shape does not depend on
 #: damping, and a heavier one settles the first bending mode sooner.
 QUASI_STATIC_DAMPING_TIME_S = 0.05
@@ -68,6 +60,8 @@ class FidelityResult:
     settled : bool
     sim_time_s, wall_time_s : float
         Simulated time (ramp and settling) and the wall-clock time it took.
+    rib_centers_mm, reference_rib_centers_mm : ndarray (n_ribs, 2)
+        The two shapes (module base frame).
     """
 
     threading: str
@@ -81,6 +75,8 @@ class FidelityResult:
     settled: bool
     sim_time_s: float
     wall_time_s: float
+    rib_centers_mm: np.ndarray = None
+    reference_rib_centers_mm: np.ndarray = None
 
 
 def _closest_branch(skeleton, threading, length_mm, centers_mm):
@@ -141,7 +137,8 @@ def static_fidelity(threading, contraction_mm: float = 20.0, *,
         max_rib_error_mm=float(err.max()), tip_error_mm=float(err[-1]),
         max_angle_error_rad=float(np.abs(sim.segment_angles('module') - ref.angles).max()),
         tension_n=sim.cable_tension('module'), reference_tension_n=float(ref.tension * k),
-        settled=res.settled, sim_time_s=sim.time_s, wall_time_s=wall)
+        settled=res.settled, sim_time_s=sim.time_s, wall_time_s=wall,
+        rib_centers_mm=centers, reference_rib_centers_mm=np.array(ref.rib_centers))
 
 
 # --------------------------------------------------------------------------- load cases
@@ -248,3 +245,152 @@ def _quat_matrix(q) -> np.ndarray:
         [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
         [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
         [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+# ----------------------------------------------------------------------------- payloads
+
+#: A payload "is held" when it sank less than this (m) in the time after it was let go.
+HOLD_DROP_TOL_M = 0.01
+
+
+@dataclass(frozen=True)
+class PayloadResult:
+    """The gripper closing on a payload and letting go of it (SI and mm).
+
+    Attributes
+    ----------
+    scene : str
+    contraction_mm : float
+        Cable shortening of every finger.
+    held : bool
+        The payload sank less than ``HOLD_DROP_TOL_M`` in ``hold_time_s`` after release.
+    drop_m : float
+        How far it sank (m).
+    hold_time_s : float
+    finger_force_n : dict
+        Module -> magnitude of the payload's contact force on that finger (N) at the end.
+    contact_rib : dict
+        Module -> rib that carries most of it (-1: no contact).
+    max_rib_error_mm : dict
+        Module -> largest rib-centre distance between MuJoCo and ``solve_loaded`` with the
+        finger's weight and the measured contact force as a point load on that rib
+        (NaN where the quasi-static solve does not converge).
+    tension_n : dict
+        Module -> cable tension (N).
+    """
+
+    scene: str
+    contraction_mm: float
+    held: bool
+    drop_m: float
+    hold_time_s: float
+    finger_force_n: dict
+    contact_rib: dict
+    max_rib_error_mm: dict
+    tension_n: dict
+
+
+def payload_case(scene='gripper', payload=None, contraction_mm: float | None = None, *,
+                 links_per_segment: int = DEFAULT_LINKS_PER_SEGMENT,
+                 parameters: PhysicsParameters | None = None, close_time_s: float = 1.5,
+                 hold_time_s: float = 2.0) -> PayloadResult:
+    """Close a hanging gripper on its payload, let go of it, and compare the fingers.
+
+    The fingers close over ``close_time_s`` to ``contraction_mm`` (default: the scene's
+    default gait's amplitude) with the payload held in place (a hand), then the payload
+    is released and the simulation runs ``hold_time_s``. Each finger is compared with
+    :func:`softsnap_model.loads.solve_loaded` under its weight and the payload's contact
+    force on it (world forces rotated into the module frame; the out-of-plane part is
+    dropped, as that model does).
+    """
+    import mujoco
+    from .mjcf import Payload
+    payload = Payload() if payload is None else payload
+    sim = RobotSimulation(scene, links_per_segment=links_per_segment, parameters=parameters,
+                          payload=payload)
+    if not sim.layout.payload_hold:
+        raise ValueError(f'payload_case needs a robot held in the world (the gripper); '
+                         f'{sim.layout.robot!r} has a free base')
+    sc = _scene(scene)
+    if contraction_mm is None:
+        gait = sc.gaits.get(sc.default_gait, {})
+        contraction_mm = float(gait.get('amplitude_mm', 45.0))
+    c = float(contraction_mm)
+    dt = sim.timestep_s
+    n = max(1, int(round(close_time_s / dt)))
+    for i in range(n):
+        for m in sim.module_names:
+            sim.set_cable_length(m, sim.straight_cable_length(m) - c * 1e-3 * (i + 1) / n)
+        sim.step(dt)
+    sim.step(0.3)
+    z0 = sim.payload_pose()[0][2]
+    sim.release_payload()
+    sim.step(hold_time_s)
+    drop = float(z0 - sim.payload_pose()[0][2])
+
+    # Contact forces of the payload on each rib (world frame), summed per module.
+    m_, d_ = sim.model, sim.data
+    pid = sim._payload_id
+    rib_owner = {}
+    for name in sim.module_names:
+        for k, b in enumerate(sim._rib_ids[name]):
+            rib_owner[int(b)] = (name, k)
+    forces = {name: {} for name in sim.module_names}
+    f6 = np.zeros(6)
+    for i in range(d_.ncon):
+        con = d_.contact[i]
+        b1, b2 = m_.geom_bodyid[con.geom1], m_.geom_bodyid[con.geom2]
+        if pid not in (b1, b2):
+            continue
+        other = b2 if b1 == pid else b1
+        # The rib bodies' link children carry no contact geoms, so ``other`` is a rib.
+        if int(other) not in rib_owner:
+            continue
+        mujoco.mj_contactForce(m_, d_, i, f6)
+        frame = con.frame.reshape(3, 3)
+        # mj_contactForce: the force geom1 exerts on geom2, in the contact frame (rows
+        # of ``frame``: normal from geom1 to geom2, then two tangents).
+        f_world = frame.T @ f6[:3]
+        on_rib = f_world if other == b2 else -f_world
+        name, k = rib_owner[int(other)]
+        forces[name][k] = forces[name].get(k, np.zeros(3)) + on_rib
+    p = parameters or PhysicsParameters()
+    skeleton = sc.skeleton
+    masses = np.full(skeleton.n_ribs, p.rib_mass_kg)
+    masses[0] = masses[-1] = p.end_rib_mass_kg
+    finger_force, contact_rib, errors, tensions = {}, {}, {}, {}
+    for name in sim.module_names:
+        per_rib = forces[name]
+        total = sum(per_rib.values(), np.zeros(3))
+        finger_force[name] = float(np.linalg.norm(total))
+        rib = max(per_rib, key=lambda k: np.linalg.norm(per_rib[k])) if per_rib else -1
+        contact_rib[name] = int(rib)
+        tensions[name] = sim.cable_tension(name)
+        _, q = sim.module_base_pose(name)
+        rot = _quat_matrix(q)
+        g_module = rot.T @ np.array([0.0, 0.0, -p.gravity_mps2])
+        load = rot.T @ total if rib > 0 else np.zeros(3)
+        loads = Loads(gravity_mps2=tuple(g_module), bending_stiffness_nmm=p.bending_stiffness_nmm,
+                      rib_masses_kg=tuple(masses), load_n=tuple(load),
+                      load_rib=rib if rib > 0 else -1)
+        module = sc.module(name)
+        length_mm = sim.cable_length(name) * 1e3
+        try:
+            ref = solve_loaded(skeleton, module.threading_mm, length_mm, loads)
+            ok = ref.converged
+        except ValueError:
+            ok = False
+        if ok:
+            centers = sim.rib_centers(name)[:, :2] * 1e3
+            errors[name] = float(np.max(np.linalg.norm(centers - ref.rib_centers, axis=1)))
+        else:
+            errors[name] = float('nan')
+    return PayloadResult(scene=sim.layout.robot, contraction_mm=c,
+                         held=bool(drop < HOLD_DROP_TOL_M), drop_m=drop,
+                         hold_time_s=float(hold_time_s), finger_force_n=finger_force,
+                         contact_rib=contact_rib, max_rib_error_mm=errors, tension_n=tensions)
+
+
+def _scene(scene):
+    from ..scene import Scene, load_scene
+    return scene if isinstance(scene, Scene) else load_scene(scene)

@@ -59,10 +59,11 @@ __all__ = ['DEFAULT_LINKS_PER_SEGMENT', 'SKELETON_THICKNESS_MM', 'PhysicsParamet
            'Payload', 'RobotLayout', 'ModuleLayout', 'module_mjcf', 'robot_mjcf',
            'robot_mjcf_layout', 'module_mjcf_layout']
 
-#: Links per segment when none is given: the fidelity test and benchmark
-#: (benchmarks/physics_bench.py) show the rib centres within 0.5 mm of the exact
-#: constant-curvature model at 20 mm contraction from N = 2; 4 leaves a margin.
-DEFAULT_LINKS_PER_SEGMENT = 4
+#: Links per segment when none is given: with the chord-matched link lengths
+#: (:func:`link_lengths`) the rib centres are within 0.1 mm of the exact
+#: constant-curvature model at 20 mm contraction from N = 2 (tests and
+#: benchmarks/physics_bench.py); N = 1 is ~14 mm off, and every extra link costs run time.
+DEFAULT_LINKS_PER_SEGMENT = 2
 #: Largest links per segment accepted (cost grows linearly; error is ~1/N^2).
 MAX_LINKS_PER_SEGMENT = 64
 #: Skeleton thickness across the bending plane (mm), FACTS.md (201 x 25 x 9 mm).
@@ -137,21 +138,32 @@ class PhysicsParameters:
         Estimate for TPU/PLA on a table (0.3-0.8); the gaits' travel depends on it.
     payload_friction : float
         Sliding friction of the payload on ribs and ground (estimate, PLA ball).
-    constraint_stiffness, constraint_damping : float
-        MuJoCo reference stiffness (1/s^2) and damping (1/s) of the cable's length limit
-        and of the hinge-coupling equalities (a negative ``solref``), with impedance
-        ``constraint_impedance``. Acceleration-space values: the ribs weigh a gram, so a
-        time-constant ``solref`` stiff enough to hold the cable (0.1 mm stretch needs
-        ~2 ms) chatters between taut and slack; a heavily overdamped reference (1e6,
-        1e4: roots at 100/s and 1e4/s) holds the cable within 0.001 mm at the paper's
-        tensions and settles (benchmarks/physics_bench.py, tests).
+    constraint_stiffness_dt2, constraint_damping_dt : float
+        Reference stiffness ``k`` (1/s^2) and damping ``b`` (1/s) of the cable's length
+        limit and of the hinge-coupling equalities, given as the dimensionless
+        ``k dt^2`` and ``b dt`` so that they follow the timestep (MuJoCo's negative
+        ``solref = (-k, -b)``), with impedance ``constraint_impedance``. These are
+        acceleration-space values: the ribs weigh a gram, so a time-constant ``solref``
+        stiff enough to hold the cable (0.1 mm stretch needs ~2 ms) chatters between
+        taut and slack; a heavily overdamped reference (``k dt^2 = 1``, ``b dt = 10``)
+        holds the cable within 0.001 mm at the paper's tensions and settles (tests,
+        benchmarks/physics_bench.py).
     constraint_impedance : float
         ``solimp`` impedance of those constraints, in (0, 1): closer to 1 is harder.
+    contact_rib_stride : int
+        Every how many ribs one has a ground contact, counted from the tip (1: every
+        rib). The spine is rigid out of its plane, so fewer contacts still carry a
+        flat module; they cost less but concentrate the friction.
     hinge_armature_kgm2 : float
-        Armature added to every hinge (kg m^2), numerical: zero leaves the light links'
-        fastest modes to the implicit damping alone.
+        Armature added to every hinge (kg m^2), numerical: 3e-8 (half a rib's own
+        moment of inertia, 6e-8) slows the light links' fastest local modes so that a
+        2 ms step settles up to N = 8 (1e-8 does not at N = 4; 1e-7 lets the snake's
+        chain oscillate on the ground). It adds about 1 % to the inertia of a module's
+        first bending mode (ribs at ~0.1 m: 1e-5 kg m^2).
     timestep_s : float
-        Fixed integration step (s) with the ``implicitfast`` integrator.
+        Fixed integration step (s) with the ``implicitfast`` integrator. 2 ms is stable
+        for the five scenes and the fidelity checks (implicit hinge damping; constraint
+        references scaled with the step); 4 ms is not for robots on the ground.
     gravity_mps2 : float
         Magnitude of gravity (m/s^2), along world -z.
     """
@@ -167,18 +179,19 @@ class PhysicsParameters:
     connector_density_kg_m3: float = 1240.0 * 0.4
     rib_friction: float = 0.6
     payload_friction: float = 0.8
-    constraint_stiffness: float = 1e6
-    constraint_damping: float = 1e4
+    constraint_stiffness_dt2: float = 1.0
+    constraint_damping_dt: float = 10.0
     constraint_impedance: float = 0.9999
-    hinge_armature_kgm2: float = 1e-8
-    timestep_s: float = 0.001
+    hinge_armature_kgm2: float = 3e-8
+    contact_rib_stride: int = 1
+    timestep_s: float = 0.002
     gravity_mps2: float = STANDARD_GRAVITY_MPS2
 
     def __post_init__(self):
         for name in ('bending_stiffness_nmm', 'damping_time_s', 'rib_mass_kg',
                      'end_rib_mass_kg', 'link_mass_kg', 'motor_box_mass_kg',
                      'battery_mass_kg', 'connector_density_kg_m3', 'rib_friction',
-                     'payload_friction', 'constraint_stiffness', 'constraint_damping'):
+                     'payload_friction', 'constraint_stiffness_dt2', 'constraint_damping_dt'):
             object.__setattr__(self, name, _check_real(name, getattr(self, name), low=0.0,
                                                        low_open=True))
         object.__setattr__(self, 'timestep_s', _check_real(
@@ -198,13 +211,29 @@ class PhysicsParameters:
         object.__setattr__(self, 'constraint_impedance', _check_real(
             'constraint_impedance', self.constraint_impedance, low=0.0, low_open=True,
             high=0.9999))
+        st = self.contact_rib_stride
+        if isinstance(st, bool) or not isinstance(st, numbers.Integral) or not 1 <= st <= 11:
+            raise ValueError(f'contact_rib_stride must be an integer in [1, 11], got {st!r}')
         object.__setattr__(self, 'hinge_armature_kgm2', _check_real(
             'hinge_armature_kgm2', self.hinge_armature_kgm2, low=0.0, high=1.0))
 
     @property
     def constraint_solref(self) -> tuple:
         """``solref`` of the cable limit and couplings: (-stiffness, -damping)."""
-        return (-self.constraint_stiffness, -self.constraint_damping)
+        dt = self.timestep_s
+        return (-self.constraint_stiffness_dt2 / dt ** 2, -self.constraint_damping_dt / dt)
+
+    @property
+    def weld_solref(self) -> tuple:
+        """``solref`` of the welds joining chained modules: a 4-step time constant,
+        damping ratio 2 (the cable's overdamped reference is unstable on these heavier
+        bodies, and ratio 1 lets the snake's links chatter on the ground)."""
+        return (4.0 * self.timestep_s, 2.0)
+
+    @property
+    def weld_solimp(self) -> tuple:
+        """``solimp`` of the chain welds."""
+        return (0.99, 0.999, 0.001, 0.5, 2.0)
 
     @property
     def constraint_solimp(self) -> tuple:
@@ -225,9 +254,10 @@ class Payload:
     size_m : float or sequence of 3 float
         Ball radius, or the box's half extents (m), each in (0, 0.2].
     position_m : sequence of 3 float, optional
-        Centre in the robot frame (m). None: the scene's default place (the ring's centre
-        on the ground; between the gripper's fingertips, held until
-        ``RobotSimulation.release_payload``).
+        Centre in the robot frame (m). None: the scene's default place: the ring's centre
+        on the ground; for the gripper, on the fingertips as the quasi-static model
+        closes them at the default gait's amplitude, held there by a weld until
+        ``RobotSimulation.release_payload`` (a hand placing it in the open gripper).
     """
 
     shape: str = 'ball'
@@ -377,10 +407,12 @@ def _add_ground(world, params: PhysicsParameters):
 def _add_module(parent, equality, tendons, *, name: str, skeleton: Skeleton,
                 threading_mm: np.ndarray, pos_m, quat_wxyz, mount_m: float,
                 params: PhysicsParameters, n_links: int, coupled: bool,
-                rgba: str, flat: bool) -> tuple[ModuleLayout, ET.Element]:
+                rgba: str, flat: bool,
+                rib_capsules: bool = False) -> tuple[ModuleLayout, ET.Element]:
     """Add one module under ``parent``; return its layout and its tip rib element.
 
     ``flat``: the ribs lie along the ground (module y horizontal in the robot frame).
+    ``rib_capsules``: every rib touches through a capsule along its length (payloads).
     """
     s = skeleton.spacing_mm * 1e-3
     t_half = max(0.5 * skeleton.rib_thickness_mm, 0.25) * 1e-3
@@ -399,27 +431,39 @@ def _add_module(parent, equality, tendons, *, name: str, skeleton: Skeleton,
     # mount's geom (its plastic is counted in the connector or the box estimate).
     bl, bw, bh = (v * 1e-3 for v in params.motor_box_size_mm)
     box_x = -t_half - 0.5 * bl
+    # Lying flat, the box and mount touch the ground through one capsule along the
+    # spine (two contacts instead of a box's four each); standing, through the boxes.
+    box_class = _VISUAL_CLASS if flat else _ROBOT_CLASS
     _box_inertia_geom(base, f'{name}/motor_box', (0.5 * bl, 0.5 * bw, 0.5 * bh),
-                      (box_x, 0, 0), params.motor_box_mass_kg, _ROBOT_CLASS,
+                      (box_x, 0, 0), params.motor_box_mass_kg, box_class,
                       '0.25 0.25 0.3 1', params.rib_friction)
     _box_inertia_geom(base, f'{name}/battery', (0.4 * bl, 0.4 * bw, 0.2 * bh),
                       (box_x, 0, 0), params.battery_mass_kg, _VISUAL_CLASS, '0.6 0.5 0.1 1')
     mount_len = mount_m - bl - t_half
     if mount_len > 1e-4:
         _box_inertia_geom(base, f'{name}/mount', (0.5 * mount_len, 0.3 * bw, 0.5 * bh),
-                          (-t_half - bl - 0.5 * mount_len, 0, 0), 0.0, _ROBOT_CLASS,
+                          (-t_half - bl - 0.5 * mount_len, 0, 0), 0.0, box_class,
                           '0.4 0.4 0.45 1', params.rib_friction)
+    if flat:
+        back = -t_half - bl - max(mount_len, 0.0) + 0.5 * bh
+        ET.SubElement(base, 'geom', name=f'{name}/base/contact', type='capsule',
+                      fromto=_f(back, 0, 0, -t_half - 0.5 * bh, 0, 0), size=_f(0.5 * bh),
+                      mass='0', contype=str(_ROBOT_CLASS[0]), conaffinity=str(_ROBOT_CLASS[1]),
+                      group='3', friction=_f(params.rib_friction, 0.005, 0.0001))
 
     rib_bodies, sites, hinges = [f'{name}/base'], [], []
 
     def add_rib(body, k_rib):
         # The box carries the mass and the picture; contact uses one sphere (ribs lying
-        # flat: their whole underside is at one height) or a capsule along the rib
-        # (ribs standing up): one or two contacts per rib instead of a box's four, which
-        # is most of the cost of a robot lying on the ground.
+        # flat on the ground and nothing else to touch: their whole underside is at one
+        # height) or a capsule along the rib (ribs standing up, or a payload that the
+        # rib ends must hold): one or two contacts per rib instead of a box's four,
+        # which is most of the cost of a robot lying on the ground.
         _box_inertia_geom(body, f'{name}/rib{k_rib}', (t_half, l_half, z_half), (0, 0, 0),
                           masses[k_rib], _VISUAL_CLASS, rgba)
-        if flat:
+        if k_rib == 0 or (n_ribs - 1 - k_rib) % params.contact_rib_stride:
+            pass                       # rib 0: the motor box touches for it
+        elif flat and not rib_capsules:
             ET.SubElement(body, 'geom', name=f'{name}/rib{k_rib}/contact', type='sphere',
                           size=_f(z_half), mass='0', contype=str(_ROBOT_CLASS[0]),
                           conaffinity=str(_ROBOT_CLASS[1]), group='3',
@@ -688,12 +732,35 @@ def _default_payload_position(scene, payload: Payload) -> tuple:
         # On the ground at the ring's centre; the ground is at the modules' underside.
         return (0.0, 0.0, -0.5 * SKELETON_THICKNESS_MM * 1e-3 + r)
     if _hanging(scene):
-        # On the gripping axis, level with the lower third of the straight fingers.
-        z = np.mean([m.base_position_m[2] for m in scene.modules])
-        spine = scene.skeleton.n_segments * scene.skeleton.spacing_mm * 1e-3
-        return (0.0, 0.0, float(z - 0.7 * spine))
+        return _grasp_place(scene)
     raise ValueError(f'scene {scene.name!r} has no default payload place: give '
                      f'Payload(position_m=...) in the robot frame (m)')
+
+
+#: Contraction (mm) the gripper's payload place is computed for when the scene's
+#: default gait states no ``amplitude_mm`` (the gripper scene's grasp uses 45 mm).
+GRASP_CONTRACTION_MM = 45.0
+
+
+def _grasp_place(scene) -> tuple:
+    """Robot-frame centre (m) of a payload for the gripper to hold.
+
+    The centroid of the fingertips (rib centres of the tip ribs) in the fingers' closed
+    quasi-static shape at the default gait's amplitude, without the payload: the open
+    fingers clear it, and closing they press on it where they would otherwise meet, as
+    when the gripper closes on an object between its fingers.
+    """
+    from ..forward import solve_forward
+    gait = scene.gaits.get(scene.default_gait, {})
+    amp = float(gait.get('amplitude_mm', GRASP_CONTRACTION_MM))
+    tips = []
+    for m in scene.modules:
+        length = scene.skeleton.straight_length_mm(m.threading_mm) - amp
+        tip = solve_forward(scene.skeleton, m.threading_mm, length).rib_centers[-1] * 1e-3
+        tips.append(np.array(m.base_position_m)
+                    + _rot(m.base_orientation_xyzw) @ [tip[0], tip[1], 0.0])
+    centre = np.mean(tips, axis=0)
+    return (float(centre[0]), float(centre[1]), float(centre[2]))
 
 
 def _flat(rot: np.ndarray) -> bool:
@@ -709,7 +776,8 @@ def robot_mjcf_layout(scene, *, links_per_segment: int = DEFAULT_LINKS_PER_SEGME
                       parameters: PhysicsParameters | None = None, gravity: bool = True,
                       ground: bool = True, payload: Payload | None = None,
                       base: str = 'auto', coupled: bool = True,
-                      base_height_m: float | None = None) -> tuple[str, RobotLayout]:
+                      base_height_m: float | None = None,
+                      chain: str = 'weld') -> tuple[str, RobotLayout]:
     """MJCF of a whole robot from a scene, and the names of its parts.
 
     Parameters
@@ -733,6 +801,11 @@ def robot_mjcf_layout(scene, *, links_per_segment: int = DEFAULT_LINKS_PER_SEGME
         Height of the robot frame's origin above the ground (m). None: the hanging
         height for a fixed base, else 0 (``RobotSimulation`` lowers a free robot onto the
         ground after compiling).
+    chain : str
+        How chained modules (snake, ring) are joined: ``'weld'`` (default: each module
+        its own tree, held to its parent's tip by a weld equality; cheaper, the links
+        slightly compliant) or ``'tree'`` (nested bodies, rigid links; the ring's loop
+        is still closed by a weld).
 
     Raises
     ------
@@ -751,6 +824,8 @@ def robot_mjcf_layout(scene, *, links_per_segment: int = DEFAULT_LINKS_PER_SEGME
         raise ValueError(f'parameters must be PhysicsParameters, got {type(params).__name__}')
     if payload is not None and not isinstance(payload, Payload):
         raise ValueError(f'payload must be a Payload or None, got {type(payload).__name__}')
+    if chain not in ('weld', 'tree'):
+        raise ValueError(f"chain must be 'weld' or 'tree', got {chain!r}")
     if base not in ('auto', 'free', 'fixed'):
         raise ValueError(f"base must be 'auto', 'free' or 'fixed', got {base!r}")
     free = (not _hanging(scene)) if base == 'auto' else base == 'free'
@@ -782,47 +857,69 @@ def robot_mjcf_layout(scene, *, links_per_segment: int = DEFAULT_LINKS_PER_SEGME
                                skeleton=scene.skeleton, threading_mm=np.array(m.threading_mm),
                                pos_m=pos, quat_wxyz=quat, mount_m=mount, params=params,
                                n_links=n, coupled=coupled, rgba=colors[m.name],
-                               flat=_flat(_rot(m.base_orientation_xyzw)))
+                               flat=_flat(_rot(m.base_orientation_xyzw)),
+                               rib_capsules=payload is not None)
         layouts[m.name] = lay
         tips[m.name] = tip
 
+    def weld(body1, body2, name):
+        # Modules of chains are separate trees joined by welds at their straight
+        # relative pose (relpose unset: the model's reference pose): a tree as deep as
+        # the whole chain makes every contact row touch every joint (the mass matrix
+        # and the constraint Jacobian turn dense), several times slower.
+        ET.SubElement(equality, 'weld', name=name, body1=body1, body2=body2,
+                      solref=_f(*params.weld_solref), solimp=_f(*params.weld_solimp))
+
+    def add_free(m):
+        # A module of its own tree, at its straight base pose in the world.
+        holder = ET.SubElement(world, 'body', name=f'{m.name}/holder',
+                               pos=_f(m.base_position_m[0], m.base_position_m[1],
+                                      m.base_position_m[2] + base_height_m))
+        ET.SubElement(holder, 'freejoint', name=f'{m.name}/free')
+        add(m, holder, (0.0, 0.0, 0.0), _quat_wxyz(m.base_orientation_xyzw))
+
+    tip_rib = f'rib{scene.skeleton.n_ribs - 1}'
+    spine = scene.skeleton.n_segments * scene.skeleton.spacing_mm * 1e-3
+
+    def add_child(m, prev):
+        # Nested under the parent's tip rib at the straight relative pose.
+        r_prev = _rot(prev.base_orientation_xyzw)
+        tip_pos = np.array(prev.base_position_m) + r_prev @ [spine, 0, 0]
+        rel_pos = r_prev.T @ (np.array(m.base_position_m) - tip_pos)
+        rel_rot = r_prev.T @ _rot(m.base_orientation_xyzw)
+        add(m, tips[prev.name], rel_pos, _mat_to_wxyz(rel_rot))
+
+    if kind != 'ring' and kind != 'chain':
+        _connector_geom(robot, scene, params)
     if kind == 'ring':
         order = _ring_order(scene)
-        spine = scene.skeleton.n_segments * scene.skeleton.spacing_mm * 1e-3
-        first = order[0]
-        add(first, robot, first.base_position_m, _quat_wxyz(first.base_orientation_xyzw))
-        for prev, m in zip(order, order[1:]):
-            # Base pose in the previous module's (straight) tip-rib frame.
-            r_prev = _rot(prev.base_orientation_xyzw)
-            tip_pos = np.array(prev.base_position_m) + r_prev @ [spine, 0, 0]
-            rel_pos = r_prev.T @ (np.array(m.base_position_m) - tip_pos)
-            rel_rot = r_prev.T @ _rot(m.base_orientation_xyzw)
-            add(m, tips[prev.name], rel_pos, _mat_to_wxyz(rel_rot))
-        # Close the loop: the last module's tip rib welded to the first module's base at
-        # their straight relative pose (relpose unset: the model's reference pose).
-        ET.SubElement(equality, 'weld', name='ring/closure',
-                      body1=f'{order[-1].name}/rib{scene.skeleton.n_ribs - 1}',
-                      body2=f'{first.name}/base',
-                      solref=_f(4.0 * params.timestep_s, 1.0), solimp='0.99 0.999 0.001 0.5 2')
+        links = list(zip(order, order[1:] + order[:1]))
+        roots = [order[0]]
     else:
-        if kind not in ('chain',):
-            _connector_geom(robot, scene, params)
-        pending = list(scene.modules)
+        by_name = {m.name: m for m in scene.modules}
+        links = [(by_name[m.parent], m) for m in scene.modules if m.parent is not None]
+        roots = [m for m in scene.modules if m.parent is None]
+    for m in roots:
+        add(m, robot, m.base_position_m, _quat_wxyz(m.base_orientation_xyzw))
+    if chain == 'weld':
+        for _, m in links:
+            if m not in roots:
+                add_free(m)
+        for prev, m in links:
+            weld(f'{prev.name}/{tip_rib}', f'{m.name}/base', f'{m.name}/link')
+    else:
+        pending = [link for link in links if link[1] not in roots]
         while pending:
-            progressed = False
-            for m in list(pending):
-                if m.parent is None:
-                    add(m, robot, m.base_position_m, _quat_wxyz(m.base_orientation_xyzw))
-                elif m.parent in tips:
-                    add(m, tips[m.parent], m.parent_offset_position_m,
-                        _quat_wxyz(m.parent_offset_orientation_xyzw))
-                else:
-                    continue
-                pending.remove(m)
-                progressed = True
-            if not progressed:     # load_scene rejects cycles; guard anyway
-                raise ValueError(f'scene {scene.name!r}: parent chain of '
-                                 f'{[m.name for m in pending]} cannot be resolved')
+            ready = [link for link in pending if link[0].name in tips]
+            if not ready:      # load_scene rejects cycles; guard anyway
+                raise ValueError(f'scene {scene.name!r}: cannot attach '
+                                 f'{[m.name for _, m in pending]} to their parents')
+            for prev, m in ready:
+                add_child(m, prev)
+                pending.remove((prev, m))
+        if kind == 'ring':
+            prev, m = links[-1]
+            weld(f'{prev.name}/{tip_rib}', f'{m.name}/base', 'ring/closure')
 
     payload_body = payload_hold = None
     if payload is not None:

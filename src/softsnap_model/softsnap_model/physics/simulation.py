@@ -96,6 +96,9 @@ class RobotSimulation:
         ``'auto'``, ``'free'`` or ``'fixed'`` (see :func:`robot_mjcf_layout`).
     coupled : bool
         Constant curvature per segment.
+    chain : str
+        ``'weld'`` or ``'tree'``: how chained modules are joined (see
+        :func:`~softsnap_model.physics.mjcf.robot_mjcf_layout`).
 
     A free robot is lowered onto the ground (lowest point ``GROUND_CLEARANCE_M`` above
     it) at time 0; call :meth:`settle` to let it come to rest.
@@ -104,11 +107,11 @@ class RobotSimulation:
     def __init__(self, scene, *, links_per_segment: int = DEFAULT_LINKS_PER_SEGMENT,
                  parameters: PhysicsParameters | None = None, gravity: bool = True,
                  ground: bool = True, payload: Payload | None = None, base: str = 'auto',
-                 coupled: bool = True):
+                 coupled: bool = True, chain: str = 'weld'):
         xml, layout = robot_mjcf_layout(scene, links_per_segment=links_per_segment,
                                         parameters=parameters, gravity=gravity,
                                         ground=ground, payload=payload, base=base,
-                                        coupled=coupled)
+                                        coupled=coupled, chain=chain)
         self._init(xml, layout, place_on_ground=ground and layout.free_base)
 
     @classmethod
@@ -163,20 +166,16 @@ class RobotSimulation:
         self._initial_range = self.model.tendon_range.copy()
 
     def _collision_geoms_below(self, root_body: int) -> np.ndarray:
+        """Collision geoms of the robot: every non-world body except the payload."""
         m = self.model
-        ids = []
-        for g in range(m.ngeom):
-            b = m.geom_bodyid[g]
-            if m.geom_contype[g] == 0 and m.geom_conaffinity[g] == 0:
-                continue
-            while b > 0 and b != root_body:
-                b = m.body_parentid[b]
-            if b == root_body:
-                ids.append(g)
+        ids = [g for g in range(m.ngeom)
+               if m.geom_bodyid[g] > 0 and m.geom_bodyid[g] != self._payload_id
+               and (m.geom_contype[g] or m.geom_conaffinity[g])]
         return np.array(ids, dtype=int)
 
     def _lowest_point_z(self) -> float:
-        """Lowest world z (m) over the robot's collision geoms (boxes, cylinders, spheres)."""
+        """Lowest world z (m) over the robot's collision geoms (boxes, cylinders, capsules,
+        spheres; anything else by its bounding sphere)."""
         m, d = self.model, self.data
         low = math.inf
         for g in self._robot_geoms:
@@ -188,18 +187,21 @@ class RobotSimulation:
             elif kind == mujoco.mjtGeom.mjGEOM_CYLINDER:
                 az = abs(r[2, 2])
                 ext = az * size[1] + size[0] * math.sqrt(max(0.0, 1.0 - az * az))
+            elif kind == mujoco.mjtGeom.mjGEOM_CAPSULE:
+                ext = abs(r[2, 2]) * size[1] + size[0]
             else:
                 ext = float(m.geom_rbound[g])
             low = min(low, float(d.geom_xpos[g][2]) - ext)
         return low
 
     def _place_on_ground(self) -> None:
+        # Every free body (the robot's root, chained modules, the payload) moves up
+        # together, so welds and the payload's place in the robot are kept.
         shift = GROUND_CLEARANCE_M - self._lowest_point_z()
-        adr = self.model.jnt_qposadr[self.model.body_jntadr[self._root_id]]
-        self.data.qpos[adr + 2] += shift
-        if self._payload_id >= 0 and self.model.body_jntnum[self._payload_id]:
-            padr = self.model.jnt_qposadr[self.model.body_jntadr[self._payload_id]]
-            self.data.qpos[padr + 2] += shift
+        m = self.model
+        for j in range(m.njnt):
+            if m.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE:
+                self.data.qpos[m.jnt_qposadr[j] + 2] += shift
         mujoco.mj_forward(self.model, self.data)
 
     # -- queries -------------------------------------------------------------------------
