@@ -280,6 +280,8 @@ class SimRobot:
         self._names = tuple(self.modules)
         self._tension_n = {name: 0.0 for name in self._names}
         self._lengths_m = {name: self._straight_mm[name] / 1000.0 for name in self._names}
+        #: Modules whose winch turned in the last period (their tensions are read).
+        self._winding: set[str] = set()
         # The clock the firmware has been advanced to (s of simulation time). A float is
         # replaced atomically, so the server threads read it without the lock.
         self._clock = 0.0
@@ -328,6 +330,7 @@ class SimRobot:
         started = time.perf_counter()
         dt = self.control_period_s
         t_next = (self._steps + 1) * dt   # from the step count: no drift from summing
+        changed = []
         with self.lock:
             for name in self._names:
                 module = self.modules[name]
@@ -335,10 +338,15 @@ class SimRobot:
                 motor.tension_n = self._tension_n[name]
                 motor.hauling = module.target > module.position
                 module.advance_to(t_next)
-                self._lengths_m[name] = self.cable_length_m(name, module.position)
+                length = self.cable_length_m(name, module.position)
+                if length != self._lengths_m[name]:
+                    self._lengths_m[name] = length
+                    changed.append(name)
+                if module.moving():
+                    self._winding.add(name)
             self._clock = t_next
         sim = self.simulation
-        for name in self._names:
+        for name in changed:     # a winch at rest leaves its tendon limit as it is
             sim.set_cable_length(name, self._lengths_m[name])
         if self._release_pending and all(
                 self.modules[n].position / self._counts_per_mm[n] >= self.payload_release_mm
@@ -347,20 +355,24 @@ class SimRobot:
             self._release_pending = False
             self.payload_released_at_s = t_next
         sim.step(dt)
-        self._read_tensions()
+        self._read_tensions(self._winding)
+        # The tension loads a winch only while it turns: read it for those that turned
+        # in this period or will in the next (one read after a winch stops).
+        self._winding = {n for n in self._winding if self.modules[n].moving()}
         self._steps += 1
         self._busy_s += time.perf_counter() - started
 
-    def _read_tensions(self) -> None:
-        """Every module's cable tension (N) after the last physics step."""
+    def _read_tensions(self, names=None) -> None:
+        """The cable tension (N) of `names` (default every module) after the last step."""
         sim = self.simulation
+        names = self._names if names is None else [n for n in self._names if n in names]
         batch = getattr(sim, 'cable_tensions', None)   # one pass over the constraints
         if batch is not None:
             tensions = batch()
-            for name in self._names:
+            for name in names:
                 self._tension_n[name] = float(tensions[name])
         else:
-            for name in self._names:
+            for name in names:
                 self._tension_n[name] = float(sim.cable_tension(name))
 
     def run_until(self, time_s: float, on_step=None) -> None:
@@ -389,7 +401,7 @@ class SimRobot:
                 name=name, rib_centers_m=tuple(tuple(float(v) for v in rib) for rib in ribs),
                 angles_rad=_vec(sim.segment_angles(name)),
                 base_position_m=_vec(position), base_orientation_wxyz=_vec(orientation),
-                cable_length_m=self._lengths_m[name], tension_n=self._tension_n[name],
+                cable_length_m=self._lengths_m[name], tension_n=float(sim.cable_tension(name)),
                 encoder_count=counts[name][0], target=counts[name][1]))
         payload_position = _vec(sim.payload_pose()[0]) if self.has_payload else None
         return RobotSnapshot(time_s=float(sim.time_s), base_position_m=_vec(base_position),
