@@ -168,8 +168,8 @@ def _travel_m(gait_name: str, cycles: int) -> np.ndarray:
 
 
 @pytest.mark.xfail(strict=True, reason=(
-    'In the MuJoCo model the brittle star drifts the same way (+x, -y, a few mm per cycle) '
-    'under walk and walk_reverse: walk_reverse is walk shifted by half a period (the same '
+    'In the MuJoCo model the brittle star drifts the same way under walk and walk_reverse '
+    '(2 cycles: (8.0, -5.7) and (8.2, -1.5) mm): walk_reverse is walk shifted by half a period (the same '
     'two-state cycle), and reordering the groups (phases 0/0.25 either way) or swapping '
     'the large step between them does not turn it round either; the drift follows the '
     "legs' threadings (mostly R holes: every leg curls the same way). A gait that walks "
