@@ -99,3 +99,12 @@ def test_physics_graph_refuses_scattered_ports_and_real_modules():
         robot_graph(scene, physics=True, sim_ports=scattered)
     with pytest.raises(ValueError, match='physics needs simulated modules'):
         robot_graph(scene, physics=True, simulate=False)
+
+
+def test_launch_argument_physics_starts_sim_robot():
+    specs = graph_from_arguments('snake', {'physics': 'true', 'sim_port_base': '21000',
+                                           'rerun': 'false'})
+    assert specs[0].executable == 'sim_robot' and specs[0].parameters['port_base'] == 21000
+    assert not [s for s in specs if s.executable == 'sim_module']
+    with pytest.raises(ValueError, match='physics needs simulated modules'):
+        graph_from_arguments('snake', {'physics': 'true', 'simulate': 'false'})
