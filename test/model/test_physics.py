@@ -147,10 +147,27 @@ def test_bad_payload_is_refused(kwargs, match):
     (dict(links_per_segment=2.5), 'links_per_segment'),
     (dict(base='floating'), "base must be"),
     (dict(payload='ball'), 'payload must be a Payload'),
+    (dict(bending_stiffness_nmm=-1.0), 'bending_stiffness_nmm'),
+    (dict(chain='rope'), "chain must be"),
 ])
 def test_bad_robot_options_are_refused(kwargs, match):
     with pytest.raises(ValueError, match=match):
         robot_mjcf('brittle_star', **kwargs)
+
+
+def test_bending_stiffness_scales_the_hinges():
+    soft = ET.fromstring(robot_mjcf('brittle_star', bending_stiffness_nmm=8.8))
+    hinge = next(j for j in soft.iter('joint') if j.get('type') == 'hinge')
+    assert float(hinge.get('stiffness')) == pytest.approx(2 * 2 * 8.8 * 1e-3)
+
+
+def test_bad_parameters_are_refused():
+    for kwargs, match in [(dict(timestep_s=0.0), 'timestep_s'),
+                          (dict(rib_friction=float('inf')), 'rib_friction'),
+                          (dict(contact_rib_stride=0), 'contact_rib_stride'),
+                          (dict(motor_box_size_mm=(30, 25)), 'motor_box_size_mm')]:
+        with pytest.raises(ValueError, match=match):
+            PhysicsParameters(**kwargs)
 
 
 def test_unknown_scene_is_refused():

@@ -14,7 +14,7 @@ from __future__ import annotations
 import itertools
 import math
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -251,6 +251,8 @@ def _quat_matrix(q) -> np.ndarray:
 
 #: A payload "is held" when it sank less than this (m) in the time after it was let go.
 HOLD_DROP_TOL_M = 0.01
+#: Contact forces of a held payload are averaged over this last part of the hold (s).
+AVERAGE_S = 0.5
 
 
 @dataclass(frozen=True)
@@ -268,7 +270,8 @@ class PayloadResult:
         How far it sank (m).
     hold_time_s : float
     finger_force_n : dict
-        Module -> magnitude of the payload's contact force on that finger (N) at the end.
+        Module -> magnitude of the payload's contact force on that finger (N), averaged
+        over the last ``AVERAGE_S`` of the hold.
     contact_rib : dict
         Module -> rib that carries most of it (-1: no contact).
     max_rib_error_mm : dict
@@ -325,10 +328,11 @@ def payload_case(scene='gripper', payload=None, contraction_mm: float | None = N
     sim.step(0.3)
     z0 = sim.payload_pose()[0][2]
     sim.release_payload()
-    sim.step(hold_time_s)
-    drop = float(z0 - sim.payload_pose()[0][2])
-
-    # Contact forces of the payload on each rib (world frame), summed per module.
+    # Contact forces of the payload on each rib (world frame, N), averaged over the last
+    # AVERAGE_S of the hold: a payload resting on springy fingers bounces, so one step's
+    # contacts come and go.
+    average_s = min(AVERAGE_S, hold_time_s)
+    sim.step(hold_time_s - average_s)
     m_, d_ = sim.model, sim.data
     pid = sim._payload_id
     rib_owner = {}
@@ -337,23 +341,25 @@ def payload_case(scene='gripper', payload=None, contraction_mm: float | None = N
             rib_owner[int(b)] = (name, k)
     forces = {name: {} for name in sim.module_names}
     f6 = np.zeros(6)
-    for i in range(d_.ncon):
-        con = d_.contact[i]
-        b1, b2 = m_.geom_bodyid[con.geom1], m_.geom_bodyid[con.geom2]
-        if pid not in (b1, b2):
-            continue
-        other = b2 if b1 == pid else b1
-        # The rib bodies' link children carry no contact geoms, so ``other`` is a rib.
-        if int(other) not in rib_owner:
-            continue
-        mujoco.mj_contactForce(m_, d_, i, f6)
-        frame = con.frame.reshape(3, 3)
-        # mj_contactForce: the force geom1 exerts on geom2, in the contact frame (rows
-        # of ``frame``: normal from geom1 to geom2, then two tangents).
-        f_world = frame.T @ f6[:3]
-        on_rib = f_world if other == b2 else -f_world
-        name, k = rib_owner[int(other)]
-        forces[name][k] = forces[name].get(k, np.zeros(3)) + on_rib
+    n_avg = max(1, int(round(average_s / dt)))
+    for _ in range(n_avg):
+        sim.step(dt)
+        for i in range(d_.ncon):
+            con = d_.contact[i]
+            b1, b2 = m_.geom_bodyid[con.geom1], m_.geom_bodyid[con.geom2]
+            if pid not in (b1, b2):
+                continue
+            other = int(b2 if b1 == pid else b1)
+            if other not in rib_owner:
+                continue
+            mujoco.mj_contactForce(m_, d_, i, f6)
+            # mj_contactForce: the force geom1 exerts on geom2, in the contact frame
+            # (rows of ``frame``: normal from geom1 to geom2, then two tangents).
+            f_world = con.frame.reshape(3, 3).T @ f6[:3]
+            on_rib = f_world if other == b2 else -f_world
+            name, k = rib_owner[other]
+            forces[name][k] = forces[name].get(k, np.zeros(3)) + on_rib / n_avg
+    drop = float(z0 - sim.payload_pose()[0][2])
     p = parameters or PhysicsParameters()
     skeleton = sc.skeleton
     masses = np.full(skeleton.n_ribs, p.rib_mass_kg)

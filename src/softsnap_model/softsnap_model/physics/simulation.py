@@ -13,10 +13,11 @@ ground at z = 0).
 
 Examples
 --------
->>> sim = RobotSimulation('brittle_star', links_per_segment=2)      # doctest: +SKIP
->>> sim.set_cable_length('yellow', sim.straight_cable_length('yellow') - 0.02)
->>> sim.step(1.0); round(sim.cable_tension('yellow'), 2) > 0
-True
+>>> sim = RobotSimulation('brittle_star')
+>>> sim.ramp_cable_length('yellow', sim.straight_cable_length('yellow') - 0.02, 0.05)
+>>> steps = sim.step(0.5)                # 250 fixed steps of 2 ms
+>>> bool(sim.cable_tension('yellow') > 0.5), sim.rib_centers('yellow').shape
+(True, (12, 3))
 """
 from __future__ import annotations
 
@@ -31,7 +32,8 @@ from ..skeleton import Skeleton
 from .mjcf import (DEFAULT_LINKS_PER_SEGMENT, PhysicsParameters, Payload, RobotLayout,
                    module_mjcf_layout, robot_mjcf_layout)
 
-__all__ = ['RobotSimulation', 'SettleResult', 'GROUND_CLEARANCE_M', 'SETTLE_SPEED_TOL', 'SETTLE_HOLD_S']
+__all__ = ['RobotSimulation', 'SettleResult', 'GROUND_CLEARANCE_M', 'SETTLE_SPEED_TOL',
+           'SETTLE_HOLD_S']
 
 #: Gap (m) left between a free robot's lowest point and the ground when it is placed.
 GROUND_CLEARANCE_M = 2e-4
@@ -99,6 +101,8 @@ class RobotSimulation:
     chain : str
         ``'weld'`` or ``'tree'``: how chained modules are joined (see
         :func:`~softsnap_model.physics.mjcf.robot_mjcf_layout`).
+    bending_stiffness_nmm : float, optional
+        ``K`` (N mm/rad^2) of every segment, overriding ``parameters``.
 
     A free robot is lowered onto the ground (lowest point ``GROUND_CLEARANCE_M`` above
     it) at time 0; call :meth:`settle` to let it come to rest.
@@ -107,11 +111,13 @@ class RobotSimulation:
     def __init__(self, scene, *, links_per_segment: int = DEFAULT_LINKS_PER_SEGMENT,
                  parameters: PhysicsParameters | None = None, gravity: bool = True,
                  ground: bool = True, payload: Payload | None = None, base: str = 'auto',
-                 coupled: bool = True, chain: str = 'weld'):
+                 coupled: bool = True, chain: str = 'weld',
+                 bending_stiffness_nmm: float | None = None):
         xml, layout = robot_mjcf_layout(scene, links_per_segment=links_per_segment,
                                         parameters=parameters, gravity=gravity,
                                         ground=ground, payload=payload, base=base,
-                                        coupled=coupled, chain=chain)
+                                        coupled=coupled, chain=chain,
+                                        bending_stiffness_nmm=bending_stiffness_nmm)
         self._init(xml, layout, place_on_ground=ground and layout.free_base)
 
     @classmethod
@@ -120,7 +126,8 @@ class RobotSimulation:
                       parameters: PhysicsParameters | None = None, gravity: bool = False,
                       ground: bool = False, base_position_m=(0.0, 0.0, 0.0),
                       base_orientation_wxyz=(1.0, 0.0, 0.0, 0.0), coupled: bool = True,
-                      name: str = 'module') -> 'RobotSimulation':
+                      name: str = 'module', bending_stiffness_nmm: float | None = None
+                      ) -> 'RobotSimulation':
         """One module clamped at its base (motor box fixed in the world).
 
         Gravity is off by default: the quasi-static model's setting. See
@@ -129,7 +136,8 @@ class RobotSimulation:
         xml, layout = module_mjcf_layout(
             skeleton, threading, links_per_segment=links_per_segment, parameters=parameters,
             gravity=gravity, ground=ground, base_position_m=base_position_m,
-            base_orientation_wxyz=base_orientation_wxyz, coupled=coupled, name=name)
+            base_orientation_wxyz=base_orientation_wxyz, coupled=coupled, name=name,
+            bending_stiffness_nmm=bending_stiffness_nmm)
         sim = cls.__new__(cls)
         sim._init(xml, layout, place_on_ground=False)
         return sim
