@@ -20,6 +20,7 @@ setup(
         'console_scripts': [
             'driver_node = softsnap_driver.driver_node:main',
             'sim_module = softsnap_driver.sim_module:main',
+            'sim_robot = softsnap_driver.sim_robot:main',
         ],
     },
 )

@@ -72,3 +72,39 @@ def test_launch_arguments_map_to_the_same_graph_as_the_demo():
     assert kwargs['parameters'] == [direct[0].parameters]
     with pytest.raises(ValueError, match='true or false'):
         graph_from_arguments('brittle_star', {'simulate': 'maybe'})
+
+
+def test_physics_graph_has_one_sim_robot_on_consecutive_ports():
+    scene = load_scene('brittle_star')
+    ports = {m.name: 21000 + i for i, m in enumerate(scene.modules)}
+    specs = robot_graph(scene, physics=True, sim_ports=ports,
+                        sim_robot_parameters={'time_factor': 2.0})
+    sims = [s for s in specs if s.executable.startswith('sim_')]
+    assert [s.executable for s in sims] == ['sim_robot'] and specs[0] is sims[0]
+    assert sims[0].parameters['port_base'] == 21000 and sims[0].parameters['time_factor'] == 2.0
+    assert sims[0].parameters['scene'] == str(scene.path)
+    drivers = {s.parameters['module']: s.parameters['port'] for s in specs
+               if s.executable == 'driver_node'}
+    assert drivers == ports
+    logger = [s for s in specs if s.executable == 'rerun_logger'][0]
+    assert logger.parameters['world_view'] is True
+    # The scene's own ports (consecutive in every scene) when none are given.
+    assert robot_graph(scene, physics=True)[0].parameters['port_base'] == 0
+
+
+def test_physics_graph_refuses_scattered_ports_and_real_modules():
+    scene = load_scene('gripper')
+    scattered = {m.name: 21000 + 2 * i for i, m in enumerate(scene.modules)}
+    with pytest.raises(ValueError, match='consecutive ports'):
+        robot_graph(scene, physics=True, sim_ports=scattered)
+    with pytest.raises(ValueError, match='physics needs simulated modules'):
+        robot_graph(scene, physics=True, simulate=False)
+
+
+def test_launch_argument_physics_starts_sim_robot():
+    specs = graph_from_arguments('snake', {'physics': 'true', 'sim_port_base': '21000',
+                                           'rerun': 'false'})
+    assert specs[0].executable == 'sim_robot' and specs[0].parameters['port_base'] == 21000
+    assert not [s for s in specs if s.executable == 'sim_module']
+    with pytest.raises(ValueError, match='physics needs simulated modules'):
+        graph_from_arguments('snake', {'physics': 'true', 'simulate': 'false'})

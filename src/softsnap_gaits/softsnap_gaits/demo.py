@@ -20,6 +20,16 @@ does not start (a process exits, a module never comes online) is reported with t
 failing process's log and exit code 1, never with a table of zeros; what the observer
 did not see of a module is shown as ``-`` (``null`` in JSON).
 
+With ``--physics`` the robot runs on ``sim_robot`` (the whole robot in MuJoCo, serving
+every module's firmware protocol) instead of one ``sim_module`` per module; the gripper
+gets a 20 g ball between its fingers and the ring a ball to cage (:data:`PHYSICS_PAYLOADS`).
+The summary then adds, from ``sim/base_pose``, ``sim/payload_pose`` and
+``model/shape/simulated``: the distance the robot travelled per gait cycle, where the
+payload went (the gripper: whether it held it through the first grasp), the simulated
+versus predicted shape error per module (root mean square over the 12 rib centres, mm)
+and sim_robot's real-time factor; the recording shows the simulated shapes beside the
+commanded and predicted ones, with the robot moving in the world.
+
 The runner observes the robot with its own rclpy node; it holds no science itself (tip
 positions come from :func:`softsnap_model.geometry.rib_centers`).
 """
@@ -57,6 +67,15 @@ STREAM_DEPTH = 1000
 #: Holds are exact (the gait library computes a held value from the same numbers), so
 #: the tolerance only guards against float noise; a cosine ease moves far more per tick.
 SETTLED_HOLD_TOL_M = 1e-9
+#: sim_robot parameters per scene with --physics: the gripper holds a 20 g ball (the
+#: issue's question), the ring cages a ball on the ground (radii in m).
+PHYSICS_PAYLOADS = {
+    'gripper': {'payload': 'ball', 'payload_mass_kg': 0.02, 'payload_size_m': 0.02},
+    'ring': {'payload': 'ball', 'payload_mass_kg': 0.02, 'payload_size_m': 0.04},
+}
+#: The gripper holds its payload through a grasp if the payload sinks less than this
+#: (mm) between the start and the end of the hold and stays clear of the ground.
+PAYLOAD_HOLD_TOL_MM = 10.0
 
 
 @dataclasses.dataclass
@@ -91,6 +110,9 @@ class ModuleStats:
     # The driver's own counts, from every state message: (state stamp ns, commands
     # received, stamp ns of the latest command received); see commands_counted.
     driver_counts: list = dataclasses.field(default_factory=list)
+    # --physics: (simulated rib centres (12, 3) m, index into predicted_tips of the
+    # predicted shape in force when it came); errors computed after the run.
+    simulated_pairs: list = dataclasses.field(default_factory=list)
 
 
 class Process:
@@ -137,7 +159,7 @@ class Process:
 class Observer:
     """An rclpy node that counts and measures what flows through the robot's topics."""
 
-    def __init__(self, scene, namespace: str):
+    def __init__(self, scene, namespace: str, physics: bool = False):
         import rclpy
         from softsnap_interfaces.msg import (CableLength, GaitPhase, ModelDiagnostics, ModuleShape,
                                              ModuleState)
@@ -179,8 +201,32 @@ class Observer:
         self.node.create_subscription(ModelDiagnostics, 'model/diagnostics',
                                       lambda msg: setattr(self, 'diagnostics', msg), 10)
         self.node.create_subscription(GaitPhase, 'gait/phase', self._phase, STREAM_DEPTH)
+        # --physics: the world poses of the robot and its payload, (stamp ns, x, y, z) m,
+        # and the gait's phases (stamp ns, cycle, phase); kept over the whole run.
+        self.base_positions: list = []
+        self.payload_positions: list = []
+        self.phases: list = []
+        if physics:
+            from geometry_msgs.msg import PoseStamped
+            from softsnap_interfaces.msg import RobotShape
+            self.node.create_subscription(
+                PoseStamped, 'sim/base_pose',
+                lambda msg: self.base_positions.append(_pose_sample(msg)), STREAM_DEPTH)
+            self.node.create_subscription(
+                PoseStamped, 'sim/payload_pose',
+                lambda msg: self.payload_positions.append(_pose_sample(msg)), STREAM_DEPTH)
+            self.node.create_subscription(RobotShape, 'model/shape/simulated', self._simulated, 100)
+
+    def _simulated(self, msg) -> None:
+        for shape in msg.modules:
+            s = self.stats.get(shape.module)
+            if s is not None and s.predicted_tips and len(shape.rib_centers):
+                centres = np.array([(p.x, p.y, p.z) for p in shape.rib_centers])
+                s.simulated_pairs.append((centres, len(s.predicted_tips) - 1))
 
     def _phase(self, msg) -> None:
+        if msg.running:
+            self.phases.append((_stamp_ns(msg), int(msg.cycle), float(msg.phase)))
         if len(msg.modules) == len(msg.commands_sent):
             self.gait_sent[_stamp_ns(msg)] = dict(zip(msg.modules, (int(n) for n in msg.commands_sent)))
 
@@ -301,6 +347,125 @@ class Observer:
 
 def _stamp_ns(msg) -> int:
     return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+
+
+def _pose_sample(msg) -> tuple:
+    p = msg.pose.position
+    return (_stamp_ns(msg), p.x, p.y, p.z)
+
+
+def simulated_shape_errors_mm(s: ModuleStats, spacing_mm: float) -> list:
+    """Simulated versus predicted shape, one value per simulated shape, mm: the root mean
+    square over the rib centres of their distances (the paper's measure against its
+    experiments), the predicted shape being the one in force when the simulated came."""
+    errors = []
+    cache: dict[int, np.ndarray] = {}
+    for centres_m, p in s.simulated_pairs:
+        if p not in cache:
+            planar = rib_centers(s.predicted_tips[p][2], spacing_mm)
+            cache[p] = np.column_stack((planar, np.zeros(len(planar))))
+        predicted = cache[p]
+        if len(predicted) != len(centres_m):
+            continue
+        distance = np.linalg.norm(centres_m * 1000.0 - predicted, axis=1)
+        errors.append(float(np.sqrt(np.mean(distance ** 2))))
+    return errors
+
+
+def travel(samples, window_ns) -> dict | None:
+    """Straight-line travel in the ground plane between the first and last position
+    sample stamped inside `window_ns`: distance (mm), heading (deg), over seconds."""
+    inside = [x for x in samples if window_ns[0] <= x[0] <= window_ns[1]]
+    if len(inside) < 2:
+        return None
+    (t0, x0, y0, _), (t1, x1, y1, _) = inside[0], inside[-1]
+    dx, dy = (x1 - x0) * 1000.0, (y1 - y0) * 1000.0
+    return {'distance_mm': float(math.hypot(dx, dy)),
+            'heading_deg': float(math.degrees(math.atan2(dy, dx))),
+            'seconds': (t1 - t0) * 1e-9}
+
+
+def first_grasp_hold(scene, gait_name: str, phases, payload_samples) -> dict | None:
+    """Did the gripper hold its payload through the first grasp? None if not observed.
+
+    The hold of cycle 0 runs from phase ``close_s / period`` to ``(close_s + hold_s) /
+    period`` of a ``grasp`` gait (its spec in the scene); the payload holds if it sank
+    less than PAYLOAD_HOLD_TOL_MM over it and ends clear of the ground.
+    """
+    spec = scene.gaits.get(gait_name, {})
+    if spec.get('type') != 'grasp' or not phases or not payload_samples:
+        return None
+    period = sum(float(spec.get(k, 0.0)) for k in ('close_s', 'hold_s', 'open_s', 'rest_s'))
+    start_phase = float(spec['close_s']) / period
+    end_phase = (float(spec['close_s']) + float(spec['hold_s'])) / period
+    hold = [t for t, cycle, phase in phases if cycle == 0 and start_phase <= phase <= end_phase]
+    if len(hold) < 2:
+        return None
+    stamps = [x[0] for x in payload_samples]
+
+    def z_at(t):
+        i = int(np.searchsorted(stamps, t, side='right')) - 1
+        return payload_samples[i][3] if i >= 0 else None
+
+    z0, z1 = z_at(hold[0]), z_at(hold[-1])
+    if z0 is None or z1 is None:
+        return None
+    size_m = PHYSICS_PAYLOADS.get(scene.name, {}).get('payload_size_m', 0.0)
+    drop_mm = (z0 - z1) * 1000.0
+    clear_mm = (z1 - size_m) * 1000.0
+    return {'held': bool(drop_mm < PAYLOAD_HOLD_TOL_MM and clear_mm > PAYLOAD_HOLD_TOL_MM),
+            'drop_mm': float(drop_mm), 'height_mm': float(z1 * 1000.0)}
+
+
+def physics_summary(scene, gait_name: str, observer: Observer, window_ns, sim_log: str) -> dict:
+    """The --physics part of the summary (distances in mm, per gait cycle)."""
+    from .gaits import make_gait
+    period = make_gait(gait_name, scene).period_s
+    base = travel(observer.base_positions, window_ns)
+    payload = travel(observer.payload_positions, window_ns)
+    per_cycle = (lambda t: None if t is None or t['seconds'] <= 0
+                 else t['distance_mm'] * period / t['seconds'])
+    shape_error = {}
+    for name, s in observer.stats.items():
+        errors = simulated_shape_errors_mm(s, observer.spacing_mm)
+        shape_error[name] = ({'mean': float(np.mean(errors)), 'max': float(np.max(errors)),
+                              'n': len(errors)} if errors else None)
+    factor = None
+    for line in sim_log.splitlines():
+        if 'real-time factor' in line:
+            try:
+                factor = float(line.split('real-time factor')[1].split()[0])
+            except (IndexError, ValueError):
+                pass
+    return {'gait': gait_name, 'gait_period_s': period,
+            'base_travel': base, 'base_mm_per_cycle': per_cycle(base),
+            'payload_travel': payload, 'payload_mm_per_cycle': per_cycle(payload),
+            'payload_first_grasp': first_grasp_hold(scene, gait_name, observer.phases,
+                                                    observer.payload_positions),
+            'shape_error_mm': shape_error, 'real_time_factor': factor,
+            'gait_phases_observed': len(observer.phases)}
+
+
+def print_physics(p: dict) -> None:
+    print(f"physics (sim_robot, MuJoCo; real-time factor while stepping: "
+          f"{_cell(p['real_time_factor'], '.2f')}), gait {p['gait']} ({p['gait_period_s']:g} s cycle):")
+    base = p['base_travel']
+    if base is None:
+        print('  robot travel: not observed')
+    else:
+        print(f"  robot travelled {base['distance_mm']:.1f} mm (heading {base['heading_deg']:.0f} deg) "
+              f"in {base['seconds']:.1f} s: {p['base_mm_per_cycle']:.1f} mm per gait cycle")
+    if p['payload_travel'] is not None:
+        pay = p['payload_travel']
+        print(f"  payload travelled {pay['distance_mm']:.1f} mm: {p['payload_mm_per_cycle']:.1f} mm per cycle")
+    grasp = p['payload_first_grasp']
+    if grasp is not None:
+        print(f"  payload {'HELD' if grasp['held'] else 'NOT held'} through the first grasp "
+              f"(sank {grasp['drop_mm']:.1f} mm during the hold, centre {grasp['height_mm']:.0f} mm "
+              'above the ground at its end)')
+    cells = ', '.join(f"{name} {e['mean']:.1f}/{e['max']:.1f}" if e else f'{name} -'
+                      for name, e in p['shape_error_mm'].items())
+    print(f'  simulated vs predicted shape, rib-centre RMS mean/max mm: {cells}')
 
 
 def _in_window(stamps_ns, window_ns) -> list:
@@ -541,6 +706,8 @@ def print_summary(summary: dict) -> None:
         usage = ', '.join(f"{name} {u['cpu_percent']:.0f}%" for name, u in summary['processes'].items()
                           if not name.startswith('sim_'))
         print(f'CPU (% of one core): {usage}')
+    if summary.get('physics'):
+        print_physics(summary['physics'])
     crashed = {k: v for k, v in summary['exit_codes'].items() if v not in (0, None, -2, 130)}
     print('processes: all stopped cleanly' if not crashed else f'processes with errors: {crashed}')
     if summary['recording']:
@@ -577,11 +744,18 @@ def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
     # modules, and --scene-ports, keep the scene's addresses.
     sim_ports = None
     if not args.real and not args.scene_ports:
-        sim_ports = {m.name: slot.free_port() for m in scene.modules}
+        if args.physics:   # sim_robot serves consecutive ports
+            first = slot.free_port(len(scene.modules))
+            sim_ports = {m.name: first + i for i, m in enumerate(scene.modules)}
+        else:
+            sim_ports = {m.name: slot.free_port() for m in scene.modules}
+    sim_robot_parameters = dict(PHYSICS_PAYLOADS.get(scene.name, {}),
+                                time_factor=float(args.time_factor))
     specs = robot_graph(scene, simulate=not args.real, gait=args.gait,
                         gait_rate_hz=args.gait_rate, model_rate_hz=args.model_rate,
                         recording=recording, rerun=not args.no_rerun, sim_ports=sim_ports,
-                        bag=bag)
+                        bag=bag, physics=args.physics,
+                        sim_robot_parameters=sim_robot_parameters)
     # The observer in this process and every child use the slot's domain.
     os.environ['ROS_DOMAIN_ID'] = str(slot.domain_id)
     env = dict(os.environ, PYTHONUNBUFFERED='1')
@@ -605,12 +779,21 @@ def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
     started = False
     try:
         ports = (', '.join(f'{p.parameters["port"]}' for p in specs if p.executable == 'sim_module')
+                 or ', '.join(f'{p.parameters["port_base"] or "the scene ports"} and up (sim_robot)'
+                              for p in specs if p.executable == 'sim_robot')
                  or 'the scene\'s addresses')
         print(f'starting {len(specs)} processes for {scene.name} ({len(scene.modules)} modules; '
               f'ROS domain {slot.domain_id}; modules on {ports}; logs in {run_dir})', flush=True)
-        observer = Observer(scene, f'/{scene.name}')
+        observer = Observer(scene, f'/{scene.name}', physics=args.physics)
         for spec in specs:
             processes.append(Process(spec, run_dir, env, pass_fds=(slot.lock_fd,)))
+            if spec.executable == 'sim_robot':
+                # The robot first: the gait starts once the simulation runs, so its first
+                # cycle (the gripper's first grasp) happens in the physics.
+                deadline = time.monotonic() + args.ready_timeout
+                while (not observer.base_positions and processes[-1].popen.poll() is None
+                       and not stop_requested and time.monotonic() < deadline):
+                    observer.spin_for(0.1)
 
         def check_children() -> bool:
             for p in processes:
@@ -672,6 +855,10 @@ def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
     summary.update(_bag_summary(bag))
     summary['started'] = started
     summary['ros_domain_id'] = slot.domain_id
+    if args.physics:
+        sim = next((p for p in processes if p.spec.executable == 'sim_robot'), None)
+        summary['physics'] = physics_summary(scene, args.gait or scene.default_gait, observer,
+                                             window_ns, sim.tail(50) if sim else '')
     summary['processes'] = {
         name: {'cpu_percent': 100.0 * (usage_end[name][0] - usage_start[name][0]) / elapsed,
                'rss_mib': usage_end[name][1] / 2**20}
@@ -720,7 +907,7 @@ def _report_start_failure(args, scene, processes, crashed, not_ready, exit_codes
             print(f'  {module}: {", ".join(lacks)}', file=sys.stderr)
         # The logs of the processes those modules depend on.
         names = {f'sim_{m}' for m in not_ready} | {f'driver_{m}' for m in not_ready} | {
-            'model_node', 'gait_node'}
+            'model_node', 'gait_node', 'sim_robot'}
         for p in processes:
             if p.spec.name in names:
                 print(f'\n{p.spec.name} (still running); its last output:\n{p.tail()}',
@@ -743,6 +930,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--model-rate', type=float, default=100.0, help='prediction rate, Hz (default 100)')
     parser.add_argument('--real', action='store_true',
                         help="drive real modules at the scene's addresses instead of simulated ones")
+    parser.add_argument('--physics', action='store_true',
+                        help='simulate the whole robot in MuJoCo (sim_robot: gravity, ground, '
+                             'payloads, locomotion) instead of one sim_module per module')
+    parser.add_argument('--time-factor', type=float, default=1.0,
+                        help='with --physics: simulated seconds per wall second (default 1)')
     parser.add_argument('--scene-ports', action='store_true',
                         help="simulated modules on the scene's fixed ports (default: free ports "
                              "of this demo's slot, so several demos can run at once)")
@@ -764,6 +956,10 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if not (args.seconds > 0 and math.isfinite(args.seconds)):
         build_parser().error(f'--seconds must be positive, got {args.seconds}')
+    if args.physics and args.real:
+        build_parser().error('--physics simulates the robot; it cannot drive --real modules')
+    if not (0 < args.time_factor <= 100 and math.isfinite(args.time_factor)):
+        build_parser().error(f'--time-factor must be in (0, 100], got {args.time_factor}')
     if not (args.ready_timeout > 0 and math.isfinite(args.ready_timeout)):
         build_parser().error(f'--ready-timeout must be positive, got {args.ready_timeout}')
     if args.bag and Path(args.bag).exists():

@@ -6,6 +6,9 @@ once. For a scene with modules ``m1..mN`` in namespace ``/<scene>``:
 
 - ``sim_<m>``: a simulated module serving the firmware protocol on the module's port
   (only with ``simulate=True``; real modules are reached at the scene's host/port);
+- or, with ``physics=True``, one ``sim_robot``: the whole robot in MuJoCo, serving every
+  module's firmware protocol on its port and publishing ``sim/base_pose`` and
+  ``model/shape/simulated``;
 - ``driver_<m>``: one driver per module, bridging it to ``<m>/cable_length/*`` topics;
 - ``model_node``: forward/inverse services and the commanded/predicted shapes;
 - ``gait_node``: the scene's gait, publishing ``<m>/cable_length/command``;
@@ -64,7 +67,8 @@ def robot_graph(scene: Scene, *, simulate: bool = True, gait: str | None = None,
                 rerun_rate_hz: float = 30.0, rerun: bool = True,
                 autostart: bool = True,
                 sim_ports: Mapping[str, int] | None = None,
-                bag: str | Path | None = None) -> list[NodeSpec]:
+                bag: str | Path | None = None, physics: bool = False,
+                sim_robot_parameters: Mapping[str, Any] | None = None) -> list[NodeSpec]:
     """Nodes that run a scene's robot, in start order (modules and drivers first).
 
     Parameters
@@ -85,7 +89,13 @@ def robot_graph(scene: Scene, *, simulate: bool = True, gait: str | None = None,
         Start the gait as soon as the gait node is up.
     sim_ports : mapping, optional
         Loopback port per module name for the simulated modules (and their drivers);
-        the scene's ports if None. Ignored with ``simulate=False``.
+        the scene's ports if None. Ignored with ``simulate=False``. With ``physics``
+        they must be consecutive in scene order (``sim_robot`` takes a first port).
+    physics : bool
+        Simulate the whole robot in MuJoCo with one ``sim_robot`` instead of one
+        ``sim_module`` per module (needs ``simulate``).
+    sim_robot_parameters : mapping, optional
+        Extra ``sim_robot`` parameters (payload, time_factor, ...).
     bag : path, optional
         Record every topic of the ROS domain (but ``/parameter_events``) to this rosbag2
         directory, which must not exist; no recorder if None.
@@ -93,10 +103,14 @@ def robot_graph(scene: Scene, *, simulate: bool = True, gait: str | None = None,
     ns = f'/{scene.name}'
     scene_ref = str(scene.path)
     nodes: list[NodeSpec] = []
+    if physics:
+        if not simulate:
+            raise ValueError('physics needs simulated modules (simulate=True), not real ones')
+        nodes.append(_sim_robot_spec(scene, ns, scene_ref, sim_ports, sim_robot_parameters))
     for module in scene.modules:
         host = '127.0.0.1' if simulate else module.host
         port = sim_ports[module.name] if simulate and sim_ports is not None else module.port
-        if simulate:
+        if simulate and not physics:
             nodes.append(NodeSpec('softsnap_driver', 'sim_module', f'sim_{module.name}', ns,
                                   {'host': host, 'port': port}))
         low_mm, straight_mm = reachable_range(scene.skeleton, module.threading_mm)
@@ -117,6 +131,8 @@ def robot_graph(scene: Scene, *, simulate: bool = True, gait: str | None = None,
         params: dict[str, Any] = {'scene': scene_ref, 'rate': float(rerun_rate_hz)}
         if recording is not None:
             params['output'] = str(recording)
+        if physics:
+            params['world_view'] = True   # the robot moves in the world (sim/base_pose)
         nodes.append(NodeSpec('softsnap_gaits', 'rerun_logger', 'rerun_logger', ns, params))
     if bag is not None:
         # Every topic, not a list: standard topics (markers, joint states, /diagnostics)
@@ -124,3 +140,16 @@ def robot_graph(scene: Scene, *, simulate: bool = True, gait: str | None = None,
         nodes.append(NodeSpec('softsnap_gaits', 'bag', 'bag_recorder', ns, {}, arguments=(
             'record', '-o', str(bag), '--all', '--exclude', '^/parameter_events$')))
     return nodes
+
+
+def _sim_robot_spec(scene: Scene, ns: str, scene_ref: str, sim_ports: Mapping[str, int] | None,
+                    extra: Mapping[str, Any] | None) -> NodeSpec:
+    """The one ``sim_robot`` node serving every module of `scene` (consecutive ports)."""
+    params: dict[str, Any] = {'scene': scene_ref, 'host': '127.0.0.1', 'port_base': 0}
+    if sim_ports is not None:
+        ports = [sim_ports[m.name] for m in scene.modules]
+        if ports != list(range(ports[0], ports[0] + len(ports))):
+            raise ValueError(f'sim_robot serves consecutive ports in scene order, got {ports}')
+        params['port_base'] = ports[0]
+    params.update(extra or {})
+    return NodeSpec('softsnap_driver', 'sim_robot', 'sim_robot', ns, params)

@@ -1,6 +1,6 @@
 """ROS 2 launch support: the launch files turn :func:`robot_graph` into launch actions.
 
-``ros2 launch softsnap_gaits <scene>.launch.py [simulate:=true] [gait:=...] [recording:=...]``
+``ros2 launch softsnap_gaits <scene>.launch.py [simulate:=true] [physics:=true] [gait:=...] [recording:=...]``
 starts the same graph as the demo runner (:mod:`softsnap_gaits.demo`): there is one
 description of the graph, in :mod:`softsnap_gaits.graph`. The ``launch`` packages are
 imported only when a launch file runs (they are not on PyPI; a ROS 2 install has them).
@@ -16,6 +16,7 @@ from .graph import NodeSpec, robot_graph
 #: Launch arguments and their defaults (strings, as ros2 launch passes them).
 LAUNCH_ARGUMENTS = {
     'simulate': ('true', 'start one simulated module per module (false: real modules)'),
+    'physics': ('false', 'simulate the whole robot in MuJoCo with one sim_robot (needs simulate)'),
     'gait': ('', "gait name ('' = the scene's default)"),
     'gait_rate': ('50.0', 'command rate, Hz'),
     'model_rate': ('100.0', 'prediction rate, Hz'),
@@ -45,7 +46,7 @@ def graph_from_arguments(scene_name: str, arguments: dict[str, str]) -> list[Nod
                        gait=args['gait'] or None, gait_rate_hz=float(args['gait_rate']),
                        model_rate_hz=float(args['model_rate']),
                        recording=args['recording'] or None, rerun=_flag(args['rerun']),
-                       sim_ports=sim_ports)
+                       sim_ports=sim_ports, physics=_flag(args['physics']))
 
 
 def node_action_kwargs(spec: NodeSpec) -> dict[str, Any]:

@@ -2,6 +2,8 @@
 
 Subscribes (relative names, so they live in the robot's namespace, e.g. /brittle_star):
   model/shape/commanded, model/shape/predicted   softsnap_interfaces/RobotShape
+  model/shape/simulated                          softsnap_interfaces/RobotShape (sim_robot)
+  sim/base_pose                                  geometry_msgs/PoseStamped (sim_robot)
   <module>/cable_length/command                  softsnap_interfaces/CableLength
   <module>/cable_length/measured                 softsnap_interfaces/CableLength
   <module>/state                                 softsnap_interfaces/ModuleState
@@ -30,6 +32,7 @@ Parameters (read-only except ``rate``):
   skip_unchanged
               do not log a module's shape again while it is unchanged (the model node
               re-sends unchanged modules in every RobotShape)
+  world_view  3D view in the world frame, the robot moved by sim/base_pose (physics runs)
 """
 from __future__ import annotations
 
@@ -45,6 +48,7 @@ from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescr
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.logging import get_logger
 from rclpy.parameter import Parameter
+from geometry_msgs.msg import PoseStamped
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from softsnap_driver.ros_parameters import SoftSnapNode
@@ -127,6 +131,9 @@ class RerunLoggerNode(SoftSnapNode):
             description='Do not log a module shape again while it is unchanged (same angles '
                         'and rib centres); the viewer keeps showing the latest one',
             read_only=True))
+        self.declare_parameter('world_view', False, ParameterDescriptor(
+            description='3D view in the world frame: the robot moves by sim/base_pose '
+                        '(runs simulated in physics)', read_only=True))
         self.add_on_set_parameters_callback(self.parameters_callback)
 
         scene = self._load_scene(self.get_parameter('scene').value)
@@ -145,7 +152,9 @@ class RerunLoggerNode(SoftSnapNode):
         self.rec = recording.open_recording(self.output, viewer_url,
                                             serve_grpc_port=grpc_port or None,
                                             serve_bind_ip=bind_ip,
-                                            blueprint=recording.build_blueprint(colors, bounds),
+                                            blueprint=recording.build_blueprint(
+                                                colors, bounds,
+                                                self.get_parameter('world_view').value),
                                             application_id=f'softsnap_{robot}')
         self.web_url = None
         if web_port:
@@ -179,6 +188,9 @@ class RerunLoggerNode(SoftSnapNode):
         self._subscribe(RobotShape, 'model/shape/commanded', self.commanded_shape_callback)
         self._subscribe(RobotShape, 'model/shape/predicted', self.predicted_shape_callback)
         self.create_timer(DRAIN_PERIOD_S, self.drain_callback)
+        # sim_robot's shapes and robot pose; silent unless a physics simulation runs.
+        self._subscribe(RobotShape, 'model/shape/simulated', self.simulated_shape_callback)
+        self._subscribe(PoseStamped, 'sim/base_pose', self.base_pose_callback)
         self._module_subscriptions: dict[str, list] = {}
         for module in sorted(modules or ()):
             self._subscribe_module(module)
@@ -265,11 +277,24 @@ class RerunLoggerNode(SoftSnapNode):
     def predicted_shape_callback(self, msg: RobotShape) -> None:
         self._robot_shape(msg, 'predicted')
 
-    def _robot_shape(self, msg: RobotShape, source: str) -> None:
+    def simulated_shape_callback(self, msg: RobotShape) -> None:
+        # Its base poses are in the world: the module frames keep the model's poses in
+        # the robot frame, and the robot frame follows sim/base_pose.
+        self._robot_shape(msg, 'simulated', base_poses=False)
+
+    def base_pose_callback(self, msg: PoseStamped) -> None:
+        if not self._closed:
+            p, q = msg.pose.position, msg.pose.orientation
+            self.recorder.robot_pose(self._stamp(msg.header), (p.x, p.y, p.z),
+                                     (q.x, q.y, q.z, q.w))
+
+    def _robot_shape(self, msg: RobotShape, source: str, base_poses: bool = True) -> None:
         if self._closed:
             return
         stamp = self._stamp(msg.header)
-        if len(msg.base_poses) == len(msg.modules):
+        if not base_poses:
+            pass
+        elif len(msg.base_poses) == len(msg.modules):
             self.recorder.base_poses(stamp, {
                 shape.module: ((p.position.x, p.position.y, p.position.z),
                                (p.orientation.x, p.orientation.y, p.orientation.z,
@@ -296,7 +321,8 @@ class RerunLoggerNode(SoftSnapNode):
             centres = [(p.x, p.y, p.z) for p in shape.rib_centers] or None
             try:
                 if self.recorder.shape(shape_stamp, shape.module, source_of,
-                                       shape.angles, centres, shape.solve_time):
+                                       shape.angles, centres,
+                                       None if source == 'simulated' else shape.solve_time):
                     self._last_shapes[(shape.module, source_of)] = (shape_stamp, shape.angles)
             except ValueError as exc:
                 self.get_logger().warning(f'{shape.module} {source} shape not logged: {exc}',

@@ -16,7 +16,13 @@ Frames and units (REP 103)
 * One timeline, ``ros_time``, a timestamp taken from the message header stamps. The
   no-ROS writers use a sequence timeline ``step`` instead.
 
-Entity tree (``<source>`` is ``commanded`` or ``predicted``)::
+With a physics simulation (``sim_robot``) the robot moves: ``robot`` carries the pose
+of the robot base in the world (a ``Transform3D``, :func:`log_robot_pose`) and the 3D
+view's origin is the world (``build_blueprint(world_view=True)``); the simulated shapes
+(source ``simulated``) hang under the same module frames as the commanded and
+predicted ones.
+
+Entity tree (``<source>`` is ``commanded``, ``predicted`` or ``simulated``)::
 
     robot                                   view coordinates (static)
     robot/connector                         module base positions, labelled (static)
@@ -55,7 +61,7 @@ TIMELINE = 'ros_time'
 STEP_TIMELINE = 'step'
 ROBOT_ROOT = 'robot'
 PLOTS_ROOT = 'plots'
-SOURCES = ('commanded', 'predicted')
+SOURCES = ('commanded', 'predicted', 'simulated')
 
 # Drawing defaults of the authors' module, in millimetres (from the one Skeleton definition).
 RIB_SPACING_MM = Skeleton().spacing_mm
@@ -83,11 +89,15 @@ COMMANDED_BRIGHTNESS = 0.55
 GHOST_BASE = (128, 128, 128)
 #: Role styles: width factor of each role's lines (1 = bold). Plots use the same rule:
 #: a commanded series is dim and thin, a measured or predicted series full and thick.
-ROLE_WIDTH = {'commanded': 0.45, 'predicted': 1.0, 'measured': 1.0}
+ROLE_WIDTH = {'commanded': 0.45, 'predicted': 1.0, 'measured': 1.0, 'simulated': 0.7}
 ROLE_DESCRIPTION = {'commanded': 'thin, muted: the commanded shape or length (the target)',
                     'predicted': 'bold, full colour: the shape predicted from the measured '
                                  'length (where the module is)',
-                    'measured': 'bold, full colour: the measured length'}
+                    'measured': 'bold, full colour: the measured length',
+                    'simulated': 'medium, dark shade: the shape simulated in MuJoCo '
+                                 '(gravity, contact, dynamics)'}
+#: Share of the module colour kept in a simulated line (a darker shade of it).
+SIMULATED_SHADE = 0.6
 CONNECTOR_COLOR = (110, 110, 110)
 # Line radii in metres of the bold (predicted) role.
 SPINE_RADIUS_M = 0.0022
@@ -170,6 +180,8 @@ def role_color(rgb: RGB, role: str) -> RGB:
     """The colour a role draws a module in: full colour, or a muted ghost for commanded."""
     if role not in ROLE_WIDTH:
         raise ValueError(f'role must be one of {tuple(ROLE_WIDTH)}, got {role!r}')
+    if role == 'simulated':
+        return shade(rgb, SIMULATED_SHADE)
     if role != 'commanded':
         return tuple(int(c) for c in rgb)
     a = COMMANDED_BRIGHTNESS
@@ -220,14 +232,17 @@ def top_down_eye(bounds: tuple[Sequence[float], float]) -> rrb.EyeControls3D:
 
 
 def build_blueprint(colors: Mapping[str, RGB] | None = None,
-                    bounds: tuple[Sequence[float], float] | None = None) -> rrb.Blueprint:
+                    bounds: tuple[Sequence[float], float] | None = None,
+                    world_view: bool = False) -> rrb.Blueprint:
     """The layout: the robot in 3D and the legend on the left, the time series on the right.
 
     One plot per quantity; each takes a quantity subtree, so one blueprint fits every robot
     and module count. The plots draw no legend of their own (with ten series it would
     cover the data): the legend view names every module's colour and every role's style,
     and hovering a line names its series. With `bounds` (centre m, radius m: see
-    `scene_style`) the 3D view starts looking down on the whole robot.
+    `scene_style`) the 3D view starts looking down on the whole robot. With `world_view`
+    the 3D view's origin is the world (the recording root) rather than the robot, so a
+    robot whose ``robot`` transform moves (:func:`log_robot_pose`) is seen moving.
     """
     def plot(title: str, quantity: str) -> rrb.TimeSeriesView:
         return rrb.TimeSeriesView(name=title, origin=f'{PLOTS_ROOT}/{quantity}',
@@ -239,9 +254,11 @@ def build_blueprint(colors: Mapping[str, RGB] | None = None,
         plot('Solver time (ms): commanded thin, predicted bold', 'solve_time_ms'),
         plot('Battery (V)', 'battery_v'),
     )
+    # The world view adds only what differs, so other recordings keep their view as is.
+    world = {'origin': '/', 'contents': f'{ROBOT_ROOT}/**'} if world_view else {'origin': ROBOT_ROOT}
     scene = rrb.Spatial3DView(
         name='Robot from above: commanded thin and muted, predicted bold',
-        origin=ROBOT_ROOT, eye_controls=None if bounds is None else top_down_eye(bounds))
+        eye_controls=None if bounds is None else top_down_eye(bounds), **world)
     legend = rrb.TextDocumentView(name='Legend', origin=LEGEND_ROOT)
     left = rrb.Vertical(scene, legend, row_shares=[4, 1])
     return rrb.Blueprint(rrb.Horizontal(left, plots, column_shares=[3, 2]),
@@ -446,6 +463,13 @@ def log_base_poses(rec: rr.RecordingStream,
                 rr.Transform3D(translation=[float(v) for v in translation],
                                quaternion=rr.Quaternion(xyzw=[float(v) for v in quaternion])),
                 static=static)
+
+
+def log_robot_pose(rec: rr.RecordingStream, translation: Sequence[float],
+                   quaternion_xyzw: Sequence[float]) -> None:
+    """Pose of the robot frame in the world (translation m, quaternion xyzw), temporal."""
+    rec.log(ROBOT_ROOT, rr.Transform3D(translation=[float(v) for v in translation],
+                                       quaternion=rr.Quaternion(xyzw=[float(v) for v in quaternion_xyzw])))
 
 
 def log_connector(rec: rr.RecordingStream, positions_m: Mapping[str, Sequence[float]],
@@ -723,12 +747,25 @@ class RobotRecorder:
         if solve_time_s is not None:
             self._row(plot_path('solve_time_ms', module, source), 'scalar', stamp_ns,
                       solve_time_s * 1e3)
-        other = self._latest.get((module, 'predicted' if source == 'commanded' else 'commanded'))
+        # The tip error plot compares the model's two shapes; a simulated one has no partner.
+        other = (None if source == 'simulated' else
+                 self._latest.get((module, 'predicted' if source == 'commanded' else 'commanded')))
         if other is not None and len(other.centres_m) == len(frames.centres_m):
             pair = (frames, other) if source == 'commanded' else (other, frames)
             self._row(plot_path('tip_error_mm', module), 'scalar', stamp_ns, tip_error_mm(*pair))
         if self.flush_period_s:
             self.flush_if_due()
+        return True
+
+    def robot_pose(self, stamp_ns: int, translation: Sequence[float],
+                   quaternion_xyzw: Sequence[float]) -> bool:
+        """The robot base in the world (simulated robots), rate-limited like a shape."""
+        if not self.limiter.allow(('robot', 'pose'), stamp_ns):
+            self.dropped += 1
+            return False
+        self.logged += 1
+        set_stamp(self.rec, stamp_ns)
+        log_robot_pose(self.rec, translation, quaternion_xyzw)
         return True
 
     def cable_length(self, stamp_ns: int, module: str, kind: str, length_m: float) -> bool:

@@ -273,7 +273,9 @@ class RobotSimulation:
         n = d.nefc
         if n == 0:
             return 0.0
-        rows = (d.efc_type[:n] == mujoco.mjtConstraint.mjCNSTR_LIMIT_TENDON) \
+        # int(): numpy compares an array with the enum object element by element in
+        # Python (2.4 ms per call at ~850 constraints); with the int it is 20 us.
+        rows = (d.efc_type[:n] == int(mujoco.mjtConstraint.mjCNSTR_LIMIT_TENDON)) \
             & (d.efc_id[:n] == self._tendon_id[module])
         return float(max(0.0, np.sum(d.efc_force[:n][rows])))
 

@@ -1,0 +1,182 @@
+"""sim_robot: the winch under load, options, determinism and locomotion of the core loop.
+
+The socket and ROS side (real driver_node processes) is in test_sim_robot_ros.py.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+
+import numpy as np
+import pytest
+
+from softsnap_driver.firmware import DEADBAND_COUNTS, MotorModel
+from softsnap_driver.protocol import encode_set_request
+from softsnap_driver.sim_robot import (OPTIONS, ScriptedCommands, SimRobot, SimRobotError,
+                                       WinchMotor, build_robot, build_simulation, check_options,
+                                       module_ports)
+
+BOOST_V = 6.0
+
+
+def options(**changes) -> argparse.Namespace:
+    values = {name: default for name, (_kind, default, _text) in OPTIONS.items()}
+    values.update(changes)
+    return argparse.Namespace(**values)
+
+
+# ------------------------------------------------------------------- the winch's motor
+
+def test_winch_speed_falls_linearly_with_tension_and_stops_at_the_stall_tension():
+    base = MotorModel()
+    winch = WinchMotor(base, stall_torque_nm=0.15, drum_radius_m=0.005)
+    stall_n = winch.stall_tension_n(255, BOOST_V)
+    assert stall_n == pytest.approx(30.0)
+    assert winch.stall_tension_n(200, BOOST_V) == pytest.approx(30.0 * 200 / 255)
+    no_load = base.no_load_rpm / 60.0 * base.counts_per_rev
+    assert winch.speed_counts_per_s(255, BOOST_V) == pytest.approx(no_load)
+    winch.tension_n = stall_n / 2
+    assert winch.speed_counts_per_s(255, BOOST_V) == pytest.approx(no_load / 2)
+    half_current = winch.current_a(255, BOOST_V, stalled=False)
+    winch.tension_n = stall_n * 1.5
+    assert winch.speed_counts_per_s(255, BOOST_V) == 0.0
+    assert winch.current_a(255, BOOST_V, stalled=False) == pytest.approx(base.stall_current_a)
+    assert half_current < base.stall_current_a
+    # Paying out, the tension does not hold the winch back.
+    winch.hauling = False
+    assert winch.speed_counts_per_s(255, BOOST_V) == pytest.approx(no_load)
+
+
+def test_winch_rejects_non_physical_constants():
+    with pytest.raises(SimRobotError, match='stall_torque_nm must be positive'):
+        WinchMotor(MotorModel(), stall_torque_nm=0.0, drum_radius_m=0.005)
+    with pytest.raises(SimRobotError, match='drum radius'):
+        WinchMotor(MotorModel(), stall_torque_nm=0.1, drum_radius_m=math.nan)
+
+
+# --------------------------------------------------------------------------- options
+
+@pytest.mark.parametrize('changes, message', [
+    ({'payload': 'sphere'}, "payload must be one of none, ball, box, got 'sphere'"),
+    ({'payload': 'ball', 'payload_mass_kg': -0.1}, 'mass_kg'),
+    ({'payload': 'ball', 'payload_size_m': 0.5}, 'size_m'),
+    ({'time_factor': -1.0}, r'time_factor must be in \[0, 1000\], got -1.0'),
+    ({'stall_torque_nm': math.inf}, 'stall_torque_nm must be in'),
+    ({'port_base': 70000}, 'port_base must be in'),
+    ({'links_per_segment': 100}, 'links_per_segment must be in'),
+])
+def test_bad_options_are_refused_with_the_value_and_range(changes, message):
+    with pytest.raises(SimRobotError, match=message):
+        check_options(options(**changes))
+
+
+def test_bad_scene_and_misplaced_payload_give_clear_errors():
+    from softsnap_model.scene import SceneError
+    with pytest.raises(SceneError, match='no_such_robot'):
+        build_robot(options(scene='no_such_robot'))
+    # The brittle star has no place for a payload: the physics says so, named.
+    with pytest.raises(SimRobotError, match="brittle_star.*payload"):
+        build_robot(options(scene='brittle_star', payload='ball'))
+
+
+def test_module_ports_are_consecutive_from_the_base_or_the_scene_ports():
+    from softsnap_model.scene import load_scene
+    scene = load_scene('gripper')
+    assert module_ports(scene, 0) == {m.name: m.port for m in scene.modules}
+    assert list(module_ports(scene, 21000).values()) == [21000, 21001, 21002, 21003]
+    with pytest.raises(SimRobotError, match='port_base must leave room for 4 ports'):
+        module_ports(scene, 65534)
+
+
+# ------------------------------------------------------------------- the coupled loop
+
+def _robot(scene_name: str, **kwargs) -> SimRobot:
+    from softsnap_model.scene import load_scene
+    scene = load_scene(scene_name)
+    return SimRobot(scene, build_simulation(scene, links_per_segment=1), **kwargs)
+
+
+def test_a_set_command_hauls_the_cable_in_and_bends_the_module():
+    robot = _robot('gripper')
+    name = robot.module_names[0]
+    straight = np.asarray(robot.simulation.rib_centers(name))
+    target = int(round(20.0 * robot.counts_per_mm(name)))      # 20 mm of cable
+    robot.request(name, encode_set_request(target, 200))
+    robot.run_until(1.5)
+    module = robot.modules[name]
+    assert abs(module.encoder_count - target) <= DEADBAND_COUNTS
+    length_m = robot.cable_length_m(name, module.position)
+    assert robot.simulation.cable_length(name) == pytest.approx(length_m)
+    assert robot.tension_n(name) > 0.0            # the cable pulls the skeleton
+    bent = np.asarray(robot.simulation.rib_centers(name))
+    assert np.linalg.norm(bent[-1] - straight[-1]) > 0.01    # the tip moved > 10 mm
+    # The other modules were not commanded: their cables stay at the straight length.
+    other = robot.module_names[1]
+    assert robot.modules[other].encoder_count == 0
+
+
+def test_a_winch_stalls_under_a_tension_beyond_its_motor():
+    # A motor 100 times weaker than the GA12-N20 cannot pull the module into shape.
+    robot = _robot('gripper', stall_torque_nm=0.0015)
+    name = robot.module_names[0]
+    target = int(round(30.0 * robot.counts_per_mm(name)))
+    robot.request(name, encode_set_request(target, 200))
+    robot.run_until(2.0)
+    module = robot.modules[name]
+    stuck = module.encoder_count
+    robot.run_until(3.0)
+    assert module.encoder_count == stuck < target - DEADBAND_COUNTS   # no progress
+    assert module.moving()                    # the firmware keeps driving it
+    winch = robot.motors[name]
+    assert robot.tension_n(name) >= 0.9 * winch.stall_tension_n(200, winch.rated_voltage_v)
+    # ... drawing the stall current, which the power history shows like a real module.
+    assert module.current_a > module.battery.idle_current_a + 0.5 * module.motor.base.stall_current_a
+
+
+def _trajectory(robot: SimRobot, script, until_s: float, every_s: float = 0.1):
+    points = []
+    t = 0.0
+    while t < until_s - 1e-9:
+        t += every_s
+        robot.run_until(t, script)
+        snap = robot.snapshot()
+        points.append(np.concatenate([np.ravel(snap.base_position_m)]
+                                     + [np.ravel(m.rib_centers_m) for m in snap.modules]))
+    return np.array(points)
+
+
+def test_the_same_commands_give_the_same_trajectory():
+    from softsnap_gaits.gaits import make_gait
+    runs = []
+    for _ in range(2):
+        robot = _robot('brittle_star')
+        gait = make_gait('walk', robot.scene)
+        runs.append(_trajectory(robot, ScriptedCommands(gait.contraction_mm), 1.2))
+    assert np.abs(runs[0][-1] - runs[0][0]).max() > 1e-3      # it moved
+    assert np.array_equal(runs[0], runs[1])                    # bit for bit
+
+
+def _travel_m(gait_name: str, cycles: int) -> np.ndarray:
+    from softsnap_gaits.gaits import make_gait
+    robot = _robot('brittle_star')
+    robot.run_until(0.3)                       # settle on the ground
+    start = np.asarray(robot.simulation.robot_base_pose()[0])
+    gait = make_gait(gait_name, robot.scene)
+    script = ScriptedCommands(gait.contraction_mm, start_s=robot.clock())
+    robot.run_until(robot.clock() + cycles * gait.period_s, script)
+    return (np.asarray(robot.simulation.robot_base_pose()[0]) - start)[:2]
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    'In the MuJoCo model the brittle star drifts the same way under walk and walk_reverse '
+    '(2 cycles: (8.0, -5.7) and (8.2, -1.5) mm): walk_reverse is walk shifted by half a period (the same '
+    'two-state cycle), and reordering the groups (phases 0/0.25 either way) or swapping '
+    'the large step between them does not turn it round either; the drift follows the '
+    "legs' threadings (mostly R holes: every leg curls the same way). A gait that walks "
+    'back is still to be designed; strict: this fails loudly once one does.'))
+def test_brittle_star_walk_and_walk_reverse_move_it_in_opposite_directions():
+    forward, backward = _travel_m('walk', 2), _travel_m('walk_reverse', 2)
+    assert np.linalg.norm(forward) > 0.005 and np.linalg.norm(backward) > 0.005, \
+        (forward, backward)
+    # Opposite: the angle between the two displacements is more than 90 degrees.
+    assert float(forward @ backward) < 0.0, (forward, backward)

@@ -1,0 +1,53 @@
+"""End to end: the demo runs a robot in MuJoCo (--physics, sim_robot) and records it."""
+import json
+import subprocess
+import sys
+
+import pytest
+
+from test_demo import demo_env
+
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
+
+
+def test_demo_with_physics_runs_the_gripper_on_sim_robot(tmp_path, read_rrd):
+    run_dir = tmp_path / 'run'
+    proc = subprocess.run(
+        [sys.executable, '-m', 'softsnap_gaits.demo', '--scene', 'gripper', '--physics',
+         '--seconds', '5', '--run-dir', str(run_dir), '--json'],
+        capture_output=True, text=True, timeout=360, stdin=subprocess.DEVNULL, env=demo_env())
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    summary = json.loads(proc.stdout[proc.stdout.index('{'):])
+    modules = ('front_left', 'back_left', 'back_right', 'front_right')
+    assert set(summary['modules']) == set(modules)
+    # One sim_robot instead of four sim_modules; every process stopped on SIGINT.
+    assert set(summary['exit_codes']) == {'sim_robot', 'model_node', 'gait_node', 'rerun_logger',
+                                          *(f'driver_{m}' for m in modules)}
+    assert all(code in (0, -2) for code in summary['exit_codes'].values()), summary['exit_codes']
+    for name, m in summary['modules'].items():
+        assert m['online'] and m['commands_lost'] == 0 and m['driver_targets_sent'] > 5, (name, m)
+        assert m['predicted_shapes'], (name, m)
+    physics = summary['physics']
+    assert physics['gait'] == 'grasp' and physics['real_time_factor'] > 0.0
+    # Simulated against predicted shapes, every module (rib-centre RMS, mm).
+    for name in modules:
+        error = physics['shape_error_mm'][name]
+        assert error is not None and error['n'] > 5, (name, error)
+        assert 0.0 <= error['mean'] <= error['max'] < 200.0, (name, error)
+    # The gripper hangs from a fixed connector: it does not travel; its ball is observed
+    # and the first grasp judged (held or not is the physics' answer, not the test's).
+    assert physics['base_travel']['distance_mm'] < 1.0, physics['base_travel']
+    assert physics['payload_travel'] is not None
+    grasp = physics['payload_first_grasp']
+    assert grasp is not None and isinstance(grasp['held'], bool), physics
+    # The recording: simulated shapes beside commanded and predicted ones, and the robot
+    # frame's pose in the world (a Transform3D on 'robot').
+    rec = read_rrd(run_dir / 'gripper.rrd')
+    for module in modules:
+        for source in ('commanded', 'predicted', 'simulated'):
+            spines = rec.values(f'robot/{module}/{source}/spine', 'LineStrips3D:strips')
+            assert len(spines) >= 3, (module, source)
+            assert len(spines[-1][0]) == 12
+    translations = rec.values('robot', 'Transform3D:translation')
+    assert len(translations) >= 3
+    assert translations[-1][0][2] == pytest.approx(0.4, abs=0.05)   # the connector, 0.4 m up
