@@ -1,5 +1,6 @@
 """End to end: the demo runs a robot in MuJoCo (--physics, sim_robot) and records it."""
 import json
+from pathlib import Path
 import subprocess
 import sys
 
@@ -22,7 +23,7 @@ def test_demo_with_physics_runs_the_gripper_on_sim_robot(tmp_path, read_rrd):
     assert set(summary['modules']) == set(modules)
     # One sim_robot instead of four sim_modules; every process stopped on SIGINT.
     assert set(summary['exit_codes']) == {'sim_robot', 'model_node', 'gait_node', 'rerun_logger',
-                                          *(f'driver_{m}' for m in modules)}
+                                          'bag_recorder', *(f'driver_{m}' for m in modules)}
     assert all(code in (0, -2) for code in summary['exit_codes'].values()), summary['exit_codes']
     for name, m in summary['modules'].items():
         assert m['online'] and m['commands_lost'] == 0 and m['driver_targets_sent'] > 5, (name, m)
@@ -51,3 +52,18 @@ def test_demo_with_physics_runs_the_gripper_on_sim_robot(tmp_path, read_rrd):
     translations = rec.values('robot', 'Transform3D:translation')
     assert len(translations) >= 3
     assert translations[-1][0][2] == pytest.approx(0.4, abs=0.05)   # the connector, 0.4 m up
+    # The bag holds the simulation's own topics too, decodable from the embedded schemas.
+    from mcap_ros2.reader import read_ros2_messages
+    mcap_files = sorted(Path(summary['bag']).glob('*.mcap'))
+    assert len(mcap_files) == 1, summary['bag']
+    simulated, poses = 0, []
+    for m in read_ros2_messages(str(mcap_files[0]), topics=['/gripper/model/shape/simulated',
+                                                             '/gripper/sim/base_pose']):
+        if m.channel.topic.endswith('simulated'):
+            simulated += 1
+            assert {s.source for s in m.ros_msg.modules} == {'simulated'}
+            assert all(len(s.rib_centers) == 12 for s in m.ros_msg.modules)
+        else:
+            poses.append(m.ros_msg.pose.position.z)
+    assert simulated > 5 and len(poses) > 5
+    assert poses[-1] == pytest.approx(0.4, abs=0.05)
