@@ -168,8 +168,8 @@ def _travel_m(gait_name: str, cycles: int) -> np.ndarray:
 
 
 def test_brittle_star_walk_and_walk_reverse_move_it_in_opposite_directions():
-    # walk: two groups alternating; walk_reverse: a clockwise wave round the pentagon
-    # (scene file). Measured: (8.3, -4.9) and (-7.8, 8.8) mm, about 160 deg apart.
+    # walk: blue and orange, then yellow, green and red; walk_reverse: yellow, then green
+    # and red (scene file). Measured: (8.3, -4.9) and (-9.3, -3.0) mm, 131 deg apart.
     forward, backward = _travel_m('walk', 2), _travel_m('walk_reverse', 2)
     # Each well above the noise (a few tenths of a millimetre of settling).
     assert np.linalg.norm(forward) > 0.005 and np.linalg.norm(backward) > 0.005, \
