@@ -197,16 +197,16 @@ def test_gait_node_services_start_stop_pause_resume_switch(start_node, ros_node)
     result = set_parameters(ros_node, params, gait='hop')[0]
     assert not result.successful and "unknown gait 'hop'" in result.reason
     wait_phase(lambda p: p.gait == 'walk_reverse' and p.period == 2.0)
-    # Too fast for the winches (60 mm on 0.75 s ramps: 125.7 mm/s > 69.3 mm/s): refused
-    # with the numbers. With time_scale auto the node slows the gait just enough:
-    # 125.66 / 69.3 = 1.813 times the 2 s period.
+    # Too fast for the winches (60 mm on walk_reverse's 0.95 s ramps: 99.2 mm/s > 69.3
+    # mm/s): refused with the numbers. With time_scale auto the node slows the gait just
+    # enough: 99.21 / 69.3 = 1.432 times the 2 s period.
     result = set_parameters(ros_node, params, amplitude=0.06)[0]
-    assert not result.successful and 'needs 125.7 mm/s' in result.reason, result.reason
+    assert not result.successful and 'needs 99.2 mm/s' in result.reason, result.reason
     result = set_parameters(ros_node, params, time_scale='fast')[0]
     assert not result.successful and "got 'fast'" in result.reason
     assert set_parameters(ros_node, params, time_scale='auto')[0].successful
     assert set_parameters(ros_node, params, amplitude=0.06)[0].successful
-    scaled = 2.0 * (60.0 * math.pi / 1.5) / (0.75 * 92.4)
+    scaled = 2.0 * (60.0 * math.pi / 1.9) / (0.75 * 92.4)
     wait_phase(lambda p: p.gait == 'walk_reverse' and abs(p.period - scaled) < 1e-6)
 
     # Stop: the modules relax to straight, then the node stops commanding them.

@@ -60,6 +60,27 @@ def test_every_gait_starts_straight_stays_in_range_and_is_smooth(scenes, scene_n
 
 # --------------------------------------------------------------- each robot's definition
 
+def test_brittle_star_walk_reverse_is_not_walk_shifted_in_time(scenes):
+    # Swapped groups would be walk half a period later, which walks the same way in the
+    # physics (docs/sim_robot.md); walk_reverse steps yellow alone, then green and red.
+    scene = scenes['brittle_star']
+    walk, reverse = make_gait('walk', scene), make_gait('walk_reverse', scene)
+    assert reverse.period_s == walk.period_s == 3.0
+    t = np.linspace(0.0, 3.0, 301)
+    for shift in np.linspace(0.0, 3.0, 31):
+        assert not np.allclose(reverse.contraction_mm(t + 3.0),
+                               walk.contraction_mm(t + 3.0 + shift), atol=1.0)
+    c = dict(zip(reverse.module_names, reverse.contraction_mm(4.4)))    # hold of group 1
+    assert c == pytest.approx({'yellow': 40.0, 'blue': 0.0, 'green': 0.0, 'red': 0.0,
+                               'orange': 0.0})
+    c = dict(zip(reverse.module_names, reverse.contraction_mm(5.9)))    # hold of group 2
+    assert c == pytest.approx({'yellow': 0.0, 'blue': 0.0, 'green': 40.0, 'red': 40.0,
+                               'orange': 0.0})
+    # Within the winches: 40 mm on 0.95 s ramps, 66.1 mm/s <= 75 % of 92.4 mm/s.
+    assert reverse.peak_speed_mm_s.max() == pytest.approx(40.0 * math.pi / 1.9)
+    assert np.all(reverse.peak_speed_mm_s <= reverse.speed_limit_mm_s)
+
+
 def test_brittle_star_walk_alternates_two_groups_every_half_cycle(scenes):
     gait = make_gait('walk', scenes['brittle_star'])
     assert gait.period_s == 3.0 and gait.loop and gait.time_scale == 1.0
