@@ -86,6 +86,46 @@ def test_fidelity_error_falls_with_links():
     assert max(errors[1:]) < 0.1, errors
 
 
+def test_free_robot_leg_without_gravity_matches_solve_forward():
+    # The whole brittle star on its free base, gravity off, resting 0.2 mm above the
+    # ground (no contact): one leg hauled in by 20 mm must take the clamped module's
+    # quasi-static shape. The hub used to be a cylinder whose collision with the ground
+    # misfired once the robot turned about the vertical (the leg's recoil): a -27 mm
+    # penetration launched the robot at 3.5 m/s, and its tumbling bent the leg 7 mm
+    # RMS away from solve_forward.
+    from softsnap_model.scene import load_scene
+    scene = load_scene('brittle_star')
+    sim = RobotSimulation(scene, gravity=False)
+    z0 = sim.robot_base_pose()[0][2]
+    module = scene.modules[0]
+    straight = sim.straight_cable_length(module.name)
+    sim.ramp_cable_length(module.name, straight - 0.02, 0.05)
+    sim.settle(5.0)
+    assert sim.data.ncon == 0                         # the ground does not touch
+    assert np.abs(sim.data.qvel[:3]).max() < 1e-2     # m/s: the robot was not kicked
+    assert np.abs(sim.data.qvel[3:6]).max() < 1e-2    # rad/s: and does not tumble
+    assert abs(sim.robot_base_pose()[0][2] - z0) < 1e-3
+    ref = solve_forward(scene.skeleton, module.threading_mm, straight * 1e3 - 20.0)
+    got = sim.rib_centers(module.name)[:, :2] * 1e3
+    err = np.linalg.norm(got - ref.rib_centers[:, :2], axis=1)
+    assert err.max() < FIDELITY_TOL_MM, err
+
+
+def test_free_robot_with_gravity_off_is_not_kicked_by_the_ground():
+    # Every leg hauled in one after the other turns the hub about the vertical; the
+    # robot must stay where it floats (the cylinder hub's false contact launched it).
+    sim = RobotSimulation('brittle_star', gravity=False)
+    for name in sim.module_names:
+        sim.ramp_cable_length(name, sim.straight_cable_length(name) - 0.015, 0.1)
+    sim.step(0.5)
+    # It may slide and turn in its plane (the legs' recoil), not leave it.
+    assert abs(sim.data.qvel[2]) < 1e-2, sim.data.qvel[:6]
+    assert np.abs(sim.data.qvel[3:5]).max() < 1e-2, sim.data.qvel[:6]
+    root = ET.fromstring(sim.xml)
+    hub = [g for g in root.iter('geom') if g.get('name') == 'connector'][0]
+    assert hub.get('type') == 'mesh'
+
+
 # -------------------------------------------------------------------------- cable
 
 def test_slack_cable_has_no_tension_and_module_straightens():

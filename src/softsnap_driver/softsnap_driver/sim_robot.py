@@ -398,7 +398,7 @@ class SimRobot:
             position, orientation = sim.module_base_pose(name)
             ribs = sim.rib_centers(name)
             modules.append(ModuleSnapshot(
-                name=name, rib_centers_m=tuple(tuple(float(v) for v in rib) for rib in ribs),
+                name=name, rib_centers_m=tuple(map(_vec, ribs)),
                 angles_rad=_vec(sim.segment_angles(name)),
                 base_position_m=_vec(position), base_orientation_wxyz=_vec(orientation),
                 cable_length_m=self._lengths_m[name], tension_n=float(sim.cable_tension(name)),
@@ -457,6 +457,12 @@ class SimRobot:
 
 
 def _vec(values) -> tuple[float, ...]:
+    # A numpy array's tolist() makes the Python floats in C: a snapshot took 1.5 ms with
+    # float() per element.
+    tolist = getattr(values, 'tolist', None)
+    if tolist is not None and getattr(values, 'dtype', None) is not None \
+            and values.dtype.kind == 'f':
+        return tuple(tolist())
     return tuple(float(v) for v in values)
 
 

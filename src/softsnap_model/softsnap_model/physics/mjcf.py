@@ -398,8 +398,13 @@ def _root(model_name: str, params: PhysicsParameters, gravity: bool):
     g = params.gravity_mps2 if gravity else 0.0
     # Pyramidal friction cones (MuJoCo's default): ~25 % cheaper than elliptic ones for
     # robots resting on one contact per rib (physics_bench.py), isotropic Coulomb either way.
-    ET.SubElement(root, 'option', timestep=_f(params.timestep_s), integrator='implicitfast',
-                  gravity=_f(0.0, 0.0, -g), cone='pyramidal')
+    # Island discovery off: every contact row of a robot reaches its free base, so the
+    # constraints form one island anyway and the search only costs (10-25 % of a step
+    # of the brittle star, same trajectory bit for bit; benchmarks/physics_bench.py).
+    option = ET.SubElement(root, 'option', timestep=_f(params.timestep_s),
+                           integrator='implicitfast', gravity=_f(0.0, 0.0, -g),
+                           cone='pyramidal')
+    ET.SubElement(option, 'flag', island='disable')
     # Light bodies and stiff springs: MuJoCo's default contact softness would let the
     # 1 g ribs sink into the ground; a 2-step time constant keeps them on it.
     default = ET.SubElement(root, 'default')
@@ -705,7 +710,7 @@ def _ring_order(scene) -> list:
     return mods
 
 
-def _connector_geom(body, scene, params: PhysicsParameters):
+def _connector_geom(body, scene, params: PhysicsParameters, asset):
     """Collision shape and mass of a hub connector (pentagon, cuboid) in the root body."""
     c = scene.connector
     kind = c.get('type', '')
@@ -721,8 +726,21 @@ def _connector_geom(body, scene, params: PhysicsParameters):
         side = float(c.get('side_mm', 40.0)) * 1e-3
         thick = min(float(c.get('thickness_mm', 15.0)), extent) * 1e-3
         volume = 2.5 * side * apothem * thick          # pentagon area 5 s a / 2
-        ET.SubElement(body, 'geom', name='connector', type='cylinder',
-                      size=_f(apothem, 0.5 * thick),
+        # A pentagonal prism (convex mesh), sides facing the modules. Not a cylinder:
+        # MuJoCo's cylinder-plane test misfires when the axis is exactly vertical and
+        # the robot turns about it (a -27 mm "penetration" that launched a free robot
+        # with gravity off at 3.5 m/s; tests/model/test_physics.py).
+        first = scene.modules[0].base_position_m
+        theta0 = math.atan2(first[1], first[0]) if math.hypot(first[0], first[1]) > 1e-9 \
+            else 0.0
+        radius = apothem / math.cos(math.pi / 5)
+        verts = []
+        for zs in (-0.5 * thick, 0.5 * thick):
+            for k in range(5):
+                a = theta0 + math.pi / 5 + 2 * math.pi * k / 5
+                verts += [radius * math.cos(a), radius * math.sin(a), zs]
+        ET.SubElement(asset, 'mesh', name='connector', vertex=_f(*verts))
+        ET.SubElement(body, 'geom', name='connector', type='mesh', mesh='connector',
                       mass=_f(volume * params.connector_density_kg_m3),
                       contype=str(_ROBOT_CLASS[0]), conaffinity=str(_ROBOT_CLASS[1]),
                       friction=_f(params.rib_friction, 0.005, 0.0001), rgba='0.3 0.45 0.8 1')
@@ -905,7 +923,9 @@ def robot_mjcf_layout(scene, *, links_per_segment: int = DEFAULT_LINKS_PER_SEGME
         add(m, tips[prev.name], rel_pos, _mat_to_wxyz(rel_rot))
 
     if kind != 'ring' and kind != 'chain':
-        _connector_geom(robot, scene, params)
+        asset = ET.Element('asset')
+        _connector_geom(robot, scene, params, asset)
+        root.insert(1, asset)
     if kind == 'ring':
         order = _ring_order(scene)
         links = list(zip(order, order[1:] + order[:1]))

@@ -183,7 +183,7 @@ class RobotSimulation:
 
     def _lowest_point_z(self) -> float:
         """Lowest world z (m) over the robot's collision geoms (boxes, cylinders, capsules,
-        spheres; anything else by its bounding sphere)."""
+        meshes, spheres; anything else by its bounding sphere)."""
         m, d = self.model, self.data
         low = math.inf
         for g in self._robot_geoms:
@@ -197,6 +197,11 @@ class RobotSimulation:
                 ext = az * size[1] + size[0] * math.sqrt(max(0.0, 1.0 - az * az))
             elif kind == mujoco.mjtGeom.mjGEOM_CAPSULE:
                 ext = abs(r[2, 2]) * size[1] + size[0]
+            elif kind == mujoco.mjtGeom.mjGEOM_MESH:
+                # The hub's prism: its lowest vertex (mesh frame = geom frame).
+                mesh = m.geom_dataid[g]
+                start, count = m.mesh_vertadr[mesh], m.mesh_vertnum[mesh]
+                ext = -float(np.min(m.mesh_vert[start:start + count] @ r[2]))
             else:
                 ext = float(m.geom_rbound[g])
             low = min(low, float(d.geom_xpos[g][2]) - ext)
