@@ -19,16 +19,13 @@ import dataclasses
 import math
 import sys
 
-import rclpy
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 SetParametersResult)
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.parameter import Parameter
-from rclpy.utilities import remove_ros_args
 
 from softsnap_driver.ros_parameters import SoftSnapNode
 from softsnap_driver.sim_module import OPTIONS, STOP_JOIN_S, build_parser, start_servers
-from softsnap_driver.spinning import spin_until_shutdown
+from softsnap_driver.spinning import run_simulator_main
 
 _NEVER_TO = 1e6  # largest "after" time of a fault, s (-1: never)
 #: Ranges of the options (inclusive); an option missing here is declared without one.
@@ -110,33 +107,18 @@ class SimModuleNode(SoftSnapNode):
         super().destroy_node()
 
 
+def _stop(node: SimModuleNode) -> int:
+    servers = node.servers
+    node.destroy_node()
+    print(f'[sim_module] stopped after {sum(s.connections for s in servers)} connections',
+          flush=True)
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
-    argv = sys.argv if argv is None else argv
-    # Plain options (before --ros-args) give the parameters' defaults.
-    defaults = build_parser().parse_args(remove_ros_args(argv)[1:])
-    rclpy.init(args=argv)
-    node = None
-    status = 0
-    try:
-        node = SimModuleNode(defaults)
-        # One thread: the servers run on their own threads; this one only serves the
-        # parameter services.
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        spin_until_shutdown(executor)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except (ValueError, OSError) as exc:  # bad parameters, port in use: say why, exit 2
-        rclpy.logging.get_logger('sim_module').fatal(f'cannot start: {exc}')
-        status = 2
-    finally:
-        if node is not None:
-            servers = node.servers
-            node.destroy_node()
-            print(f'[sim_module] stopped after {sum(s.connections for s in servers)} connections',
-                  flush=True)
-        rclpy.try_shutdown()
-    return status
+    # Plain options (before --ros-args) give the parameters' defaults; the servers run on
+    # their own threads, the executor only serves the parameter services.
+    return run_simulator_main(argv, 'sim_module', build_parser, SimModuleNode, _stop)
 
 
 if __name__ == '__main__':

@@ -30,15 +30,12 @@ import argparse
 import math
 import sys
 
-import rclpy
 from geometry_msgs.msg import Point, Pose, PoseStamped
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
-from rclpy.utilities import remove_ros_args
 
 from softsnap_driver.ros_parameters import SoftSnapNode
 from softsnap_driver.sim_robot import OPTIONS, RobotSnapshot, SimRobotRunner, build_parser
-from softsnap_driver.spinning import spin_until_shutdown
+from softsnap_driver.spinning import run_simulator_main
 from softsnap_interfaces.msg import ModuleShape, RobotShape
 
 WORLD_FRAME = 'world'
@@ -154,36 +151,20 @@ class SimRobotNode(SoftSnapNode):
         super().destroy_node()
 
 
+def _stop(node: SimRobotNode) -> int:
+    runner = node.runner
+    node.destroy_node()
+    stats = runner.robot.stats()
+    print(f'[sim_robot] stopped at t = {stats.sim_time_s:.3f} s after '
+          f'{runner.servers.connections} connections; real-time factor '
+          f'{stats.real_time_factor:.1f} while stepping', flush=True)
+    return 1 if runner.robot.fault else 0
+
+
 def main(argv: list[str] | None = None) -> int:
-    argv = sys.argv if argv is None else argv
-    defaults = build_parser().parse_args(remove_ros_args(argv)[1:])
-    rclpy.init(args=argv)
-    node = None
-    status = 0
-    try:
-        node = SimRobotNode(defaults)
-        # One thread: the simulation and the servers run on their own threads; this one
-        # publishes snapshots and serves the parameter services.
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        spin_until_shutdown(executor)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except (ValueError, OSError) as exc:   # bad parameters or scene, port in use: exit 2
-        rclpy.logging.get_logger('sim_robot').fatal(f'cannot start: {exc}')
-        status = 2
-    finally:
-        if node is not None:
-            runner = node.runner
-            node.destroy_node()
-            stats = runner.robot.stats()
-            print(f'[sim_robot] stopped at t = {stats.sim_time_s:.3f} s after '
-                  f'{runner.servers.connections} connections; real-time factor '
-                  f'{stats.real_time_factor:.1f} while stepping', flush=True)
-            if runner.robot.fault:
-                status = 1
-        rclpy.try_shutdown()
-    return status
+    # The simulation and the servers run on their own threads; the executor publishes
+    # snapshots and serves the parameter services.
+    return run_simulator_main(argv, 'sim_robot', build_parser, SimRobotNode, _stop)
 
 
 if __name__ == '__main__':

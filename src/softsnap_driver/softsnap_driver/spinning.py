@@ -8,6 +8,9 @@ logger). Here any exception raised once the context is no longer ok is that shut
 """
 from __future__ import annotations
 
+import sys
+from typing import Callable
+
 from rclpy.executors import Executor, ExternalShutdownException
 
 
@@ -20,3 +23,39 @@ def spin_until_shutdown(executor: Executor) -> None:
     except Exception:
         if executor.context.ok():
             raise  # a real failure, not a shutdown
+
+
+def run_simulator_main(argv: list[str] | None, name: str, build_parser: Callable,
+                       make_node: Callable, stop_node: Callable) -> int:
+    """``main()`` of a simulator node whose plain options give its parameters' defaults.
+
+    ``make_node(defaults)`` builds the node from the parsed plain options (those before
+    ``--ros-args``); one single-threaded executor serves it until Ctrl-C, SIGTERM or an
+    external shutdown (the simulator's own threads do the work). Bad parameters or a
+    port in use end it with one fatal line and exit status 2. ``stop_node(node)``
+    destroys the node, prints what it did and returns an exit status (0 when clean).
+    """
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.utilities import remove_ros_args
+
+    argv = sys.argv if argv is None else argv
+    defaults = build_parser().parse_args(remove_ros_args(argv)[1:])
+    rclpy.init(args=argv)
+    node = None
+    status = 0
+    try:
+        node = make_node(defaults)
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        spin_until_shutdown(executor)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except (ValueError, OSError) as exc:   # bad parameters or scene, port in use: exit 2
+        rclpy.logging.get_logger(name).fatal(f'cannot start: {exc}')
+        status = 2
+    finally:
+        if node is not None:
+            status = stop_node(node) or status
+        rclpy.try_shutdown()
+    return status
