@@ -2,6 +2,7 @@
 import os
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 import pytest
@@ -18,7 +19,16 @@ def peer(tmp_path):
                             env=dict(os.environ, ROS_HOME=str(tmp_path)))
     yield proc
     proc.send_signal(2)
-    proc.wait(10)
+    try:
+        proc.wait(10)
+    except subprocess.TimeoutExpired:
+        # The peer is this test's helper, not a product node (their SIGINT exit is tested in
+        # test/e2e/test_sigint.py); once in a full CI run it hung silently in rclpy's
+        # shutdown. Kill it so no process outlives the test, and say so.
+        proc.kill()
+        proc.wait(10)
+        warnings.warn(f'echo_peer ignored SIGINT for 10 s and was killed; log: '
+                      f'{(tmp_path / "peer.log").read_bytes()[-500:]!r}')
     log.close()
 
 
