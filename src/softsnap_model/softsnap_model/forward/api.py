@@ -13,7 +13,7 @@ import numpy as np
 
 from ..skeleton import Skeleton
 from .newton import _solve_single
-from .path import _check_length, _describe, _problem, _single_for
+from .path import _check_length, _problem, _single_for
 from .results import MAX_ITER, ForwardResult
 
 
@@ -158,7 +158,7 @@ def solve_forward(skeleton: Skeleton, threading, cable_length_mm, initial=None, 
         raise ValueError(f'max_iter must be an integer >= 0, got {max_iter!r}')
     flip = _mirror_flip_indices(mirror_flip, S['mirror'])
     if not (math.isfinite(L) and L > prob.min_mm):
-        _check_length(prob, np.array([L]), skeleton, _describe(skeleton, prob.d))
+        _check_length(prob, np.array([L]), skeleton, prob.d)
     lam0 = a0 = None
     if initial is not None:
         lam0, a0 = _initial_state(initial, skeleton.n_segments)

@@ -13,7 +13,7 @@ import numpy as np
 from ..skeleton import Skeleton
 from .api import _check_skeleton, _frames
 from .newton import _solve_arrays
-from .path import _check_length, _describe, _problem, _stack, _threading_tuple
+from .path import _check_length, _problem, _stack, _threading_tuple
 from .results import MAX_ITER, BatchResult, SweepResult
 
 
@@ -56,7 +56,7 @@ def solve_forward_batch(skeleton: Skeleton, threadings, cable_lengths_mm, *,
     probs = [_problem(skeleton, tuple(d.tolist())) for d in ds]
     for j, prob in enumerate(probs):
         sel = lengths[index == j]
-        _check_length(prob, sel, skeleton, _describe(skeleton, prob.d))
+        _check_length(prob, sel, skeleton, prob.d)
     if nb == 0:
         n = skeleton.n_segments
         empty = np.zeros((0,))
@@ -158,7 +158,7 @@ def sweep(skeleton: Skeleton, threading, contractions_mm, *,
     d = skeleton.threading_mm(threading)
     prob = _problem(skeleton, tuple(d.tolist()))
     lengths = prob.straight_mm - c
-    _check_length(prob, lengths, skeleton, _describe(skeleton, d))
+    _check_length(prob, lengths, skeleton, d)
     P = _stack([prob], np.zeros(c.shape[0], dtype=int))
     out = _solve_arrays(P, lengths, max_iter=int(max_iter))
     return _batch_result(SweepResult, P, out, lengths, contractions_mm=c)

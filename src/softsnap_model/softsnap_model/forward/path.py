@@ -145,8 +145,12 @@ def _path_polynomials(lam, length, b, lp, lpp, k, lam_c, lam_end):
     return c
 
 
-def _check_length(prob: _Problem, length: np.ndarray, skeleton, threading_desc):
-    """Raise the documented errors for NaN/inf and unreachable lengths."""
+def _check_length(prob: _Problem, length: np.ndarray, skeleton, d):
+    """Raise the documented errors for NaN/inf and unreachable lengths.
+
+    The threading `d` is named in the message only when one is raised: naming it costs
+    ~50 µs, which every batch used to pay for lengths that were fine.
+    """
     if not np.all(np.isfinite(length)):
         bad = length[~np.isfinite(length)].ravel()[0]
         raise ValueError(f'cable_length_mm must be finite, got {bad!r}')
@@ -157,6 +161,7 @@ def _check_length(prob: _Problem, length: np.ndarray, skeleton, threading_desc):
     if np.any(low):
         bad = float(length[low].ravel()[0])
         rng = (prob.min_mm, prob.straight_mm)
+        threading_desc = _describe(skeleton, d)
         if prob.snap:
             raise SnapThroughError(
                 f'cable length {bad!r} mm is past a snap-through of threading '
