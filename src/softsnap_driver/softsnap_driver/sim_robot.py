@@ -748,10 +748,15 @@ def main(argv: list[str] | None = None) -> int:
         pass
     finally:
         runner.stop()
-        stats = runner.robot.stats()
-        print(f'[sim_robot] stopped at t = {stats.sim_time_s:.3f} s after '
-              f'{runner.servers.connections} connections; real-time factor '
-              f'{stats.real_time_factor:.1f} while stepping', flush=True)
+    return report_stop(runner)
+
+
+def report_stop(runner: SimRobotRunner) -> int:
+    """Print what a stopped runner did; its exit status (1 after a simulation fault)."""
+    stats = runner.robot.stats()
+    print(f'[sim_robot] stopped at t = {stats.sim_time_s:.3f} s after '
+          f'{runner.servers.connections} connections; real-time factor '
+          f'{stats.real_time_factor:.1f} while stepping', flush=True)
     return 1 if runner.robot.fault else 0
 
 

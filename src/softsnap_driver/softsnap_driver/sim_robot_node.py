@@ -34,7 +34,8 @@ from geometry_msgs.msg import Point, Pose, PoseStamped
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 
 from softsnap_driver.ros_parameters import SoftSnapNode
-from softsnap_driver.sim_robot import OPTIONS, RobotSnapshot, SimRobotRunner, build_parser
+from softsnap_driver.sim_robot import (OPTIONS, RobotSnapshot, SimRobotRunner, build_parser,
+                                       report_stop)
 from softsnap_driver.spinning import run_simulator_main
 from softsnap_interfaces.msg import ModuleShape, RobotShape
 
@@ -154,11 +155,7 @@ class SimRobotNode(SoftSnapNode):
 def _stop(node: SimRobotNode) -> int:
     runner = node.runner
     node.destroy_node()
-    stats = runner.robot.stats()
-    print(f'[sim_robot] stopped at t = {stats.sim_time_s:.3f} s after '
-          f'{runner.servers.connections} connections; real-time factor '
-          f'{stats.real_time_factor:.1f} while stepping', flush=True)
-    return 1 if runner.robot.fault else 0
+    return report_stop(runner)
 
 
 def main(argv: list[str] | None = None) -> int:
