@@ -156,9 +156,11 @@ def test_the_same_commands_give_the_same_trajectory():
     assert np.array_equal(runs[0], runs[1])                    # bit for bit
 
 
-def _travel_m(gait_name: str, cycles: int) -> np.ndarray:
+def _travel_m(gait_name: str, cycles: int, links_per_segment: int = 1) -> np.ndarray:
     from softsnap_gaits.gaits import make_gait
-    robot = _robot('brittle_star')
+    from softsnap_model.scene import load_scene
+    scene = load_scene('brittle_star')
+    robot = SimRobot(scene, build_simulation(scene, links_per_segment=links_per_segment))
     robot.run_until(0.3)                       # settle on the ground
     start = np.asarray(robot.simulation.robot_base_pose()[0])
     gait = make_gait(gait_name, robot.scene)
@@ -167,19 +169,20 @@ def _travel_m(gait_name: str, cycles: int) -> np.ndarray:
     return (np.asarray(robot.simulation.robot_base_pose()[0]) - start)[:2]
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    'No gait of ours walks the brittle star backwards in the MuJoCo model yet: walk goes '
-    '(+11.5, -5.4) mm in 2 cycles, walk_reverse (yellow, then green and red) steps back '
-    '(-6.1, -2.8) mm in its first cycle, then stalls at (-3.2, -1.6) mm; mirrored groups '
-    'go +x too (docs/sim_robot.md). Strict: this fails loudly once a reverse gait works.'))
-def test_brittle_star_walk_and_walk_reverse_move_it_in_opposite_directions():
-    # walk: blue and orange, then yellow, green and red; walk_reverse: yellow, then green
-    # and red (scene file).
-    forward, backward = _travel_m('walk', 2), _travel_m('walk_reverse', 2)
+@pytest.mark.parametrize('links_per_segment', [1, 2])
+def test_brittle_star_walk_and_walk_reverse_move_it_in_opposite_directions(links_per_segment):
+    # walk: blue and orange, then yellow, green and red (a two-state cycle);
+    # walk_reverse: yellow in, green and red in, yellow out, green and red out, in turn
+    # (a loop in the legs' shape space; scene file). Measured after 2 cycles (docs/sim_robot.md):
+    # 1 link (+11.5, -5.4) and (-12.3, -1.4) mm; 2 links (+9.8, -2.2) and (-24.9, -9.3).
+    forward = _travel_m('walk', 2, links_per_segment)
+    backward = _travel_m('walk_reverse', 2, links_per_segment)
     # Each clearly more than a gait that goes nowhere: yellow stepping alone moves the
     # robot under 1 mm per cycle (docs/sim_robot.md).
     assert np.linalg.norm(forward) > 0.005 and np.linalg.norm(backward) > 0.005, \
         (forward, backward)
+    # walk goes towards yellow (+x), walk_reverse away from it.
+    assert forward[0] > 0.005 and backward[0] < -0.005, (forward, backward)
     # Opposite: a negative dot product, and more than 120 degrees between them.
     assert float(forward @ backward) < 0.0, (forward, backward)
     cos = float(forward @ backward) / (np.linalg.norm(forward) * np.linalg.norm(backward))

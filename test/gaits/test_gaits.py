@@ -60,22 +60,43 @@ def test_every_gait_starts_straight_stays_in_range_and_is_smooth(scenes, scene_n
 
 # --------------------------------------------------------------- each robot's definition
 
-def test_brittle_star_walk_reverse_is_not_walk_shifted_in_time(scenes):
-    # Swapped groups would be walk half a period later, which walks the same way in the
-    # physics (docs/sim_robot.md); walk_reverse steps yellow alone, then green and red.
+def _shape_area_mm2(gait, a: str, b: str) -> float:
+    """Signed area (mm^2) the contractions of modules a and b enclose over one cycle
+    (the second, past the start-up): positive when a moves first (counter-clockwise)."""
+    t = np.linspace(gait.period_s, 2.0 * gait.period_s, 30001)
+    c = gait.contraction_mm(t)
+    x, y = c[:, gait.index(a)], c[:, gait.index(b)]
+    return 0.5 * float(np.sum(x[:-1] * np.diff(y) - y[:-1] * np.diff(x)))
+
+
+def test_brittle_star_walk_reverse_loops_through_shape_space_and_walk_does_not(scenes):
+    # In a quasi-static world with Coulomb friction, a cycle of shapes that goes back
+    # and forth along one path moves the robot only through slip hysteresis, whatever
+    # its timing; a cycle enclosing an area moves it by the loop, and the loop traversed
+    # backwards moves it the other way (docs/sim_robot.md). walk is a two-state cycle,
+    # walk_reverse a loop: yellow in, green and red in, yellow out, green and red out.
     scene = scenes['brittle_star']
     walk, reverse = make_gait('walk', scene), make_gait('walk_reverse', scene)
     assert reverse.period_s == walk.period_s == 3.0
+    pairs = [(a, b) for k, a in enumerate(walk.module_names) for b in walk.module_names[k + 1:]]
+    assert all(abs(_shape_area_mm2(walk, a, b)) < 1e-6 for a, b in pairs)
+    # Nearly the whole 40 x 40 mm square, yellow first; no other pair loops.
+    for other in ('green', 'red'):
+        assert 0.95 * 40.0 ** 2 < _shape_area_mm2(reverse, 'yellow', other) <= 40.0 ** 2
+    assert abs(_shape_area_mm2(reverse, 'green', 'red')) < 1e-6
+    assert abs(_shape_area_mm2(reverse, 'yellow', 'blue')) < 1e-6
+    # Not walk shifted in time (swapped groups would be, and walk the same way).
     t = np.linspace(0.0, 3.0, 301)
     for shift in np.linspace(0.0, 3.0, 31):
         assert not np.allclose(reverse.contraction_mm(t + 3.0),
                                walk.contraction_mm(t + 3.0 + shift), atol=1.0)
-    c = dict(zip(reverse.module_names, reverse.contraction_mm(4.4)))    # hold of group 1
-    assert c == pytest.approx({'yellow': 40.0, 'blue': 0.0, 'green': 0.0, 'red': 0.0,
-                               'orange': 0.0})
-    c = dict(zip(reverse.module_names, reverse.contraction_mm(5.9)))    # hold of group 2
-    assert c == pytest.approx({'yellow': 0.0, 'blue': 0.0, 'green': 40.0, 'red': 40.0,
-                               'orange': 0.0})
+    # The order within a cycle: yellow rising alone; yellow in while green and red
+    # rise; green and red in while yellow falls; green and red falling alone.
+    expect = {3.3: (9.1, 0.0), 4.4: (40.0, 30.9), 5.3: (2.4, 39.7), 5.9: (0.0, 9.1)}
+    for t_s, (yellow, green) in expect.items():
+        c = dict(zip(reverse.module_names, reverse.contraction_mm(t_s)))
+        assert c == pytest.approx({'yellow': yellow, 'blue': 0.0, 'green': green,
+                                   'red': green, 'orange': 0.0}, abs=0.05), t_s
     # Within the winches: 40 mm on 0.95 s ramps, 66.1 mm/s <= 75 % of 92.4 mm/s.
     assert reverse.peak_speed_mm_s.max() == pytest.approx(40.0 * math.pi / 1.9)
     assert np.all(reverse.peak_speed_mm_s <= reverse.speed_limit_mm_s)
