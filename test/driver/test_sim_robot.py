@@ -12,9 +12,9 @@ import pytest
 
 from softsnap_driver.firmware import DEADBAND_COUNTS, MotorModel
 from softsnap_driver.protocol import encode_set_request
-from softsnap_driver.sim_robot import (OPTIONS, ScriptedCommands, SimRobot, SimRobotError,
-                                       WinchMotor, build_robot, build_simulation, check_options,
-                                       module_ports)
+from softsnap_driver.sim_robot import (DEFAULT_LINKS_PER_SEGMENT, OPTIONS, ScriptedCommands,
+                                       SimRobot, SimRobotError, WinchMotor, build_robot,
+                                       build_simulation, check_options, module_ports)
 
 BOOST_V = 6.0
 
@@ -187,3 +187,45 @@ def test_brittle_star_walk_and_walk_reverse_move_it_in_opposite_directions(links
     assert float(forward @ backward) < 0.0, (forward, backward)
     cos = float(forward @ backward) / (np.linalg.norm(forward) * np.linalg.norm(backward))
     assert cos < -0.5, (forward, backward, cos)
+
+
+def _grasp_payload_heights_m(mass_kg: float, radius_m: float) -> tuple:
+    """The gripper's first grasp (scene's default gait, sim_robot's default model) on a
+    ball: (release time s, payload height at the start and the end of the hold, m)."""
+    from softsnap_gaits.gaits import make_gait
+    from softsnap_model.physics.mjcf import Payload
+    from softsnap_model.scene import load_scene
+    scene = load_scene('gripper')
+    robot = SimRobot(scene, build_simulation(scene, payload=Payload('ball', mass_kg, radius_m),
+                                             links_per_segment=DEFAULT_LINKS_PER_SEGMENT))
+    gait = make_gait(scene.default_gait, scene)
+    spec = scene.gaits[scene.default_gait]
+    script = ScriptedCommands(gait.contraction_mm)
+    robot.run_until(spec['close_s'], script)
+    z0 = robot.simulation.payload_pose()[0][2]
+    robot.run_until(spec['close_s'] + spec['hold_s'], script)
+    return robot.payload_released_at_s, z0, robot.simulation.payload_pose()[0][2]
+
+
+def test_gripper_holds_its_demo_payload_through_a_grasp():
+    from softsnap_gaits.demo import PAYLOAD_HOLD_TOL_MM, PHYSICS_PAYLOADS
+    demo = PHYSICS_PAYLOADS['gripper']
+    assert demo['payload'] == 'ball'
+    # sim_robot's defaults are the demo's payload.
+    assert (OPTIONS['payload_mass_kg'][1], OPTIONS['payload_size_m'][1]) == \
+        (demo['payload_mass_kg'], demo['payload_size_m'])
+    released, z0, z1 = _grasp_payload_heights_m(demo['payload_mass_kg'], demo['payload_size_m'])
+    # The helper hold let go while the fingers closed, before the hold began ...
+    assert released is not None and released < 1.5, released
+    # ... and the ball stayed in the closed fingers, well above the ground (0.40 m arm).
+    assert (z0 - z1) * 1e3 < PAYLOAD_HOLD_TOL_MM, (z0, z1)
+    assert z1 > 0.2, z1
+
+
+def test_gripper_drops_a_ball_that_passes_between_its_fingertips_or_is_too_heavy():
+    # The demo's old payload, 20 g of 20 mm radius, falls through the closed fingers, and
+    # 30 g at the demo's 45 mm radius weighs them open (docs/sim_robot.md: up to 20 g).
+    for mass_kg, radius_m in ((0.02, 0.02), (0.03, 0.045)):
+        released, z0, z1 = _grasp_payload_heights_m(mass_kg, radius_m)
+        assert released is not None
+        assert z1 < radius_m + 0.005, (mass_kg, radius_m, z1)     # on the ground

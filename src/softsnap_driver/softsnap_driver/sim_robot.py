@@ -89,6 +89,11 @@ PAYLOAD_SHAPES = ('none', 'ball', 'box')
 #: Default contraction (mm) every module must reach before a gripper's helper hold lets
 #: go of the payload (the grasp gait closes to 45 mm).
 DEFAULT_PAYLOAD_RELEASE_MM = 30.0
+#: Default payload: a 10 g ball of 45 mm radius, what the gripper holds through its grasp
+#: with a 2x margin (docs/sim_robot.md: the closed fingers cage balls of 40-50 mm radius
+#: and hold up to 20 g at 45 mm with the estimated K; a 20 mm ball falls between them).
+DEFAULT_PAYLOAD_MASS_KG = 0.01
+DEFAULT_PAYLOAD_SIZE_M = 0.045
 #: Links per segment of sim_robot's MuJoCo model. The physics model's fidelity check puts
 #: N = 2 within 0.5 mm of the exact constant-curvature shape at 20 mm contraction (its
 #: default, 4, leaves a margin for the static comparisons); N = 2 steps about twice as
@@ -549,8 +554,9 @@ OPTIONS = {
     'duration_s': (float, 0.0, 'stop after this much simulated time, s (0: run until stopped)'),
     'gravity': (bool, True, 'gravity on (false: the quasi-static setting, for comparisons)'),
     'payload': (str, 'none', 'payload for the gripper or ring: none, ball or box'),
-    'payload_mass_kg': (float, 0.02, 'payload mass, kg'),
-    'payload_size_m': (float, 0.02, 'payload radius (ball) or half edge (box), m'),
+    'payload_mass_kg': (float, DEFAULT_PAYLOAD_MASS_KG, 'payload mass, kg'),
+    'payload_size_m': (float, DEFAULT_PAYLOAD_SIZE_M,
+                       'payload radius (ball) or half edge (box), m'),
     'payload_release_mm': (float, DEFAULT_PAYLOAD_RELEASE_MM,
                            "a gripper's helper hold lets go of the payload once every "
                            'module has hauled in this much cable, mm'),
