@@ -71,7 +71,8 @@ SETTLED_HOLD_TOL_M = 1e-9
 #: ball of 45 mm radius: its closed fingers cage balls of 40-50 mm radius and hold up to
 #: 20 g at 45 mm with the estimated bending stiffness; a 20 g ball of 20 mm radius (the
 #: issue's question) falls between the fingertips (docs/sim_robot.md). The ring cages a
-#: ball on the ground.
+#: ball on the ground; lying flat, 9 mm tall, its ribs never reach it (its travel, 0, is
+#: reported as measured; docs/sim_robot.md).
 PHYSICS_PAYLOADS = {
     'gripper': {'payload': 'ball', 'payload_mass_kg': 0.01, 'payload_size_m': 0.045},
     'ring': {'payload': 'ball', 'payload_mass_kg': 0.02, 'payload_size_m': 0.04},
