@@ -376,6 +376,8 @@ class SimRobot:
         """The cable tension (N) of `names` (default every module) after the last step."""
         sim = self.simulation
         names = self._names if names is None else [n for n in self._names if n in names]
+        if not names:
+            return
         batch = getattr(sim, 'cable_tensions', None)   # one pass over the constraints
         if batch is not None:
             tensions = batch()

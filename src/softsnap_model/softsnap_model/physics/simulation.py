@@ -290,12 +290,15 @@ class RobotSimulation:
         """Cable tension (N) of every module in the last step, >= 0, in one pass over the
         constraint rows (what :meth:`cable_tension` gives module by module)."""
         d = self.data
-        n = d.nefc
-        out = np.zeros(self.model.ntendon)
-        if n:
-            rows = np.flatnonzero(d.efc_type[:n] == _LIMIT_TENDON)
-            np.add.at(out, d.efc_id[rows], d.efc_force[rows])
-        return {name: float(max(0.0, out[tid])) for name, tid in self._tendon_id.items()}
+        # MuJoCo orders the rows equality, friction, limits, contacts: only the few limit
+        # rows (hinge and tendon limits) need a look, not the hundreds of contact rows.
+        start = d.ne + d.nf
+        stop = start + d.nl
+        force = dict.fromkeys(self._tendon_id.values(), 0.0)
+        for row in np.flatnonzero(d.efc_type[start:stop] == _LIMIT_TENDON).tolist():
+            tid = int(d.efc_id[start + row])
+            force[tid] = force.get(tid, 0.0) + float(d.efc_force[start + row])
+        return {name: max(0.0, force[tid]) for name, tid in self._tendon_id.items()}
 
     def rib_centers(self, module: str) -> np.ndarray:
         """Rib centres (m), shape (n_ribs, 3), in the module base frame (rib 0 at 0)."""
