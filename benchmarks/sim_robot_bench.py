@@ -17,11 +17,17 @@ identical bit for bit.
 The load average is printed at the start and the end: on a shared machine the numbers
 are only as good as the idle core they ran on.
 
-``--before REV``: each run of a scene is paired with a run of the code of git revision
-``REV`` (its ``src/`` and this script, from ``git archive``, in a child process whose
-``PYTHONPATH`` puts that source first), the two interleaved so both see the same load;
-the table adds that CPU real-time factor and the ratio of the medians. E.g. ``--before
-ab2bb8c``: the 2 ms step and the per-period Python work before issue 16's speed-up.
+The gait's contraction schedule is evaluated before the clock starts (the same values at
+the same simulated times as :class:`ScriptedCommands` would compute them): the gait runs
+in the gait node's process, not in ``sim_robot``; the firmware's handling of every
+``set`` request is timed.
+
+``--before REV``: each run of a scene is paired with a run of this script's
+``run_once`` on the ``src/`` of git revision ``REV`` (from ``git archive``, in a child
+process whose ``PYTHONPATH`` puts that source first), the two interleaved so both see
+the same load; the table adds that CPU real-time factor and the ratio of the medians.
+E.g. ``--before ab2bb8c``: the 2 ms step and the per-period Python work before issue 16's
+speed-up.
 
 ``--timestep-ms``: the physics step of this run (default sim_robot's,
 ``DEFAULT_PHYSICS_TIMESTEP_S``).
@@ -45,8 +51,9 @@ from pathlib import Path
 
 import numpy as np
 
-from softsnap_driver.sim_robot import (DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_TIMESTEP_S, OPTIONS,
-                                       ScriptedCommands, SimRobot, build_payload, build_simulation)
+from softsnap_driver import sim_robot as _sim_robot
+from softsnap_driver.sim_robot import (DEFAULT_LINKS_PER_SEGMENT, OPTIONS, ScriptedCommands,
+                                       SimRobot, build_payload, build_simulation)
 from softsnap_gaits.demo import PHYSICS_PAYLOADS
 from softsnap_gaits.gaits import make_gait
 from softsnap_model.scene import load_scene
@@ -54,7 +61,9 @@ from softsnap_model.scene import load_scene
 SCENES = ('brittle_star', 'starfish', 'snake', 'gripper', 'ring')
 
 
-#: Physics step of the runs, s (set by --timestep-ms).
+#: sim_robot's physics step, s; None on a source before it had one (--before).
+DEFAULT_PHYSICS_TIMESTEP_S = getattr(_sim_robot, 'DEFAULT_PHYSICS_TIMESTEP_S', None)
+#: Physics step of the runs, s (set by --timestep-ms; None: build_simulation's own).
 TIMESTEP_S = DEFAULT_PHYSICS_TIMESTEP_S
 REPO = Path(__file__).resolve().parent.parent
 
@@ -64,9 +73,25 @@ def make_robot(name: str, links: int) -> SimRobot:
     options = argparse.Namespace(**{k: d for k, (_t, d, _h) in OPTIONS.items()})
     for key, value in PHYSICS_PAYLOADS.get(name, {}).items():
         setattr(options, key, value)
+    kwargs = {} if TIMESTEP_S is None else {'timestep_s': TIMESTEP_S}
     simulation = build_simulation(scene, payload=build_payload(options), links_per_segment=links,
-                                  timestep_s=TIMESTEP_S)
+                                  **kwargs)
     return SimRobot(scene, simulation)
+
+
+def precomputed(contraction_mm, robot: SimRobot, seconds: float, rate_hz: float = 50.0):
+    """``contraction_mm`` looked up from a table of the values ScriptedCommands will ask
+    for in a run of `seconds` (its firing rule on the robot's clock, bit for bit), so the
+    gait's cost stays out of the timed loop; any other time is computed."""
+    probe = ScriptedCommands(contraction_mm, rate_hz=rate_hz)
+    table, dt, step = {}, robot.control_period_s, 0
+    while step * dt < seconds - 1e-12:
+        now = step * dt          # SimRobot's clock: the step count times the period
+        if now + 1e-12 >= probe._next_s:
+            probe._next_s += probe.period_s
+            table[now] = contraction_mm(now)
+        step += 1
+    return lambda t: table[t] if t in table else contraction_mm(t)
 
 
 def run_once(name: str, seconds: float, links: int) -> tuple[float, float, float]:
@@ -75,15 +100,15 @@ def run_once(name: str, seconds: float, links: int) -> tuple[float, float, float
     robot = make_robot(name, links)
     built = time.perf_counter() - t0
     gait = make_gait(robot.scene.default_gait, robot.scene)
-    script = ScriptedCommands(gait.contraction_mm)
+    script = ScriptedCommands(precomputed(gait.contraction_mm, robot, seconds))
     wall0, cpu0 = time.perf_counter(), time.process_time()
     robot.run_until(seconds, script)
     return built, time.perf_counter() - wall0, time.process_time() - cpu0
 
 
 def checkout(rev: str) -> Path:
-    """``src/`` and this script of git revision `rev`, unpacked in a temporary directory."""
-    blob = subprocess.run(['git', '-C', str(REPO), 'archive', rev, 'src', 'benchmarks'],
+    """``src/`` of git revision `rev`, unpacked in a temporary directory."""
+    blob = subprocess.run(['git', '-C', str(REPO), 'archive', rev, 'src'],
                           check=True, capture_output=True).stdout
     root = Path(tempfile.mkdtemp(prefix='sim_robot_bench_before_'))
     with tarfile.open(fileobj=BytesIO(blob)) as tar:
@@ -92,10 +117,10 @@ def checkout(rev: str) -> Path:
 
 
 def run_before(root: Path, name: str, seconds: float, links: int) -> tuple[float, float, float]:
-    """run_once of the old revision's script in a child process on the old source."""
+    """This script's run_once in a child process on the old revision's source."""
     paths = [str(root / 'src' / p) for p in ('softsnap_model', 'softsnap_driver', 'softsnap_gaits')]
     code = ('import importlib.util, sys\n'
-            f'spec = importlib.util.spec_from_file_location("before", {str(root / "benchmarks" / "sim_robot_bench.py")!r})\n'
+            f'spec = importlib.util.spec_from_file_location("before", {str(Path(__file__).resolve())!r})\n'
             'mod = importlib.util.module_from_spec(spec); spec.loader.exec_module(mod)\n'
             f'print(*mod.run_once({name!r}, {seconds!r}, {links!r}))\n')
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(paths + [os.environ.get('PYTHONPATH', '')]))
@@ -128,7 +153,7 @@ def main() -> None:
                              f"{DEFAULT_LINKS_PER_SEGMENT}; 0: the physics model's default)")
     parser.add_argument('--before', metavar='REV',
                         help='also run the code of this git revision, interleaved (e.g. ab2bb8c)')
-    parser.add_argument('--timestep-ms', type=float, default=DEFAULT_PHYSICS_TIMESTEP_S * 1e3,
+    parser.add_argument('--timestep-ms', type=float, default=(DEFAULT_PHYSICS_TIMESTEP_S or 0.002) * 1e3,
                         help='physics timestep, ms (default sim_robot\'s, '
                              f'{DEFAULT_PHYSICS_TIMESTEP_S * 1e3:g})')
     args = parser.parse_args()
