@@ -193,10 +193,11 @@ def _travel_m(gait_name: str, cycles: int) -> np.ndarray:
 
 
 @pytest.mark.xfail(strict=True, reason=(
-    'No gait of ours walks the brittle star backwards in the MuJoCo model yet: walk goes '
-    '(+11.5, -5.4) mm in 2 cycles, walk_reverse (yellow, then green and red) steps back '
-    '(-6.1, -2.8) mm in its first cycle, then stalls at (-3.2, -1.6) mm; mirrored groups '
-    'go +x too (docs/sim_robot.md). Strict: this fails loudly once a reverse gait works.'))
+    'No gait of ours walks the brittle star backwards in the MuJoCo model yet: at '
+    "sim_robot's 3 ms step walk goes (+13.6, -6.6) mm in 2 cycles, walk_reverse (yellow, "
+    'then green and red) (-7.2, -5.3) mm, 118 degrees apart, short of the 120 asked (at '
+    '2 ms it stalled at (-3.2, -1.6) mm); mirrored groups go +x too (docs/sim_robot.md). '
+    'Strict: this fails loudly once a reverse gait works.'))
 def test_brittle_star_walk_and_walk_reverse_move_it_in_opposite_directions():
     # walk: blue and orange, then yellow, green and red; walk_reverse: yellow, then green
     # and red (scene file).
