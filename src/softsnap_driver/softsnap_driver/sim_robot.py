@@ -70,12 +70,12 @@ from softsnap_driver.firmware import BatteryModel, Faults, MotorModel, SimModule
 from softsnap_driver.protocol import encode_set_request
 from softsnap_driver.sim_module import STOP_JOIN_S, SimServer
 
-#: Winch-physics coupling period, s (rounded to whole physics timesteps: 4 ms with the
-#: model's 2 ms step): the firmware advances and the cable length is handed to the
-#: physics this often. The winch moves at most 0.6 mm of cable per period (123
-#: mm/s unloaded at 6 V, PWM 200), less than two firmware deadbands; the physics' cable
-#: constraint takes such a step smoothly (its time constant is 2 ms), and the Python
-#: work per period stays small next to the physics (5 ms: 5 % of a step's cost).
+#: Winch-physics coupling period, s (rounded to whole physics timesteps: 6 ms with
+#: sim_robot's 3 ms step, 4 ms with the model's 2 ms): the firmware advances and the
+#: cable length is handed to the physics this often. The firmware integrates its motion
+#: exactly within a period; the winch moves at most 0.75 mm of cable per 6 ms (123 mm/s
+#: unloaded at 6 V, PWM 200), which the physics' overdamped cable constraint takes
+#: smoothly. The Python work per period is ~30 % of the loop (docs/sim_robot.md).
 CONTROL_PERIOD_S = 0.005
 #: Stall torque of the GA12-N20 1:100 at 6 V and full PWM, N m (estimate, see above).
 DEFAULT_STALL_TORQUE_NM = 0.15
