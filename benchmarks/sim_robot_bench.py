@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import shutil
 import statistics
 import subprocess
 import sys
@@ -119,8 +120,9 @@ def checkout(rev: str) -> Path:
 def run_before(root: Path, name: str, seconds: float, links: int) -> tuple[float, float, float]:
     """This script's run_once in a child process on the old revision's source."""
     paths = [str(root / 'src' / p) for p in ('softsnap_model', 'softsnap_driver', 'softsnap_gaits')]
+    this = str(Path(__file__).resolve())
     code = ('import importlib.util, sys\n'
-            f'spec = importlib.util.spec_from_file_location("before", {str(Path(__file__).resolve())!r})\n'
+            f'spec = importlib.util.spec_from_file_location("before", {this!r})\n'
             'mod = importlib.util.module_from_spec(spec); spec.loader.exec_module(mod)\n'
             f'print(*mod.run_once({name!r}, {seconds!r}, {links!r}))\n')
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(paths + [os.environ.get('PYTHONPATH', '')]))
@@ -153,7 +155,8 @@ def main() -> None:
                              f"{DEFAULT_LINKS_PER_SEGMENT}; 0: the physics model's default)")
     parser.add_argument('--before', metavar='REV',
                         help='also run the code of this git revision, interleaved (e.g. ab2bb8c)')
-    parser.add_argument('--timestep-ms', type=float, default=(DEFAULT_PHYSICS_TIMESTEP_S or 0.002) * 1e3,
+    parser.add_argument('--timestep-ms', type=float,
+                        default=(DEFAULT_PHYSICS_TIMESTEP_S or 0.002) * 1e3,
                         help='physics timestep, ms (default sim_robot\'s, '
                              f'{DEFAULT_PHYSICS_TIMESTEP_S * 1e3:g})')
     args = parser.parse_args()
@@ -201,6 +204,8 @@ def main() -> None:
           f"{'identical bit for bit' if same else 'DIFFER'} "
           f'(largest difference {np.abs(first - second).max():.3g} m over {first.size} values)')
     print(f'load average at end: {" ".join(f"{v:.2f}" for v in os.getloadavg())}')
+    if root:
+        shutil.rmtree(root, ignore_errors=True)
 
 
 if __name__ == '__main__':

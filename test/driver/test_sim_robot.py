@@ -12,9 +12,9 @@ import pytest
 
 from softsnap_driver.firmware import DEADBAND_COUNTS, MotorModel
 from softsnap_driver.protocol import encode_set_request
-from softsnap_driver.sim_robot import (DEFAULT_PHYSICS_TIMESTEP_S, OPTIONS, ScriptedCommands, SimRobot,
-                                       SimRobotError,
-                                       WinchMotor, build_robot, build_simulation, check_options,
+from softsnap_driver.sim_robot import (DEFAULT_PHYSICS_TIMESTEP_S, OPTIONS, ScriptedCommands,
+                                       SimRobot, SimRobotError, WinchMotor, build_robot,
+                                       build_simulation, check_options,
                                        module_ports)
 
 BOOST_V = 6.0
