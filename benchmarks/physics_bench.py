@@ -14,7 +14,9 @@ per scene, determinism (issue 16).
 4. Determinism: the same scene run twice gives bit-identical positions and velocities.
 
 Usage: nice .venv/bin/python benchmarks/physics_bench.py [--quick] [--seconds 5]
-(about 3 minutes; --quick: fewer threadings and N, 2 s per scene)
+       [--live-timestep-ms 3]
+(about 3 minutes; --quick: fewer threadings and N, 2 s per scene). The real-time table
+times each scene at the model's 2 ms step and, interleaved, at sim_robot's 3 ms.
 """
 from __future__ import annotations
 
@@ -117,26 +119,37 @@ def drive(sim: RobotSimulation, seconds: float, record: bool = False):
     return np.array(traj)
 
 
-def realtime_table(seconds: float):
+def realtime_table(seconds: float, live_timestep_s: float | None = None):
+    """RTF per scene at the model's default step, and side by side (interleaved, same
+    load) at ``live_timestep_s`` (sim_robot's step) when given."""
+    default_dt = PhysicsParameters().timestep_s
+    steps = [default_dt] + ([live_timestep_s] if live_timestep_s else [])
     print(f'\n## Real-time factor per scene (one core, N = {DEFAULT_LINKS_PER_SEGMENT}, '
-          f'{PhysicsParameters().timestep_s * 1e3:.0f} ms step)\n')
+          + ' and '.join(f'{dt * 1e3:g} ms' for dt in steps) + ' step)\n')
     print(f'{seconds:g} s simulated, every winch on a 1 Hz cosine 0-20 mm. RTF = simulated '
           'time / CPU time of this process (wall time in brackets: the machine is shared).\n')
-    print('| scene | DoF | contacts (end) | RTF (CPU) | RTF (wall) | deterministic |')
-    print('| --- | ---: | ---: | ---: | ---: | --- |')
+    cols = ' | '.join(f'RTF (CPU) {dt * 1e3:g} ms | RTF (wall) {dt * 1e3:g} ms' for dt in steps)
+    print(f'| scene | DoF | contacts (end) | {cols} | deterministic |')
+    print('| --- | ---: | ---: |' + ' ---: | ---: |' * len(steps) + ' --- |')
     out = {}
     for name in SCENES:
-        sim = RobotSimulation(name)
-        sim.step(0.2)
-        c0, w0 = time.process_time(), time.perf_counter()
-        drive(sim, seconds)
-        cpu, wall = time.process_time() - c0, time.perf_counter() - w0
-        a = drive(RobotSimulation(name), 1.0, record=True)
-        b = drive(RobotSimulation(name), 1.0, record=True)
-        same = bool(np.array_equal(a, b))
-        out[name] = (seconds / cpu, seconds / wall, same)
-        print(f'| {name} | {sim.model.nv} | {sim.data.ncon} | {seconds / cpu:.1f} | '
-              f'({seconds / wall:.1f}) | {"yes" if same else "NO"} |')
+        cells, same = [], True
+        for dt in steps:
+            params = PhysicsParameters(timestep_s=dt)
+            sim = RobotSimulation(name, parameters=params)
+            sim.step(0.2)
+            c0, w0 = time.process_time(), time.perf_counter()
+            drive(sim, seconds)
+            cpu, wall = time.process_time() - c0, time.perf_counter() - w0
+            a = drive(RobotSimulation(name, parameters=params), 1.0, record=True)
+            b = drive(RobotSimulation(name, parameters=params), 1.0, record=True)
+            same = same and bool(np.array_equal(a, b))
+            out[name, dt] = (seconds / cpu, seconds / wall)
+            cells.append(f'{seconds / cpu:.1f} | ({seconds / wall:.1f})')
+            if dt == default_dt:
+                dof, ncon = sim.model.nv, sim.data.ncon
+        print(f'| {name} | {dof} | {ncon} | ' + ' | '.join(cells)
+              + f' | {"yes" if same else "NO"} |', flush=True)
     return out
 
 
@@ -145,6 +158,9 @@ def main(argv=None) -> int:
     parser.add_argument('--quick', action='store_true')
     parser.add_argument('--seconds', type=float, default=None,
                         help='simulated seconds per scene for the real-time factor')
+    parser.add_argument('--live-timestep-ms', type=float, default=3.0,
+                        help="also time each scene at this step, ms (sim_robot's default "
+                             "physics_timestep_s; 0: only the model's default)")
     args = parser.parse_args(argv)
     print(f'# physics_bench (load average at start: {load()})')
     if args.quick:
@@ -155,8 +171,15 @@ def main(argv=None) -> int:
         contractions, links = (20.0, 40.0), (1, 2, 3, 4, 8)
         seconds = args.seconds or 5.0
     err, times = fidelity_table(names, contractions, links)
+    if args.live_timestep_ms > 0:
+        live = PhysicsParameters(timestep_s=args.live_timestep_ms * 1e-3)
+        worst = max(static_fidelity(n, c, parameters=live).max_rib_error_mm
+                    for n in names for c in contractions)
+        print(f'\nAt sim_robot\'s {args.live_timestep_ms:g} ms step, N = '
+              f'{DEFAULT_LINKS_PER_SEGMENT}: largest rib-centre distance {worst:.3f} mm over '
+              f'the same threadings and contractions (target at 20 mm: 0.5 mm).')
     levels_table(links, err, times)
-    realtime_table(seconds)
+    realtime_table(seconds, None if args.live_timestep_ms <= 0 else args.live_timestep_ms * 1e-3)
     print(f'\n(load average at end: {load()})')
     return 0
 

@@ -17,25 +17,44 @@ identical bit for bit.
 The load average is printed at the start and the end: on a shared machine the numbers
 are only as good as the idle core they ran on.
 
-``--ab``: each scene also runs, interleaved with the default runs, with MuJoCo's constraint
-island discovery switched back on (the model before it was disabled), and the table adds
-that CPU real-time factor and the ratio of the medians (same load for both).
+The gait's contraction schedule is evaluated before the clock starts (the same values at
+the same simulated times as :class:`ScriptedCommands` would compute them): the gait runs
+in the gait node's process, not in ``sim_robot``; the firmware's handling of every
+``set`` request is timed.
+
+``--before REV``: each run of a scene is paired with a run of this script's
+``run_once`` on the ``src/`` of git revision ``REV`` (from ``git archive``, in a child
+process whose ``PYTHONPATH`` puts that source first), the two interleaved so both see
+the same load; the table adds that CPU real-time factor and the ratio of the medians.
+E.g. ``--before ab2bb8c``: the 2 ms step and the per-period Python work before issue 16's
+speed-up.
+
+``--timestep-ms``: the physics step of this run (default sim_robot's,
+``DEFAULT_PHYSICS_TIMESTEP_S``).
 
 Usage: .venv/bin/python benchmarks/sim_robot_bench.py [--seconds 3] [--repeat 3]
-       [--scenes brittle_star,snake] [--links-per-segment N] [--ab]
+       [--scenes brittle_star,snake] [--links-per-segment N] [--before REV]
+       [--timestep-ms 3]
 """
 from __future__ import annotations
 
 import argparse
 import os
+import shutil
 import statistics
+import subprocess
+import sys
+import tarfile
+import tempfile
 import time
+from io import BytesIO
+from pathlib import Path
 
-import mujoco
 import numpy as np
 
-from softsnap_driver.sim_robot import (DEFAULT_LINKS_PER_SEGMENT, OPTIONS, ScriptedCommands, SimRobot,
-                                       build_payload, build_simulation)
+from softsnap_driver import sim_robot as _sim_robot
+from softsnap_driver.sim_robot import (DEFAULT_LINKS_PER_SEGMENT, OPTIONS, ScriptedCommands,
+                                       SimRobot, build_payload, build_simulation)
 from softsnap_gaits.demo import PHYSICS_PAYLOADS
 from softsnap_gaits.gaits import make_gait
 from softsnap_model.scene import load_scene
@@ -43,28 +62,74 @@ from softsnap_model.scene import load_scene
 SCENES = ('brittle_star', 'starfish', 'snake', 'gripper', 'ring')
 
 
-def make_robot(name: str, links: int, islands: bool = False) -> SimRobot:
+#: sim_robot's physics step, s; None on a source before it had one (--before).
+DEFAULT_PHYSICS_TIMESTEP_S = getattr(_sim_robot, 'DEFAULT_PHYSICS_TIMESTEP_S', None)
+#: Physics step of the runs, s (set by --timestep-ms; None: build_simulation's own).
+TIMESTEP_S = DEFAULT_PHYSICS_TIMESTEP_S
+REPO = Path(__file__).resolve().parent.parent
+
+
+def make_robot(name: str, links: int) -> SimRobot:
     scene = load_scene(name)
     options = argparse.Namespace(**{k: d for k, (_t, d, _h) in OPTIONS.items()})
     for key, value in PHYSICS_PAYLOADS.get(name, {}).items():
         setattr(options, key, value)
-    simulation = build_simulation(scene, payload=build_payload(options), links_per_segment=links)
-    if islands:      # the model as it was before island discovery was disabled
-        simulation.model.opt.disableflags &= ~int(mujoco.mjtDisableBit.mjDSBL_ISLAND)
+    kwargs = {} if TIMESTEP_S is None else {'timestep_s': TIMESTEP_S}
+    simulation = build_simulation(scene, payload=build_payload(options), links_per_segment=links,
+                                  **kwargs)
     return SimRobot(scene, simulation)
 
 
-def run_once(name: str, seconds: float, links: int,
-             islands: bool = False) -> tuple[float, float, float]:
+def precomputed(contraction_mm, robot: SimRobot, seconds: float, rate_hz: float = 50.0):
+    """``contraction_mm`` looked up from a table of the values ScriptedCommands will ask
+    for in a run of `seconds` (its firing rule on the robot's clock, bit for bit), so the
+    gait's cost stays out of the timed loop; any other time is computed."""
+    probe = ScriptedCommands(contraction_mm, rate_hz=rate_hz)
+    table, dt, step = {}, robot.control_period_s, 0
+    while step * dt < seconds - 1e-12:
+        now = step * dt          # SimRobot's clock: the step count times the period
+        if now + 1e-12 >= probe._next_s:
+            probe._next_s += probe.period_s
+            table[now] = contraction_mm(now)
+        step += 1
+    return lambda t: table[t] if t in table else contraction_mm(t)
+
+
+def run_once(name: str, seconds: float, links: int) -> tuple[float, float, float]:
     """(wall s to build, wall s to simulate `seconds`, CPU s to simulate them)."""
     t0 = time.perf_counter()
-    robot = make_robot(name, links, islands)
+    robot = make_robot(name, links)
     built = time.perf_counter() - t0
     gait = make_gait(robot.scene.default_gait, robot.scene)
-    script = ScriptedCommands(gait.contraction_mm)
+    script = ScriptedCommands(precomputed(gait.contraction_mm, robot, seconds))
     wall0, cpu0 = time.perf_counter(), time.process_time()
     robot.run_until(seconds, script)
     return built, time.perf_counter() - wall0, time.process_time() - cpu0
+
+
+def checkout(rev: str) -> Path:
+    """``src/`` of git revision `rev`, unpacked in a temporary directory."""
+    blob = subprocess.run(['git', '-C', str(REPO), 'archive', rev, 'src'],
+                          check=True, capture_output=True).stdout
+    root = Path(tempfile.mkdtemp(prefix='sim_robot_bench_before_'))
+    with tarfile.open(fileobj=BytesIO(blob)) as tar:
+        tar.extractall(root, filter='data')
+    return root
+
+
+def run_before(root: Path, name: str, seconds: float, links: int) -> tuple[float, float, float]:
+    """This script's run_once in a child process on the old revision's source."""
+    paths = [str(root / 'src' / p) for p in ('softsnap_model', 'softsnap_driver', 'softsnap_gaits')]
+    this = str(Path(__file__).resolve())
+    code = ('import importlib.util, sys\n'
+            f'spec = importlib.util.spec_from_file_location("before", {this!r})\n'
+            'mod = importlib.util.module_from_spec(spec); spec.loader.exec_module(mod)\n'
+            f'print(*mod.run_once({name!r}, {seconds!r}, {links!r}))\n')
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(paths + [os.environ.get('PYTHONPATH', '')]))
+    out = subprocess.run([sys.executable, '-c', code], check=True, capture_output=True, text=True,
+                         env=env, cwd=root).stdout
+    built, wall, cpu = (float(v) for v in out.split()[-3:])
+    return built, wall, cpu
 
 
 def trajectory(seconds: float, links: int) -> np.ndarray:
@@ -88,37 +153,50 @@ def main() -> None:
     parser.add_argument('--links-per-segment', type=int, default=DEFAULT_LINKS_PER_SEGMENT,
                         help="links per segment of the MuJoCo model (default sim_robot's, "
                              f"{DEFAULT_LINKS_PER_SEGMENT}; 0: the physics model's default)")
-    parser.add_argument('--ab', action='store_true',
-                        help='also run with island discovery on (before), interleaved')
+    parser.add_argument('--before', metavar='REV',
+                        help='also run the code of this git revision, interleaved (e.g. ab2bb8c)')
+    parser.add_argument('--timestep-ms', type=float,
+                        default=(DEFAULT_PHYSICS_TIMESTEP_S or 0.002) * 1e3,
+                        help='physics timestep, ms (default sim_robot\'s, '
+                             f'{DEFAULT_PHYSICS_TIMESTEP_S * 1e3:g})')
     args = parser.parse_args()
+    global TIMESTEP_S
+    TIMESTEP_S = args.timestep_ms * 1e-3
+    root = checkout(args.before) if args.before else None
     if hasattr(os, 'sched_setaffinity'):
         os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})
     print(f'load average at start: {" ".join(f"{v:.2f}" for v in os.getloadavg())} '
           f'({os.cpu_count()} cores; this process pinned to one)')
     print(f'\nsim_robot real-time factor (simulated s per wall s), {args.seconds:g} s of the '
           f"default gait, {args.repeat} runs; links per segment: "
-          f"{args.links_per_segment or 'physics model default'}")
+          f"{args.links_per_segment or 'physics model default'}; physics step "
+          f'{TIMESTEP_S * 1e3:g} ms' + (f'; before: {args.before}' if args.before else ''))
     header = (f"{'scene':13s} {'modules':>7s} {'build s':>8s} {'RTF median':>11s} "
               f"{'RTF range':>15s} {'CPU RTF':>8s}"
-              + (f" {'CPU RTF before':>14s} {'ratio':>6s}" if args.ab else ''))
+              + (f" {'CPU RTF before':>14s} {'ratio':>6s}" if root else ''))
     print(header)
     print('-' * len(header))
     for name in args.scenes.split(','):
         runs, before = [], []
         for _ in range(args.repeat):
-            if args.ab:
-                before.append(run_once(name, args.seconds, args.links_per_segment, True))
+            if root:
+                before.append(run_before(root, name, args.seconds, args.links_per_segment))
             runs.append(run_once(name, args.seconds, args.links_per_segment))
         factors = [args.seconds / wall for _, wall, _ in runs]
         cpu = statistics.median(args.seconds / c for _, _, c in runs)
         modules = len(load_scene(name).modules)
         extra = ''
-        if args.ab:
+        if root:
             cpu_before = statistics.median(args.seconds / c for _, _, c in before)
             extra = f' {cpu_before:14.2f} {cpu / cpu_before:6.2f}'
         print(f'{name:13s} {modules:7d} {statistics.median(b for b, _, _ in runs):8.2f} '
               f'{statistics.median(factors):11.2f} {min(factors):7.2f}-{max(factors):<7.2f} '
               f'{cpu:8.2f}' + extra, flush=True)
+        if root:
+            cpus = [args.seconds / c for _, _, c in runs]
+            olds = [args.seconds / c for _, _, c in before]
+            print(f'{"":13s} CPU RTF range now {min(cpus):.2f}-{max(cpus):.2f}, '
+                  f'before {min(olds):.2f}-{max(olds):.2f}', flush=True)
     seconds = min(args.seconds, 2.0)
     first, second = trajectory(seconds, args.links_per_segment), trajectory(seconds, args.links_per_segment)
     same = first.shape == second.shape and np.array_equal(first, second)
@@ -126,6 +204,8 @@ def main() -> None:
           f"{'identical bit for bit' if same else 'DIFFER'} "
           f'(largest difference {np.abs(first - second).max():.3g} m over {first.size} values)')
     print(f'load average at end: {" ".join(f"{v:.2f}" for v in os.getloadavg())}')
+    if root:
+        shutil.rmtree(root, ignore_errors=True)
 
 
 if __name__ == '__main__':

@@ -146,6 +146,22 @@ def test_slack_cable_has_no_tension_and_module_straightens():
     assert tip[0] == pytest.approx(0.198, abs=1e-4) and abs(tip[1]) < 1e-3   # within 1 mm
 
 
+def test_cable_tensions_in_one_pass_equal_each_modules_tension():
+    # The brittle star on the ground (hundreds of contact rows), three legs hauled in by
+    # different amounts, two slack: the one-pass reader (sim_robot's) must give exactly
+    # what cable_tension gives module by module, taut and slack alike.
+    sim = RobotSimulation('brittle_star')
+    names = sim.module_names
+    for name, pull in zip(names[:3], (0.01, 0.02, 0.03)):
+        sim.set_cable_length(name, sim.straight_cable_length(name) - pull)
+    sim.step(0.3)
+    assert sim.data.ncon > 10                           # contacts are in the rows too
+    tensions = sim.cable_tensions()
+    assert tensions == {n: sim.cable_tension(n) for n in names}
+    assert all(tensions[n] > 0.1 for n in names[:3])
+    assert all(tensions[n] == 0.0 for n in names[3:])
+
+
 # ------------------------------------------------------------------------- gravity
 
 def test_hanging_module_matches_loaded_model():

@@ -70,12 +70,12 @@ from softsnap_driver.firmware import BatteryModel, Faults, MotorModel, SimModule
 from softsnap_driver.protocol import encode_set_request
 from softsnap_driver.sim_module import STOP_JOIN_S, SimServer
 
-#: Winch-physics coupling period, s (rounded to whole physics timesteps: 4 ms with the
-#: model's 2 ms step): the firmware advances and the cable length is handed to the
-#: physics this often. The winch moves at most 0.6 mm of cable per period (123
-#: mm/s unloaded at 6 V, PWM 200), less than two firmware deadbands; the physics' cable
-#: constraint takes such a step smoothly (its time constant is 2 ms), and the Python
-#: work per period stays small next to the physics (5 ms: 5 % of a step's cost).
+#: Winch-physics coupling period, s (rounded to whole physics timesteps: 6 ms with
+#: sim_robot's 3 ms step, 4 ms with the model's 2 ms): the firmware advances and the
+#: cable length is handed to the physics this often. The firmware integrates its motion
+#: exactly within a period; the winch moves at most 0.75 mm of cable per 6 ms (123 mm/s
+#: unloaded at 6 V, PWM 200), which the physics' overdamped cable constraint takes
+#: smoothly. The Python work per period is ~30 % of the loop (docs/sim_robot.md).
 CONTROL_PERIOD_S = 0.005
 #: Stall torque of the GA12-N20 1:100 at 6 V and full PWM, N m (estimate, see above).
 DEFAULT_STALL_TORQUE_NM = 0.15
@@ -99,6 +99,16 @@ DEFAULT_PAYLOAD_SIZE_M = 0.045
 #: default, 4, leaves a margin for the static comparisons); N = 2 steps about twice as
 #: fast, which a robot simulated live needs more (benchmarks/sim_robot_bench.py).
 DEFAULT_LINKS_PER_SEGMENT = 2
+#: Fixed physics timestep of sim_robot's MuJoCo model, s. The physics model's own default
+#: (``PhysicsParameters.timestep_s``, 2 ms) is kept for the static and gravity
+#: comparisons; a robot simulated live steps 3 ms (1.3-1.5x the real-time factor,
+#: benchmarks/sim_robot_bench.py): the five scenes' gaits run stable and bit for bit
+#: repeatable, a leg's settled shape is within 0.5 mm of the exact model, and the brittle
+#: star's walk goes the same way and as far as at 1-2 ms (docs/sim_robot.md). The control
+#: period becomes 6 ms (two steps).
+DEFAULT_PHYSICS_TIMESTEP_S = 0.003
+#: Range accepted for ``physics_timestep_s``, s (4 ms: the largest tried on the ground).
+PHYSICS_TIMESTEP_RANGE_S = (0.0005, 0.004)
 
 
 class SimRobotError(ValueError):
@@ -371,6 +381,8 @@ class SimRobot:
         """The cable tension (N) of `names` (default every module) after the last step."""
         sim = self.simulation
         names = self._names if names is None else [n for n in self._names if n in names]
+        if not names:
+            return
         batch = getattr(sim, 'cable_tensions', None)   # one pass over the constraints
         if batch is not None:
             tensions = batch()
@@ -399,14 +411,15 @@ class SimRobot:
         modules = []
         with self.lock:
             counts = {n: (self.modules[n].encoder_count, self.modules[n].target) for n in self._names}
+        batch = getattr(sim, 'cable_tensions', None)   # one pass over the constraints
+        tensions = batch() if batch is not None else {n: sim.cable_tension(n) for n in self._names}
         for name in self._names:
             position, orientation = sim.module_base_pose(name)
-            ribs = sim.rib_centers(name)
             modules.append(ModuleSnapshot(
-                name=name, rib_centers_m=tuple(map(_vec, ribs)),
+                name=name, rib_centers_m=tuple(map(tuple, sim.rib_centers(name).tolist())),
                 angles_rad=_vec(sim.segment_angles(name)),
                 base_position_m=_vec(position), base_orientation_wxyz=_vec(orientation),
-                cable_length_m=self._lengths_m[name], tension_n=float(sim.cable_tension(name)),
+                cable_length_m=self._lengths_m[name], tension_n=float(tensions[name]),
                 encoder_count=counts[name][0], target=counts[name][1]))
         payload_position = _vec(sim.payload_pose()[0]) if self.has_payload else None
         return RobotSnapshot(time_s=float(sim.time_s), base_position_m=_vec(base_position),
@@ -562,6 +575,9 @@ OPTIONS = {
                            'module has hauled in this much cable, mm'),
     'links_per_segment': (int, DEFAULT_LINKS_PER_SEGMENT,
                           "links per segment of the MuJoCo model (0: the model's default)"),
+    'physics_timestep_s': (float, DEFAULT_PHYSICS_TIMESTEP_S,
+                           'fixed timestep of the MuJoCo model, s (the control period is the '
+                           'nearest whole number of steps to 5 ms)'),
     'stall_torque_nm': (float, DEFAULT_STALL_TORQUE_NM, 'winch motor stall torque at 6 V, N m'),
     'no_load_rpm': (float, MotorModel.no_load_rpm, 'winch output speed at 6 V without load, rpm'),
     'battery_full_v': (float, BatteryModel.full_v, 'battery open-circuit voltage when full, V'),
@@ -613,6 +629,7 @@ def check_options(opts: argparse.Namespace) -> None:
     number('drop_probability', 0.0, 1.0)
     number('payload_release_mm', 0.0, 200.0)
     number('links_per_segment', 0, 64)
+    number('physics_timestep_s', *PHYSICS_TIMESTEP_RANGE_S)
     build_payload(opts)
 
 
@@ -638,7 +655,8 @@ def build_robot(opts: argparse.Namespace) -> SimRobot:
     from softsnap_model.scene import load_scene
     scene = load_scene(opts.scene)
     simulation = build_simulation(scene, gravity=opts.gravity, payload=build_payload(opts),
-                                  links_per_segment=opts.links_per_segment)
+                                  links_per_segment=opts.links_per_segment,
+                                  timestep_s=opts.physics_timestep_s)
     motor = MotorModel(no_load_rpm=opts.no_load_rpm)
     battery = BatteryModel(full_v=opts.battery_full_v)
     faults = Faults(drop_probability=opts.drop_probability,
@@ -650,15 +668,21 @@ def build_robot(opts: argparse.Namespace) -> SimRobot:
 
 
 def build_simulation(scene, *, gravity: bool = True, payload=None,
-                     links_per_segment: int = 0) -> Any:
+                     links_per_segment: int = 0,
+                     timestep_s: float | None = DEFAULT_PHYSICS_TIMESTEP_S) -> Any:
     """The MuJoCo model of `scene` (imports softsnap_model.physics, hence mujoco).
 
-    A scene the physics cannot model (or a payload it has no place for) raises
-    SimRobotError with the physics' reason.
+    `links_per_segment` 0 and `timestep_s` None take the physics model's defaults
+    (``PhysicsParameters``); the default timestep is sim_robot's,
+    :data:`DEFAULT_PHYSICS_TIMESTEP_S`. A scene the physics cannot model (or a payload it
+    has no place for) raises SimRobotError with the physics' reason.
     """
+    from softsnap_model.physics.mjcf import PhysicsParameters
     from softsnap_model.physics.simulation import RobotSimulation
     kwargs = {'links_per_segment': links_per_segment} if links_per_segment else {}
     try:
+        if timestep_s is not None:
+            kwargs['parameters'] = PhysicsParameters(timestep_s=timestep_s)
         return RobotSimulation(scene, gravity=gravity, payload=payload, **kwargs)
     except ValueError as exc:
         raise SimRobotError(f'scene {scene.name!r}: {exc}') from None

@@ -34,8 +34,8 @@ from geometry_msgs.msg import Point, Pose, PoseStamped
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 
 from softsnap_driver.ros_parameters import SoftSnapNode
-from softsnap_driver.sim_robot import (OPTIONS, RobotSnapshot, SimRobotRunner, build_parser,
-                                       report_stop)
+from softsnap_driver.sim_robot import (OPTIONS, PHYSICS_TIMESTEP_RANGE_S, RobotSnapshot,
+                                       SimRobotRunner, build_parser, report_stop)
 from softsnap_driver.spinning import run_simulator_main
 from softsnap_interfaces.msg import ModuleShape, RobotShape
 
@@ -49,6 +49,7 @@ RANGES = {
     'payload_size_m': (0.0, 0.2),
     'payload_release_mm': (0.0, 200.0),
     'links_per_segment': (0, 64),
+    'physics_timestep_s': PHYSICS_TIMESTEP_RANGE_S,
     'stall_torque_nm': (1e-4, 100.0),
     'no_load_rpm': (0.001, 100000.0),
     'battery_full_v': (0.1, 50.0),

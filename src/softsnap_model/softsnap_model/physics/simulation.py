@@ -44,6 +44,8 @@ SETTLE_HOLD_S = 0.2
 #: Longest cable length accepted, as a multiple of the straight length: beyond it is a
 #: unit mistake (mm for m), not a slack cable.
 MAX_CABLE_FACTOR = 2.0
+# As an int: numpy compares an array with the enum object element by element in Python.
+_LIMIT_TENDON = int(mujoco.mjtConstraint.mjCNSTR_LIMIT_TENDON)
 
 
 @dataclass(frozen=True)
@@ -283,6 +285,20 @@ class RobotSimulation:
         rows = (d.efc_type[:n] == int(mujoco.mjtConstraint.mjCNSTR_LIMIT_TENDON)) \
             & (d.efc_id[:n] == self._tendon_id[module])
         return float(max(0.0, np.sum(d.efc_force[:n][rows])))
+
+    def cable_tensions(self) -> dict:
+        """Cable tension (N) of every module in the last step, >= 0, in one pass over the
+        constraint rows (what :meth:`cable_tension` gives module by module)."""
+        d = self.data
+        # MuJoCo orders the rows equality, friction, limits, contacts: only the few limit
+        # rows (hinge and tendon limits) need a look, not the hundreds of contact rows.
+        start = d.ne + d.nf
+        stop = start + d.nl
+        force = dict.fromkeys(self._tendon_id.values(), 0.0)
+        for row in np.flatnonzero(d.efc_type[start:stop] == _LIMIT_TENDON).tolist():
+            tid = int(d.efc_id[start + row])
+            force[tid] = force.get(tid, 0.0) + float(d.efc_force[start + row])
+        return {name: max(0.0, force[tid]) for name, tid in self._tendon_id.items()}
 
     def rib_centers(self, module: str) -> np.ndarray:
         """Rib centres (m), shape (n_ribs, 3), in the module base frame (rib 0 at 0)."""
