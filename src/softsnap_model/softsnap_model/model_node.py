@@ -35,6 +35,7 @@ import gc
 import math
 import os
 import queue
+import struct
 import sys
 import threading
 import time
@@ -49,7 +50,9 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.qos import QoSProfile
+from rclpy.serialization import deserialize_message, serialize_message
 from rclpy.task import Future
+from rclpy.time import Time
 from diagnostic_msgs.msg import DiagnosticArray
 from sensor_msgs.msg import JointState
 from visualization_msgs.msg import MarkerArray
@@ -64,8 +67,9 @@ from .forward import solve_forward
 from .friction import solve_friction
 from .inverse import DesignCancelled, DesignTimedOut, design_threading
 from .loads import DEFAULT_BENDING_STIFFNESS_NMM, Loads, solve_loaded
-from .predictor import SOURCES, RobotPredictor
+from .predictor import SOURCES, ModulePrediction, RobotPredictor
 from .scene import SceneError, load_scene
+from .shape_wire import ModuleShapeWire, RobotShapeWire, cable_length_from_cdr
 from . import standard_messages as standard
 
 MM_PER_M = 1000.0
@@ -221,6 +225,16 @@ class ModelNode(SoftSnapNode):
         self._subscriber_counts: dict = {}  # publisher -> subscription count (cached)
         self._subscribers_at = -math.inf    # monotonic s of the last refresh
         self._pose_msgs: dict[tuple, Pose] = {}
+        # Shape messages are published as CDR bytes kept ready and updated in place
+        # (shape_wire says why), if rclpy reads those bytes back as the messages the
+        # node would build field by field; else as message objects.
+        n_segments, n_ribs = self.skeleton.n_segments, self.skeleton.n_ribs
+        names = list(self.scene.module_names)
+        self._robot_wires = {s: RobotShapeWire(self.scene.name, s, names, n_segments, n_ribs)
+                             for s in SOURCES}
+        self._module_wires = {(m, s): ModuleShapeWire(self.scene.name, s, m, n_segments, n_ribs)
+                              for m in names for s in SOURCES}
+        self.wire_format = self._wire_matches_rclpy()
 
         # Lengths are a stream where only the newest matters: sensor-data QoS would drop
         # messages under load; keep a small reliable queue so no command is lost silently.
@@ -333,11 +347,22 @@ class ModelNode(SoftSnapNode):
         return SetParametersResult(successful=True)
 
     # ------------------------------------------------------------------ topics
-    def length_callback(self, msg: CableLength, module: str, source: str) -> None:
+    def length_callback(self, data: bytes, module: str, source: str) -> None:
+        """A serialised CableLength taken from a length topic: submit it to the predictor."""
         self.lengths_taken[(module, source)] += 1
-        stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         try:
-            self.predictor.submit(source, module, msg.cable_length * MM_PER_M, stamp_ns)
+            length_m, stamp_ns = cable_length_from_cdr(data)
+        except (ValueError, struct.error):
+            try:  # another encoding: let rclpy read it
+                msg = deserialize_message(data, CableLength)
+            except Exception as error:  # undecodable bytes must not stop the tick
+                self.get_logger().warning(f'could not read a {source} length message for '
+                                          f'{module!r}: {error!r}', throttle_duration_sec=1.0)
+                return
+            length_m = msg.cable_length
+            stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        try:
+            self.predictor.submit(source, module, length_m * MM_PER_M, stamp_ns)
         except ValueError as error:
             self.get_logger().warning(
                 f'refused {source} length for {module!r}: {error}; keeping the last valid shape',
@@ -376,10 +401,14 @@ class ModelNode(SoftSnapNode):
             self.get_logger().error(f'prediction tick failed: {error!r}', throttle_duration_sec=1.0)
 
     def _drain_lengths(self) -> None:
-        """Submit every length message that arrived since the last tick, oldest first."""
+        """Submit every length message that arrived since the last tick, oldest first.
+
+        Taken as bytes: reading the two fields needed costs a quarter of building the
+        message object (see :func:`~softsnap_model.shape_wire.cable_length_from_cdr`).
+        """
         for module, source, subscription in self._length_subscriptions:
             with subscription.handle:
-                while (taken := subscription.handle.take_message(CableLength, False)) is not None:
+                while (taken := subscription.handle.take_message(CableLength, True)) is not None:
                     self.length_callback(taken[0], module, source)
 
     def _tick(self) -> None:
@@ -393,7 +422,8 @@ class ModelNode(SoftSnapNode):
                                       f'{reason}; keeping the last valid shape',
                                       throttle_duration_sec=1.0)
         self.predictor.errors.clear()
-        stamp = self.get_clock().now().to_msg()
+        stamp_ns = self.get_clock().now().nanoseconds
+        stamp = None  # its message, built only for the message-object fallback
         for source in SOURCES:
             if not updated[source]:
                 continue
@@ -401,25 +431,87 @@ class ModelNode(SoftSnapNode):
                 for joint_state in standard.joint_states(updated[source]):
                     self.joint_state_publishers[source].publish(joint_state)
                     self.joint_states_published += 1
-            # Serialising costs ~0.1 ms a message: topics nobody listens to are skipped, and
-            # a shape's message is built once, only when some topic needs it.
+            if not self.wire_format and stamp is None:
+                stamp = Time(nanoseconds=stamp_ns).to_msg()
+            # Serialising costs ~0.1 ms a message: topics nobody listens to are skipped.
             for shape in updated[source]:
                 publisher = self.module_publishers[(shape.module, source)]
                 if self._subscribers(publisher) > 0:
-                    publisher.publish(self._message_for(shape, stamp))
+                    publisher.publish(
+                        self._module_wires[(shape.module, source)].serialize(shape, stamp_ns)
+                        if self.wire_format else self._message_for(shape, stamp))
             if self._subscribers(self.robot_publishers[source]) == 0:
                 continue
-            robot = RobotShape(check_fields=False)  # its parts are built and checked here
-            robot.header.stamp = stamp
-            robot.header.frame_id = self.scene.name
-            robot.robot = self.scene.name
-            robot.modules = [self._message_for(shape, stamp) if shape is not None
-                             else ModuleShape(module=module.name, source=source)
-                             for module, shape in zip(self.scene.modules,
-                                                      self.predictor.shapes(source))]
-            robot.base_poses = [self._pose_msg(pose)
-                                for pose in self.predictor.base_poses(source)]
-            self.robot_publishers[source].publish(robot)
+            shapes, poses = self.predictor.shapes(source), self.predictor.base_poses(source)
+            self.robot_publishers[source].publish(
+                self._robot_wires[source].serialize(shapes, poses, stamp_ns)
+                if self.wire_format else self._robot_msg(source, shapes, poses, stamp))
+
+    def _robot_msg(self, source: str, shapes, poses, stamp) -> RobotShape:
+        """The RobotShape of one source built as a message object (the fallback, and the
+        reference the wire format is checked against)."""
+        robot = RobotShape(check_fields=False)  # its parts are built and checked here
+        robot.header.stamp = stamp
+        robot.header.frame_id = self.scene.name
+        robot.robot = self.scene.name
+        robot.modules = [self._message_for(shape, stamp) if shape is not None
+                         else ModuleShape(module=module.name, source=source)
+                         for module, shape in zip(self.scene.modules, shapes)]
+        robot.base_poses = [self._pose_msg(pose) for pose in poses]
+        return robot
+
+    def _wire_matches_rclpy(self) -> bool:
+        """True if rclpy reads the wire-format shapes (and a length) back as the messages
+        built field by field, for sample shapes of this scene; else False, with a warning.
+
+        Run once at start: a middleware with another encoding then costs CPU, not
+        correctness.
+        """
+        try:
+            n = self.skeleton.n_segments
+            angles = np.linspace(-0.3, 0.2, n)
+            centers = np.cumsum(np.full((n + 1, 2), [self.skeleton.spacing_mm, 0.7]), axis=0)
+            layouts = ('points', 'no points', None)
+            for source in SOURCES:
+                shapes = []
+                for i, module in enumerate(self.scene.modules):
+                    layout = layouts[i % len(layouts)]
+                    shapes.append(None if layout is None else ModulePrediction(
+                        module=module.name, source=source, cable_length_mm=171.25 + i,
+                        angles=angles + i, tension=0.0125 * i, energy=0.5 + i,
+                        rib_centers_mm=centers * (i + 1) if layout == 'points' else None,
+                        converged=bool(i % 2), residual=1e-12 * i, solve_time_s=1e-4 * i,
+                        stamp_ns=(1_700_000_000_123_456_789 + i) * (i % 2)))
+                stamp_ns = 1_800_000_000_987_654_321
+                stamp = Time(nanoseconds=stamp_ns).to_msg()
+                poses = self.predictor.base_poses(source)
+                wire = RobotShapeWire(self.scene.name, source, list(self.scene.module_names),
+                                      n, self.skeleton.n_ribs)
+                got = deserialize_message(wire.serialize(shapes, poses, stamp_ns), RobotShape)
+                want = self._robot_msg(source, shapes, poses, stamp)
+                for shape in shapes:
+                    if shape is None:
+                        continue
+                    module_wire = ModuleShapeWire(self.scene.name, source, shape.module, n,
+                                                  self.skeleton.n_ribs)
+                    got_module = deserialize_message(module_wire.serialize(shape, stamp_ns),
+                                                     ModuleShape)
+                    if got_module != self._shape_msg(shape, stamp):
+                        raise ValueError(f'ModuleShape of {shape.module!r} differs')
+                if got != want:
+                    raise ValueError('RobotShape differs')
+            self._last_msgs.clear()
+            length = CableLength(cable_length=0.1234567)
+            length.header.stamp.sec, length.header.stamp.nanosec = 17, 42
+            length.header.frame_id = 'abc'
+            if cable_length_from_cdr(serialize_message(length)) != (0.1234567, 17_000_000_042):
+                raise ValueError('CableLength read back differently')
+        except Exception as error:
+            self.get_logger().warning(
+                f'publishing shapes as message objects (costs more CPU): the wire format '
+                f'does not match this middleware\'s: {error!r}')
+            return False
+        return True
 
     def _pose_msg(self, pose) -> Pose:
         """Pose message of a (position m, quaternion xyzw) pair; fixed bases reuse theirs."""
