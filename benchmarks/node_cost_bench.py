@@ -13,7 +13,11 @@ measuring window after a warm-up. Cases:
   rerun logger in the demo).
 - ``model_idle``: the same node with no lengths arriving: CPU per idle tick.
 - ``model50``: a synthetic 50-module scene (written by this script) at 100 Hz, every
-  length changing every tick, from a length publisher process.
+  length changing every tick: 10,000 lengths/s offered by ``--length-publishers``
+  processes (5 by default), each publishing its share of the modules as messages
+  serialised before the loop (one Python process building messages got out only
+  ~3,000/s). The table says how many lengths were offered and taken, the solves, the
+  node's CPU and its CPU per length, and whether it served them all within one core.
 - ``driver``: driver_node polling a simulated module at 10 Hz and taking 50 Hz commands
   (a new length each time), the simulated module in a separate process.
 - ``rerun``: rerun_logger recording the 5-module robot: both RobotShape topics at 50 Hz
@@ -31,6 +35,8 @@ The load average is printed at the start and the end.
 
 Usage: .venv/bin/python benchmarks/node_cost_bench.py [--seconds 10] [--repeats 3]
        [--before b3d97c3] [--cases baseline model5 model_idle model50 driver rerun]
+       [--length-publishers 5]
+(the model node alone: ``--cases model5 model_idle model50``)
 """
 from __future__ import annotations
 
