@@ -180,15 +180,19 @@ def publish_lengths(scene_path: str, rate: float, moving: bool, share: int = 0,
     scene = load_scene(scene_path)
     rclpy.init()
     node = rclpy.create_node(f'length_publisher_{share}')
-    pubs = [(m, node.create_publisher(CableLength, f'{NS}/{m.name}/cable_length/{topic}', 10), off)
-            for m in scene.modules[share::shares]
-            for topic, off in (('command', 0.0), ('measured', 0.7))]
+    # Each topic's place in the whole robot (module, then command/measured) sets its
+    # phase, as with a single publisher: no two modules get the same lengths, however
+    # the modules are shared out.
+    pubs = [(m, node.create_publisher(CableLength, f'{NS}/{m.name}/cable_length/{topic}', 10),
+             off, 2 * index + t)
+            for index, m in enumerate(scene.modules) if index % shares == share
+            for t, (topic, off) in enumerate((('command', 0.0), ('measured', 0.7)))]
     cycle = 1000 if moving else 1  # the contraction pattern repeats every 1000 ticks
     msg = CableLength()
     ticks = []
     for tick in range(cycle):
         row = []
-        for i, (m, pub, offset) in enumerate(pubs):
+        for m, pub, offset, i in pubs:
             contraction = (30.0 + 20.0 * ((tick * 0.013 + 0.037 * i) % 1.0)) if moving else 30.0
             msg.cable_length = (m.straight_length_mm - contraction - offset) / 1000.0
             row.append((pub.publish, serialize_message(msg)))
