@@ -156,8 +156,8 @@ def _points_m(points_mm) -> list[Point]:
     """(N, 2) or (N, 3) array in mm -> geometry_msgs/Point list in metres.
 
     Built without the generated per-field type checks (``check_fields=False``): every
-    value is a Python float made here, and the checks were most of the cost of a
-    shape message (12 points per module, every tick).
+    value is a Python float made here, and the checks were most of the cost. (Live
+    shapes go out as bytes, see shape_wire; this serves the services and the fallback.)
     """
     rows = (np.asarray(points_mm, dtype=float) / MM_PER_M).tolist()
     return [Point(x=p[0], y=p[1], z=p[2] if len(p) > 2 else 0.0, check_fields=False)
