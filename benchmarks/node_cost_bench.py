@@ -13,7 +13,11 @@ measuring window after a warm-up. Cases:
   rerun logger in the demo).
 - ``model_idle``: the same node with no lengths arriving: CPU per idle tick.
 - ``model50``: a synthetic 50-module scene (written by this script) at 100 Hz, every
-  length changing every tick, from a length publisher process.
+  length changing every tick: 10,000 lengths/s offered by ``--length-publishers``
+  processes (5 by default), each publishing its share of the modules as messages
+  serialised before the loop (one Python process building messages got out only
+  ~3,000/s). The table says how many lengths were offered and taken, the solves, the
+  node's CPU and its CPU per length, and whether it served them all within one core.
 - ``driver``: driver_node polling a simulated module at 10 Hz and taking 50 Hz commands
   (a new length each time), the simulated module in a separate process.
 - ``rerun``: rerun_logger recording the 5-module robot: both RobotShape topics at 50 Hz
@@ -31,6 +35,8 @@ The load average is printed at the start and the end.
 
 Usage: .venv/bin/python benchmarks/node_cost_bench.py [--seconds 10] [--repeats 3]
        [--before b3d97c3] [--cases baseline model5 model_idle model50 driver rerun]
+       [--length-publishers 5]
+(the model node alone: ``--cases model5 model_idle model50``)
 """
 from __future__ import annotations
 
@@ -112,8 +118,15 @@ def cpu_seconds(ps: psutil.Process) -> float:
     return t.user + t.system
 
 
-def read_counters(path: Path) -> dict[str, float]:
-    """The counters a listener child last wrote ('name value' lines; {} before any)."""
+def read_counters(path: Path | list[Path]) -> dict[str, float]:
+    """The counters children last wrote ('name value' lines; {} before any), summed over
+    the files if several."""
+    if isinstance(path, list):
+        total: dict[str, float] = {}
+        for one in path:
+            for k, v in read_counters(one).items():
+                total[k] = total.get(k, 0.0) + v
+        return total
     try:
         return {k: float(v) for k, v in (line.split() for line in path.read_text().splitlines())}
     except (OSError, ValueError):
@@ -121,7 +134,7 @@ def read_counters(path: Path) -> dict[str, float]:
 
 
 def measure(proc: subprocess.Popen, warmup: float, seconds: float, log: Path,
-            counters: Path | None = None, ready=None) -> tuple[float, dict[str, float]]:
+            counters: Path | list[Path] | None = None, ready=None) -> tuple[float, dict[str, float]]:
     """(CPU of ``proc`` over ``seconds`` in % of one core, rates per second of the node's
     own counters over the same window, read from ``counters``).
 
@@ -150,29 +163,57 @@ def measure(proc: subprocess.Popen, warmup: float, seconds: float, log: Path,
 
 
 # ------------------------------------------------------------------ load generators
-def publish_lengths(scene_path: str, rate: float, moving: bool) -> None:
-    """(child process) Commanded and measured lengths of every module at ``rate`` Hz."""
+def publish_lengths(scene_path: str, rate: float, moving: bool, share: int = 0,
+                    shares: int = 1, counts: str = '') -> None:
+    """(child process) Commanded and measured lengths at ``rate`` Hz of every ``shares``-th
+    module of the scene from the ``share``-th on (several processes split a big robot).
+
+    The messages of a whole cycle of the pattern are serialised before the loop and
+    published as bytes, so that one process can offer thousands of lengths per second;
+    the number published so far is written to ``counts`` ('published N') every second.
+    """
     import rclpy
+    from rclpy.serialization import serialize_message
     from softsnap_interfaces.msg import CableLength
     from softsnap_model.scene import load_scene
 
     scene = load_scene(scene_path)
     rclpy.init()
-    node = rclpy.create_node('length_publisher')
-    pubs = [(m, node.create_publisher(CableLength, f'{NS}/{m.name}/cable_length/{topic}', 10), off)
-            for m in scene.modules for topic, off in (('command', 0.0), ('measured', 0.7))]
+    node = rclpy.create_node(f'length_publisher_{share}')
+    # Each topic's place in the whole robot (module, then command/measured) sets its
+    # phase, as with a single publisher: no two modules get the same lengths, however
+    # the modules are shared out.
+    pubs = [(m, node.create_publisher(CableLength, f'{NS}/{m.name}/cable_length/{topic}', 10),
+             off, 2 * index + t)
+            for index, m in enumerate(scene.modules) if index % shares == share
+            for t, (topic, off) in enumerate((('command', 0.0), ('measured', 0.7)))]
+    cycle = 1000 if moving else 1  # the contraction pattern repeats every 1000 ticks
     msg = CableLength()
+    ticks = []
+    for tick in range(cycle):
+        row = []
+        for m, pub, offset, i in pubs:
+            contraction = (30.0 + 20.0 * ((tick * 0.013 + 0.037 * i) % 1.0)) if moving else 30.0
+            msg.cable_length = (m.straight_length_mm - contraction - offset) / 1000.0
+            row.append((pub.publish, serialize_message(msg)))
+        ticks.append(row)
     period = 1.0 / rate
     start = time.monotonic()
-    tick = 0
+    tick = published = 0
+    reported = start
     try:
         while True:
-            for i, (m, pub, offset) in enumerate(pubs):
-                contraction = (30.0 + 20.0 * ((tick * 0.013 + 0.037 * i) % 1.0)) if moving else 30.0
-                msg.cable_length = (m.straight_length_mm - contraction - offset) / 1000.0
-                pub.publish(msg)
+            for publish, data in ticks[tick % cycle]:
+                publish(data)
+            published += len(pubs)
             tick += 1
-            time.sleep(max(0.0, start + tick * period - time.monotonic()))
+            now = time.monotonic()
+            if counts and now - reported >= 1.0:
+                tmp = Path(counts).with_suffix('.tmp')
+                tmp.write_text(f'published {published}\n')
+                tmp.rename(counts)
+                reported = now
+            time.sleep(max(0.0, start + tick * period - now))
     except KeyboardInterrupt:
         pass
 
@@ -309,23 +350,30 @@ def model_args(scene: str, extra=()) -> list[str]:
     return ['-r', f'__ns:={NS}', '-p', f'scene:={scene}', '-p', 'rate:=100.0', *extra]
 
 
-def case_model(code_dir, work: Path, scene: str, moving: bool | None, warmup, seconds):
-    """model_node with lengths from a publisher process (None: no lengths at all) and
-    both RobotShape topics subscribed by a listener process."""
+def case_model(code_dir, work: Path, scene: str, moving: bool | None, warmup, seconds,
+               publishers: int = 1):
+    """model_node with lengths from ``publishers`` publisher processes, each taking a
+    share of the modules (None: no lengths at all), and both RobotShape topics
+    subscribed by a listener process."""
     log = work / 'model.log'
     node = start_ros_node('model_node', model_args(scene, ['-p', 'diagnostics_period:=0.5']),
                           code_dir, log)
     helpers = [start(run_child('listen', 'model', str(work / 'counters')), None,
                      work / 'listen.log')]
+    counters = [work / 'counters']
     if moving is not None:
-        helpers.append(start(run_child('lengths', scene, '100', str(int(moving))), None,
-                             work / 'lengths.log'))
+        for share in range(publishers):
+            counters.append(work / f'published{share}')
+            helpers.append(start(run_child('lengths', scene, '100', str(int(moving)), str(share),
+                                           str(publishers), str(counters[-1])),
+                                 None, work / f'lengths{share}.log'))
+
     def working() -> bool:  # diagnostics arrive, and lengths are taken unless idle
-        counters = read_counters(work / 'counters')
-        return 'solves' in counters and (moving is None or counters['lengths'] > 0)
+        taken = read_counters(work / 'counters')
+        return 'solves' in taken and (moving is None or taken['lengths'] > 0)
 
     try:
-        return measure(node, warmup, seconds, log, work / 'counters', working)
+        return measure(node, warmup, seconds, log, counters, working)
     finally:
         for p in helpers:
             stop(p)
@@ -458,14 +506,19 @@ def main() -> int:
     parser.add_argument('--warmup', type=float, default=4.0, help='before the window (s)')
     parser.add_argument('--repeats', type=int, default=3)
     parser.add_argument('--before', default='', help='git revision to compare against')
-    parser.add_argument('--cases', nargs='+', default=list(CASES), choices=CASES)
+    parser.add_argument('--cases', nargs='+', default=list(CASES), choices=CASES,
+                        help='cases to run (e.g. --cases model5 model_idle model50 for the '
+                             'model node only)')
+    parser.add_argument('--length-publishers', type=int, default=5,
+                        help='processes sharing the 50-module length load (model50)')
     parser.add_argument('--child', nargs='+', help=argparse.SUPPRESS)
     args = parser.parse_args()
     os.environ.setdefault('ROS_DOMAIN_ID', str(random.randint(120, 200) % 101 + 100))
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     if args.child:
         kind, rest = args.child[0], args.child[1:]
-        {'lengths': lambda: publish_lengths(rest[0], float(rest[1]), bool(int(rest[2]))),
+        {'lengths': lambda: publish_lengths(rest[0], float(rest[1]), bool(int(rest[2])),
+                                            *(int(v) for v in rest[3:5]), *rest[5:6]),
          'commands': lambda: publish_driver_commands(float(rest[0]), float(rest[1])),
          'robot': lambda: publish_robot(float(rest[0])),
          'listen': lambda: listen(rest[0], rest[1]),
@@ -500,7 +553,8 @@ def main() -> int:
                 elif case == 'model_idle':
                     cpu = case_model(code_dir, run_dir, 'brittle_star', None, w, s)
                 elif case == 'model50':
-                    cpu = case_model(code_dir, run_dir, str(scene50), True, w, s)
+                    cpu = case_model(code_dir, run_dir, str(scene50), True, w, s,
+                                     args.length_publishers)
                 elif case == 'driver':
                     cpu = case_driver(code_dir, run_dir, w, s)
                 else:
@@ -544,6 +598,25 @@ def main() -> int:
     if 'model_idle' in args.cases:
         idle = statistics.median(results[('model_idle', 'after')])
         print(f'model_node idle tick (after): {idle / 100 * 10:.3f} ms of CPU per 10 ms tick')
+    for case in ('model5', 'model50'):
+        for label in versions:
+            if (case, label) not in results:
+                continue
+            cpu = statistics.median(results[(case, label)])
+            rate = {name: statistics.median(throughput.get((case, label, name), [0.0]))
+                    for name in ('lengths', 'solves', 'published')}
+            per_length = cpu * 1e4 / rate['lengths'] if rate['lengths'] > 0 else math.nan
+            line = (f'{case} {label}: offered {rate["published"]:.0f} lengths/s, took '
+                    f'{rate["lengths"]:.0f}/s, {rate["solves"]:.0f} solves/s, {cpu:.1f}% of '
+                    f'one core ({cpu / per_module[case]:.2f}% per module), {per_length:.0f} µs '
+                    'of CPU per length')
+            if case == 'model50':
+                # Serving: it takes (nearly) all that is offered, within one core.
+                serves = rate['lengths'] >= 0.95 * rate['published'] > 0 and cpu < 100.0
+                line += (f'; one core at this rate of CPU per length would take '
+                         f'{1e6 / per_length:.0f} lengths/s (100 Hz x 50 modules x 2 = '
+                         f'10000/s): {"served" if serves else "NOT served"} here')
+            print(line)
     if 'before' in recordings and 'after' in recordings:
         e_before, e_after = entities(recordings['before']), entities(recordings['after'])
         same = e_before == e_after

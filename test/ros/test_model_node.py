@@ -181,9 +181,18 @@ def test_published_shapes_follow_a_changing_command(brittle_star_node, ros_node)
     assert list(d.measured_lengths) == [0] * 5  # no driver runs here
     assert len(shapes) == n_before
     assert brittle_star_node.alive()
+    # Bytes that are no CableLength at all (the node reads lengths from the raw bytes):
+    # logged with the reason, and the node goes on.
+    pub.publish(b'\x00\x01\x00\x00' + b'\xff' * 9)
+    assert ros_node.spin_until(lambda: 'could not read a commanded length message'
+                               in brittle_star_node.output(), 10.0), brittle_star_node.output()
+    assert brittle_star_node.alive()
     command(yellow.straight_length_mm - 30.0)
     assert ros_node.spin_until(lambda: len(shapes) > n_before, 10.0)
     assert 'refused' in brittle_star_node.output()
+    # The messages above came as ready-serialised bytes: rclpy read them back as the
+    # node's field-by-field messages at start, so it did not fall back to objects.
+    assert 'as message objects' not in brittle_star_node.output()
 
 
 def test_identical_snake_modules_cost_one_solve(start_node, ros_node):

@@ -35,6 +35,7 @@ import gc
 import math
 import os
 import queue
+import struct
 import sys
 import threading
 import time
@@ -49,7 +50,9 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.qos import QoSProfile
+from rclpy.serialization import deserialize_message, serialize_message
 from rclpy.task import Future
+from rclpy.time import Time
 from diagnostic_msgs.msg import DiagnosticArray
 from sensor_msgs.msg import JointState
 from visualization_msgs.msg import MarkerArray
@@ -64,8 +67,9 @@ from .forward import solve_forward
 from .friction import solve_friction
 from .inverse import DesignCancelled, DesignTimedOut, design_threading
 from .loads import DEFAULT_BENDING_STIFFNESS_NMM, Loads, solve_loaded
-from .predictor import SOURCES, RobotPredictor
+from .predictor import SOURCES, ModulePrediction, RobotPredictor
 from .scene import SceneError, load_scene
+from .shape_wire import ModuleShapeWire, RobotShapeWire, cable_length_from_cdr
 from . import standard_messages as standard
 
 MM_PER_M = 1000.0
@@ -152,8 +156,8 @@ def _points_m(points_mm) -> list[Point]:
     """(N, 2) or (N, 3) array in mm -> geometry_msgs/Point list in metres.
 
     Built without the generated per-field type checks (``check_fields=False``): every
-    value is a Python float made here, and the checks were most of the cost of a
-    shape message (12 points per module, every tick).
+    value is a Python float made here, and the checks were most of the cost. (Live
+    shapes go out as bytes, see shape_wire; this serves the services and the fallback.)
     """
     rows = (np.asarray(points_mm, dtype=float) / MM_PER_M).tolist()
     return [Point(x=p[0], y=p[1], z=p[2] if len(p) > 2 else 0.0, check_fields=False)
@@ -221,6 +225,16 @@ class ModelNode(SoftSnapNode):
         self._subscriber_counts: dict = {}  # publisher -> subscription count (cached)
         self._subscribers_at = -math.inf    # monotonic s of the last refresh
         self._pose_msgs: dict[tuple, Pose] = {}
+        # Shape messages are published as CDR bytes kept ready and updated in place
+        # (shape_wire says why), if rclpy reads those bytes back as the messages the
+        # node would build field by field; else as message objects.
+        n_segments, n_ribs = self.skeleton.n_segments, self.skeleton.n_ribs
+        names = list(self.scene.module_names)
+        self._robot_wires = {s: RobotShapeWire(self.scene.name, s, names, n_segments, n_ribs)
+                             for s in SOURCES}
+        self._module_wires = {(m, s): ModuleShapeWire(self.scene.name, s, m, n_segments, n_ribs)
+                              for m in names for s in SOURCES}
+        self.wire_format = self._wire_matches_rclpy()
 
         # Lengths are a stream where only the newest matters: sensor-data QoS would drop
         # messages under load; keep a small reliable queue so no command is lost silently.
@@ -294,8 +308,11 @@ class ModelNode(SoftSnapNode):
                                  self.tick_callback)
         self.diagnostics_timer = self.create_timer(
             self.get_parameter('diagnostics_period').value, self.diagnostics_callback)
-        self.marker_timer = self.create_timer(
-            1.0 / self.get_parameter('marker_rate').value, self.marker_callback)
+        # Markers are built on the prediction thread when due (a 10 Hz executor timer
+        # woke the executor 10 times a second for a subscription count, ~0.05 ms of an
+        # idle 10 ms tick); the period is read at every tick, so a new rate applies at once.
+        self._marker_period_s = 1.0 / self.get_parameter('marker_rate').value
+        self._next_marker_at = time.monotonic()
         self.ticker.start()  # last: the node is complete
         self.get_logger().info(
             f'scene {self.scene.name!r}: {len(self.scene.modules)} modules '
@@ -327,17 +344,26 @@ class ModelNode(SoftSnapNode):
             elif param.name == 'rate':
                 self.ticker.period_s = 1.0 / float(param.value)
             elif param.name == 'marker_rate':
-                self.marker_timer.cancel()
-                self.marker_timer = self.create_timer(1.0 / float(param.value),
-                                                      self.marker_callback)
+                self._marker_period_s = 1.0 / float(param.value)
         return SetParametersResult(successful=True)
 
     # ------------------------------------------------------------------ topics
-    def length_callback(self, msg: CableLength, module: str, source: str) -> None:
+    def length_callback(self, data: bytes, module: str, source: str) -> None:
+        """A serialised CableLength taken from a length topic: submit it to the predictor."""
         self.lengths_taken[(module, source)] += 1
-        stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         try:
-            self.predictor.submit(source, module, msg.cable_length * MM_PER_M, stamp_ns)
+            length_m, stamp_ns = cable_length_from_cdr(data)
+        except (ValueError, struct.error):
+            try:  # another encoding: let rclpy read it
+                msg = deserialize_message(data, CableLength)
+            except Exception as error:  # undecodable bytes must not stop the tick
+                self.get_logger().warning(f'could not read a {source} length message for '
+                                          f'{module!r}: {error!r}', throttle_duration_sec=1.0)
+                return
+            length_m = msg.cable_length
+            stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        try:
+            self.predictor.submit(source, module, length_m * MM_PER_M, stamp_ns)
         except ValueError as error:
             self.get_logger().warning(
                 f'refused {source} length for {module!r}: {error}; keeping the last valid shape',
@@ -376,16 +402,29 @@ class ModelNode(SoftSnapNode):
             self.get_logger().error(f'prediction tick failed: {error!r}', throttle_duration_sec=1.0)
 
     def _drain_lengths(self) -> None:
-        """Submit every length message that arrived since the last tick, oldest first."""
+        """Submit every length message that arrived since the last tick, oldest first.
+
+        Taken as bytes: reading the two fields needed costs a quarter of building the
+        message object (see :func:`~softsnap_model.shape_wire.cable_length_from_cdr`).
+        """
         for module, source, subscription in self._length_subscriptions:
             with subscription.handle:
-                while (taken := subscription.handle.take_message(CableLength, False)) is not None:
+                while (taken := subscription.handle.take_message(CableLength, True)) is not None:
                     self.length_callback(taken[0], module, source)
 
     def _tick(self) -> None:
         self._drain_lengths()
-        if not self.predictor.has_pending:
-            return  # nothing new: no solve, no message (an idle tick costs the drain only)
+        if self.predictor.has_pending:
+            self._predict()
+        # else nothing new: no solve, no message (an idle tick costs the drain only)
+        now = time.monotonic()
+        if now >= self._next_marker_at:
+            # On schedule, without a burst of catch-up marker arrays after a slow tick.
+            self._next_marker_at = max(self._next_marker_at + self._marker_period_s, now)
+            self.marker_callback()
+
+    def _predict(self) -> None:
+        """Solve the pending lengths and publish the new shapes to whoever subscribes."""
         want = {source: self._want_rib_centers(source) for source in SOURCES}
         updated = self.predictor.tick(want)
         for module, source, reason in self.predictor.errors:
@@ -393,7 +432,8 @@ class ModelNode(SoftSnapNode):
                                       f'{reason}; keeping the last valid shape',
                                       throttle_duration_sec=1.0)
         self.predictor.errors.clear()
-        stamp = self.get_clock().now().to_msg()
+        stamp_ns = self.get_clock().now().nanoseconds
+        stamp = None  # its message, built only for the message-object fallback
         for source in SOURCES:
             if not updated[source]:
                 continue
@@ -401,25 +441,87 @@ class ModelNode(SoftSnapNode):
                 for joint_state in standard.joint_states(updated[source]):
                     self.joint_state_publishers[source].publish(joint_state)
                     self.joint_states_published += 1
-            # Serialising costs ~0.1 ms a message: topics nobody listens to are skipped, and
-            # a shape's message is built once, only when some topic needs it.
+            if not self.wire_format and stamp is None:
+                stamp = Time(nanoseconds=stamp_ns).to_msg()
+            # Serialising costs ~0.1 ms a message: topics nobody listens to are skipped.
             for shape in updated[source]:
                 publisher = self.module_publishers[(shape.module, source)]
                 if self._subscribers(publisher) > 0:
-                    publisher.publish(self._message_for(shape, stamp))
+                    publisher.publish(
+                        self._module_wires[(shape.module, source)].serialize(shape, stamp_ns)
+                        if self.wire_format else self._message_for(shape, stamp))
             if self._subscribers(self.robot_publishers[source]) == 0:
                 continue
-            robot = RobotShape(check_fields=False)  # its parts are built and checked here
-            robot.header.stamp = stamp
-            robot.header.frame_id = self.scene.name
-            robot.robot = self.scene.name
-            robot.modules = [self._message_for(shape, stamp) if shape is not None
-                             else ModuleShape(module=module.name, source=source)
-                             for module, shape in zip(self.scene.modules,
-                                                      self.predictor.shapes(source))]
-            robot.base_poses = [self._pose_msg(pose)
-                                for pose in self.predictor.base_poses(source)]
-            self.robot_publishers[source].publish(robot)
+            shapes, poses = self.predictor.shapes(source), self.predictor.base_poses(source)
+            self.robot_publishers[source].publish(
+                self._robot_wires[source].serialize(shapes, poses, stamp_ns)
+                if self.wire_format else self._robot_msg(source, shapes, poses, stamp))
+
+    def _robot_msg(self, source: str, shapes, poses, stamp) -> RobotShape:
+        """The RobotShape of one source built as a message object (the fallback, and the
+        reference the wire format is checked against)."""
+        robot = RobotShape(check_fields=False)  # its parts are built and checked here
+        robot.header.stamp = stamp
+        robot.header.frame_id = self.scene.name
+        robot.robot = self.scene.name
+        robot.modules = [self._message_for(shape, stamp) if shape is not None
+                         else ModuleShape(module=module.name, source=source)
+                         for module, shape in zip(self.scene.modules, shapes)]
+        robot.base_poses = [self._pose_msg(pose) for pose in poses]
+        return robot
+
+    def _wire_matches_rclpy(self) -> bool:
+        """True if rclpy reads the wire-format shapes (and a length) back as the messages
+        built field by field, for sample shapes of this scene; else False, with a warning.
+
+        Run once at start: a middleware with another encoding then costs CPU, not
+        correctness.
+        """
+        try:
+            n = self.skeleton.n_segments
+            angles = np.linspace(-0.3, 0.2, n)
+            centers = np.cumsum(np.full((n + 1, 2), [self.skeleton.spacing_mm, 0.7]), axis=0)
+            layouts = ('points', 'no points', None)
+            for source in SOURCES:
+                shapes = []
+                for i, module in enumerate(self.scene.modules):
+                    layout = layouts[i % len(layouts)]
+                    shapes.append(None if layout is None else ModulePrediction(
+                        module=module.name, source=source, cable_length_mm=171.25 + i,
+                        angles=angles + i, tension=0.0125 * i, energy=0.5 + i,
+                        rib_centers_mm=centers * (i + 1) if layout == 'points' else None,
+                        converged=bool(i % 2), residual=1e-12 * i, solve_time_s=1e-4 * i,
+                        stamp_ns=(1_700_000_000_123_456_789 + i) * (i % 2)))
+                stamp_ns = 1_800_000_000_987_654_321
+                stamp = Time(nanoseconds=stamp_ns).to_msg()
+                poses = self.predictor.base_poses(source)
+                wire = RobotShapeWire(self.scene.name, source, list(self.scene.module_names),
+                                      n, self.skeleton.n_ribs)
+                got = deserialize_message(wire.serialize(shapes, poses, stamp_ns), RobotShape)
+                want = self._robot_msg(source, shapes, poses, stamp)
+                for shape in shapes:
+                    if shape is None:
+                        continue
+                    module_wire = ModuleShapeWire(self.scene.name, source, shape.module, n,
+                                                  self.skeleton.n_ribs)
+                    got_module = deserialize_message(module_wire.serialize(shape, stamp_ns),
+                                                     ModuleShape)
+                    if got_module != self._shape_msg(shape, stamp):
+                        raise ValueError(f'ModuleShape of {shape.module!r} differs')
+                if got != want:
+                    raise ValueError('RobotShape differs')
+            self._last_msgs.clear()
+            length = CableLength(cable_length=0.1234567)
+            length.header.stamp.sec, length.header.stamp.nanosec = 17, 42
+            length.header.frame_id = 'abc'
+            if cable_length_from_cdr(serialize_message(length)) != (0.1234567, 17_000_000_042):
+                raise ValueError('CableLength read back differently')
+        except Exception as error:
+            self.get_logger().warning(
+                f'publishing shapes as message objects (costs more CPU): the wire format '
+                f'does not match this middleware\'s: {error!r}')
+            return False
+        return True
 
     def _pose_msg(self, pose) -> Pose:
         """Pose message of a (position m, quaternion xyzw) pair; fixed bases reuse theirs."""
@@ -470,7 +572,8 @@ class ModelNode(SoftSnapNode):
         self._simulated = msg  # drawn (and checked) at the next marker tick, if watched
 
     def marker_callback(self) -> None:
-        if self.marker_publisher.get_subscription_count() == 0:
+        """Publish model/markers if someone subscribes (called from the tick when due)."""
+        if self._subscribers(self.marker_publisher) == 0:
             return  # nobody watches: build nothing
         try:
             markers = self._model_markers() + self._simulated_markers()

@@ -145,8 +145,11 @@ class RobotPredictor:
         self.errors: list[tuple[str, str, str]] = []
         self._index = {m.name: i for i, m in enumerate(scene.modules)}
         self._threading = {m.name: np.asarray(m.threading_mm, dtype=float) for m in scene.modules}
-        # Modules with equal threadings share solves: key them by their offsets.
-        self._threading_key = {name: tuple(t.tolist()) for name, t in self._threading.items()}
+        # Modules with equal threadings share solves: key them by their offsets. Equal
+        # keys are one object, so a batch converts each distinct threading once.
+        interned: dict[tuple, tuple] = {}
+        self._threading_key = {name: interned.setdefault(tuple(t.tolist()), tuple(t.tolist()))
+                               for name, t in self._threading.items()}
         ranges = {}
         for key in set(self._threading_key.values()):
             ranges[key] = reachable_range(self.skeleton, np.asarray(key))
@@ -257,7 +260,9 @@ class RobotPredictor:
         if self.batch and len(groups) > 1:
             keys = list(groups)
             lengths = np.fromiter((key[1] for key in keys), dtype=float, count=len(keys))
-            threadings = [self._threading[groups[key][0][0]] for key in keys]
+            # Offsets as (interned) tuples: the batch memoises their conversion, where
+            # arrays would be grouped again by np.unique on every call.
+            threadings = [key[0] for key in keys]
             start = time.perf_counter()
             try:
                 batch = solve_forward_batch(self.skeleton, threadings, lengths)
