@@ -89,6 +89,10 @@ DEFAULT_SNAPSHOT_RATE_HZ = 30.0
 DEFAULT_CLOCK_RATE_HZ = 100.0
 #: Longest the pacing loop sleeps at once, s (reaction time to stop()).
 _MAX_SLEEP_S = 0.05
+#: A loop further behind its pace than this (wall s: paused, starved) paces on from where
+#: it is instead of racing to make the time up: with /clock nothing needs the simulated
+#: time to catch up with the wall clock, and a burst only starves the nodes that follow it.
+_MAX_LAG_S = 0.25
 #: Payload option values: none, or a shape the physics model accepts
 #: (softsnap_model.physics.mjcf.Payload).
 PAYLOAD_SHAPES = ('none', 'ball', 'box')
@@ -461,6 +465,9 @@ class SimRobot:
     def run(self, stop: threading.Event, time_factor: float = 1.0, failed=None) -> None:
         """Step paced to ``time_factor`` x the wall clock (0: unpaced) until `stop` is set.
 
+        Behind its pace by more than ``_MAX_LAG_S`` (paused, starved, or a physics slower
+        than the pace), the loop paces on from where it is: no burst to catch up.
+
         An exception in the physics ends the loop and is kept in :attr:`fault` (and
         reported through `failed(message)`), never a silently dead thread.
         """
@@ -477,6 +484,8 @@ class SimRobot:
                     if ahead > 0:
                         stop.wait(min(ahead, _MAX_SLEEP_S))
                         continue
+                    if ahead < -_MAX_LAG_S:
+                        wall_start, sim_start = time.monotonic(), self._clock
                 self.step()
                 self._maybe_snapshot()
                 self._maybe_tick_clock()
