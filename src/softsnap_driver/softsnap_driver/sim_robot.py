@@ -83,10 +83,12 @@ DEFAULT_STALL_TORQUE_NM = 0.15
 DEFAULT_SNAPSHOT_RATE_HZ = 30.0
 #: The simulation clock is handed out (``/clock`` of the ROS node) this often by default,
 #: Hz of sim time. Nodes with ``use_sim_time`` see time advance in steps of 1 / rate, so
-#: it bounds their timers' resolution (the gait ticks at 50 Hz: every second step); every
-#: message wakes each such node's executor (~0.5 ms of a loaded core in rclpy), which is
-#: why it is not the 1 kHz a C++ simulator publishes.
-DEFAULT_CLOCK_RATE_HZ = 100.0
+#: it bounds their timers' resolution: 50 Hz is the gait's tick rate (every step a tick,
+#: at exact multiples of 20 ms = 5 control periods). Every message wakes each such node's
+#: executor, 0.8-0.9 ms of CPU per node and message on the loaded 2-core development
+#: machine (benchmarks/sim_clock_bench.py), which is why it is not the 1 kHz a C++
+#: simulator publishes: at 100 Hz eight nodes would spend two thirds of a core on it.
+DEFAULT_CLOCK_RATE_HZ = 50.0
 #: Longest the pacing loop sleeps at once, s (reaction time to stop()).
 _MAX_SLEEP_S = 0.05
 #: A loop further behind its pace than this (wall s: paused, starved) paces on from where
