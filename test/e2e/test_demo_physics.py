@@ -30,6 +30,15 @@ def test_demo_with_physics_runs_the_gripper_on_sim_robot(tmp_path, read_rrd):
         assert m['predicted_shapes'], (name, m)
     physics = summary['physics']
     assert physics['gait'] == 'grasp' and physics['real_time_factor'] > 0.0
+    # Every node ran on sim_robot's /clock: --seconds, the command rate and the gait's
+    # cycles are simulated time, whatever the real-time factor of this loaded machine.
+    assert summary['sim_time'] and summary['seconds'] == pytest.approx(5.0, abs=0.3)
+    for name, m in summary['modules'].items():
+        # At most the gait's 50 Hz of simulated time; a gait node starved by this loaded
+        # machine misses some /clock steps and ticks (rcl timers skip missed periods).
+        assert 20.0 < m['command_rate_hz'] <= 50.5, (name, m)
+    assert physics['gait_cycles'] == pytest.approx(summary['seconds'] / physics['gait_period_s'],
+                                                   abs=0.05), physics
     # Simulated against predicted shapes, every module (rib-centre RMS, mm).
     for name in modules:
         error = physics['shape_error_mm'][name]

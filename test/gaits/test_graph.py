@@ -108,3 +108,19 @@ def test_launch_argument_physics_starts_sim_robot():
     assert not [s for s in specs if s.executable == 'sim_module']
     with pytest.raises(ValueError, match='physics needs simulated modules'):
         graph_from_arguments('snake', {'physics': 'true', 'simulate': 'false'})
+
+
+def test_physics_graph_runs_every_node_but_the_simulator_and_the_recorder_on_sim_time():
+    scene = load_scene('brittle_star')
+    graph = robot_graph(scene, physics=True, bag=Path('/tmp/bag-not-written'))
+    on_sim_time = {n.name for n in graph if n.parameters.get('use_sim_time') is True}
+    assert on_sim_time == {*(f'driver_{m.name}' for m in scene.modules), 'model_node',
+                           'gait_node', 'rerun_logger'}
+    sim_robot = next(n for n in graph if n.executable == 'sim_robot')
+    assert 'use_sim_time' not in sim_robot.parameters            # it makes the clock
+    assert '-p' in sim_robot.ros_args() and 'use_sim_time:=true' not in sim_robot.ros_args()
+    assert 'use_sim_time:=true' in next(n for n in graph if n.name == 'gait_node').ros_args()
+    # Without physics (sim_module or real modules) every node keeps the wall clock.
+    assert not any('use_sim_time' in n.parameters for n in robot_graph(scene, bag=Path('/tmp/b')))
+    launched = graph_from_arguments('brittle_star', {'physics': 'true'})
+    assert {n.name for n in launched if n.parameters.get('use_sim_time')} == on_sim_time

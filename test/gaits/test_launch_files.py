@@ -143,3 +143,38 @@ def test_launch_files_import_only_softsnap_launching():
         spec.loader.exec_module(module)  # imports softsnap_gaits.launching only
         assert callable(module.generate_launch_description)
         assert launch_file_scene(scene) == scene
+
+
+def test_physics_launch_graph_runs_on_the_simulated_clock(start_node, ros_node, tmp_path, slot_port):
+    """physics:=true: every node but sim_robot gets use_sim_time in its params file, and
+    the gait's stamps are sim_robot's /clock, not the wall clock."""
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from rosgraph_msgs.msg import Clock
+    from softsnap_interfaces.msg import GaitPhase
+    base = slot_port(4)
+    started = start_launch_graph(start_node, tmp_path, 'gripper', {
+        'sim_port_base': str(base), 'physics': 'true'},
+        only=('sim_robot', 'driver_node', 'gait_node'))
+    assert {s.executable for s, _, _ in started} == {'sim_robot', 'driver_node', 'gait_node'}
+    for spec, cmd, _ in started:
+        params_file = Path(cmd[cmd.index('--params-file') + 1])
+        params = yaml.safe_load(params_file.read_text())[f'/gripper/{spec.name}']['ros__parameters']
+        expected = None if spec.executable == 'sim_robot' else True
+        assert params.get('use_sim_time') is expected, (spec.name, params)
+    clocks, phases = [], []
+    ros_node.create_subscription(Clock, '/clock', lambda m: clocks.append(m.clock),
+                                 QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT))
+    ros_node.create_subscription(GaitPhase, '/gripper/gait/phase',
+                                 lambda m: phases.append(m) if m.running else None, 100)
+    wait_for_graph(ros_node, started, 'gripper', need_shapes=False)
+    assert ros_node.spin_until(lambda: len(phases) >= 20 and clocks, 120.0), (len(phases), len(clocks))
+    ros_node.spin_until(lambda: False, 0.5)    # the /clock of the newest phase has come
+
+    def seconds(t):
+        return t.sec + t.nanosec * 1e-9
+
+    latest = max(seconds(c) for c in clocks)
+    stamps = [seconds(p.header.stamp) for p in phases]
+    # Simulated time since sim_robot started (the wall clock would be ~1.7e9 s).
+    assert 0.0 < stamps[0] <= stamps[-1] <= latest + 0.05, (stamps[0], stamps[-1], latest)
+    assert latest < 1e5

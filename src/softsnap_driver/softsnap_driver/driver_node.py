@@ -12,6 +12,13 @@ For a module named M (parameter ``module``), relative to the node's namespace:
   docs/diagnostics.md);
 - serves ``M/calibrate``, ``M/pause``, ``M/resume`` and ``M/stop`` (std_srvs/Trigger).
 
+Time: stamps are the node's ROS clock. With ``use_sim_time:=true`` (a simulated robot,
+``sim_robot`` publishing ``/clock``) that is the simulation's time, and so is the clock the
+link measures the module's motion by (stall timeout, reboot speed check); the link's own
+timeouts (requests, backoff, offline, stale commands, stop deadlines) and the
+``/diagnostics`` period stay on the wall clock, so a stopped ``/clock`` freezes none of
+them (docs/safety.md, "Simulated time"). ``use_sim_time`` is read once, at start-up.
+
 The node is thin: it adapts parameters, messages and services to
 :class:`softsnap_driver.link.ModuleLink`, which owns all module I/O in a worker thread,
 and :class:`softsnap_driver.core.CableCalibration`, which converts lengths to encoder
@@ -26,9 +33,10 @@ import threading
 import time
 
 import rclpy
+from builtin_interfaces.msg import Time
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 SetParametersResult)
-from rclpy.duration import Duration
+from rclpy.clock import Clock, ClockType
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
@@ -188,21 +196,33 @@ class DriverNode(SoftSnapNode):
                                    f'{config.host}:{config.port}')
         self.battery_publisher = self.create_publisher(BatteryState, f'{m}/battery', 10)
         self.diagnostics_publisher = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        # The steady clock: health must be reported while a simulated time stands still.
         self.diagnostics_timer = self.create_timer(
-            self.get_parameter('diagnostics_period_s').value, self.diagnostics_callback)
+            self.get_parameter('diagnostics_period_s').value, self.diagnostics_callback,
+            clock=Clock(clock_type=ClockType.STEADY_TIME))
         self._measured_msg = CableLength()
         self._measured_msg.header.frame_id = m
         self._state_msg = ModuleState()
         self._state_msg.header.frame_id = m
         self._state_msg.module = m
-        self.link = ModuleLink(config, self.report_callback, self.get_logger())
+        # The module's motion is timed on the simulation's clock when there is one.
+        self.sim_time = bool(self.get_parameter('use_sim_time').value)
+        motion_clock = self._ros_time_s if self.sim_time else None
+        self.link = ModuleLink(config, self.report_callback, self.get_logger(),
+                               motion_clock=motion_clock)
         self.link.start()
         self.commands = CommandInbox(self._inbox, f'{m}/cable_length/command', 100,
                                      self.command_callback)
         low, high = config.calibration.length_range_m
         self.get_logger().info(
             f'driving module {m!r} at {config.host}:{config.port}; cable length range '
-            f'[{low:.4f}, {high:.4f}] m, encoder targets {list(config.calibration.count_range)}')
+            f'[{low:.4f}, {high:.4f}] m, encoder targets {list(config.calibration.count_range)}'
+            + ('; simulated time (stall timeout on /clock, link timeouts on the wall clock)'
+               if self.sim_time else ''))
+
+    def _ros_time_s(self) -> float:
+        """The node's ROS time, s (the simulation's with use_sim_time; any thread)."""
+        return self.get_clock().now().nanoseconds * 1e-9
 
     # -- parameters --------------------------------------------------------------------
     @staticmethod
@@ -306,9 +326,13 @@ class DriverNode(SoftSnapNode):
             if report.last_error_stamp != self._error_stamp[0]:
                 # The link stamps on its monotonic clock: shift to ROS time by the error's
                 # age, once per error (so the field only changes when a new error happens).
+                # Floored at 0: a simulated time (use_sim_time) can be younger than the
+                # error's wall age, or 0 before the first /clock (a negative time raised
+                # here and no state was ever published).
                 age_ns = int(max(report.stamp - report.last_error_stamp, 0.0) * 1e9)
-                self._error_stamp = (report.last_error_stamp,
-                                     (self.get_clock().now() - Duration(nanoseconds=age_ns)).to_msg())
+                error_ns = max(self.get_clock().now().nanoseconds - age_ns, 0)
+                sec, nanosec = divmod(error_ns, 1_000_000_000)
+                self._error_stamp = (report.last_error_stamp, Time(sec=sec, nanosec=nanosec))
             state.last_error_time = self._error_stamp[1]
         self.state_publisher.publish(state)
 

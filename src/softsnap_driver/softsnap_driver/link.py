@@ -60,6 +60,18 @@ motor, PWM too low): the driver warns, reports it in ``last_error`` and stops it
 (confirmed stop) so the motor stops drawing stall current; the next new target drives it
 again.
 
+Two clocks: everything about the *link* (poll period, request deadlines, failure
+backoff, offline, the stale-command watchdog, stop deadlines, shutdown) runs on
+``clock``, the monotonic wall clock, so it keeps working whatever happens to a simulated
+time. What compares the *module's motion* with time (the stall timeout, and the speed
+limit of the reboot check) runs on ``motion_clock``: the same clock for a real module,
+the simulation's time for a simulated robot (the driver node passes its ROS clock when
+``use_sim_time`` is set), so a simulation slower than real time is not taken for a
+stalled winch, nor one faster than real time for a reboot. If the simulated time stops
+(simulator paused or dead), stall detection waits with it (the simulated motor does not
+run either) and the reboot check falls back to the wall time elapsed; the link's own
+timeouts run on.
+
 Reboot: see :func:`softsnap_driver.core.reboot_suspected`. On a detected reboot the
 driver counts it, reports it (``last_error`` and a warning), drops the pending target,
 holds the module with a confirmed stop and marks it *uncalibrated*: the encoder count no
@@ -191,17 +203,21 @@ class ModuleLink:
     report : callable
         Called from the worker thread with a :class:`LinkReport` after every request.
     logger : object with ``info``, ``warning``, ``error`` methods (an rclpy logger works).
-    clock : callable returning seconds (monotonic).
+    clock : callable returning seconds (monotonic): the link's timeouts.
+    motion_clock : callable returning seconds, optional
+        The module's time, for stall detection and the reboot speed check (see "Two
+        clocks"); `clock` if None.
     client_factory : callable ``(host, port, timeout_s) -> ModuleClient``
         Builds the client (a subclass can add behaviour, e.g. in tests).
     """
 
     def __init__(self, config: LinkConfig, report, logger, clock=time.monotonic,
-                 client_factory=ModuleClient):
+                 client_factory=ModuleClient, motion_clock=None):
         self._config = config
         self._report = report
         self._log = logger
         self._clock = clock
+        self._motion_clock = clock if motion_clock is None else motion_clock
         self._client_factory = client_factory
         self._cond = threading.Condition()
         # Shared state, guarded by _cond.
@@ -227,11 +243,11 @@ class ModuleLink:
         self._next_poll = 0.0
         self._last_report = -math.inf
         self._status: ModuleStatus | None = None
-        self._status_time = 0.0
+        self._status_time = (0.0, 0.0)            # (clock, motion clock) of that reply
         self._module_target: int | None = None   # what the module steers to, if known
         self._sent: tuple[int, int] | None = None  # (count, power) last acknowledged set
         self._may_move = False                   # a set went out since the last confirmed stop
-        self._progress: tuple[int, float] | None = None  # (count, time) of last progress
+        self._progress: tuple[int, float] | None = None  # (count, motion time) of last progress
         self._thread = threading.Thread(target=self._run, name=f'module_link:{config.host}:{config.port}',
                                          daemon=True)
 
@@ -475,19 +491,23 @@ class ModuleLink:
         self._next_poll = now + config.poll_period_s
         with self._cond:
             self._clear_error('link', 'internal')
-        previous, previous_time = self._status, self._status_time
-        self._status, self._status_time = status, now
+        motion_now = self._motion_clock()
+        previous, (previous_time, previous_motion) = self._status, self._status_time
+        self._status, self._status_time = status, (now, motion_now)
         if previous is not None and self._calibrated and check_reboot:
+            # The larger of the two elapsed times: a simulated time that lags (or stopped)
+            # must not make an ordinary move look faster than the motor (a false reboot).
+            elapsed = max(now - previous_time, motion_now - previous_motion)
             evidence = reboot_suspected(
                 previous.encoder_count, previous.encoder_errors, status.encoder_count,
-                status.encoder_errors, now - previous_time, self._module_target,
+                status.encoder_errors, elapsed, self._module_target,
                 config.reboot_zero_band_counts, config.reboot_min_jump_counts,
                 config.max_speed_counts_per_s)
             if evidence is not None:
                 self._on_reboot(config, evidence)
                 self._emit(config, fresh=True)
                 return status
-        if check_stall and self._stalled(config, status, now):
+        if check_stall and self._stalled(config, status, motion_now):
             message = (f'motor stalled: count {status.encoder_count}, target {self._module_target}, '
                        f'no progress for {config.stall_timeout_s:g} s at {status.power_w:.2f} W; '
                        'stopping it (reach)')
@@ -502,7 +522,10 @@ class ModuleLink:
         return status
 
     def _stalled(self, config: LinkConfig, status: ModuleStatus, now: float) -> bool:
-        """Track progress toward the target; True once when it stopped for too long."""
+        """Track progress toward the target; True once when it stopped for too long.
+
+        `now` is the motion clock's time (the module's time).
+        """
         count = status.encoder_count
         if (config.stall_timeout_s <= 0 or status.paused or self._module_target is None
                 or abs(self._module_target - count) <= FIRMWARE_DEADBAND_COUNTS
@@ -574,7 +597,7 @@ class ModuleLink:
         self._module_target = cmd.count
         with self._cond:
             self._count(targets_sent=1)
-        self._progress = (status.encoder_count, self._clock())   # a new target: re-arm
+        self._progress = (status.encoder_count, self._motion_clock())   # a new target: re-arm
 
     def _do_stale(self, config: LinkConfig) -> None:
         message = (f'no command for {config.command_timeout_s:g} s: '

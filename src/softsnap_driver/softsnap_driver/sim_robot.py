@@ -81,8 +81,20 @@ CONTROL_PERIOD_S = 0.005
 DEFAULT_STALL_TORQUE_NM = 0.15
 #: Simulated shapes are sampled for publishing this often by default, Hz of sim time.
 DEFAULT_SNAPSHOT_RATE_HZ = 30.0
+#: The simulation clock is handed out (``/clock`` of the ROS node) this often by default,
+#: Hz of sim time. Nodes with ``use_sim_time`` see time advance in steps of 1 / rate, so
+#: it bounds their timers' resolution: 50 Hz is the gait's tick rate (every step a tick,
+#: at exact multiples of 20 ms = 5 control periods). Every message wakes each such node's
+#: executor, 0.8-0.9 ms of CPU per node and message on the loaded 2-core development
+#: machine (benchmarks/sim_clock_bench.py), which is why it is not the 1 kHz a C++
+#: simulator publishes: at 100 Hz eight nodes would spend two thirds of a core on it.
+DEFAULT_CLOCK_RATE_HZ = 50.0
 #: Longest the pacing loop sleeps at once, s (reaction time to stop()).
 _MAX_SLEEP_S = 0.05
+#: A loop further behind its pace than this (wall s: paused, starved) paces on from where
+#: it is instead of racing to make the time up: with /clock nothing needs the simulated
+#: time to catch up with the wall clock, and a burst only starves the nodes that follow it.
+_MAX_LAG_S = 0.25
 #: Payload option values: none, or a shape the physics model accepts
 #: (softsnap_model.physics.mjcf.Payload).
 PAYLOAD_SHAPES = ('none', 'ball', 'box')
@@ -247,6 +259,9 @@ class SimRobot:
         fixed timesteps (at least one), so firmware and physics keep the same clock.
     snapshot_rate_hz : float
         How often :meth:`run` stores a :class:`RobotSnapshot`, Hz of simulation time.
+    clock_rate_hz : float
+        How often :meth:`run` hands the simulation time to :attr:`clock_listener`, Hz of
+        simulation time (at most once per control period).
     payload_release_mm : float
         A payload placed between a hanging robot's fingers is held by a helper weld
         (``RobotSimulation.release_payload``) until every module's winch has hauled in at
@@ -258,13 +273,16 @@ class SimRobot:
                  stall_torque_nm: float = DEFAULT_STALL_TORQUE_NM,
                  control_period_s: float = CONTROL_PERIOD_S,
                  snapshot_rate_hz: float = DEFAULT_SNAPSHOT_RATE_HZ, seed: int | None = None,
-                 payload_release_mm: float = DEFAULT_PAYLOAD_RELEASE_MM):
+                 payload_release_mm: float = DEFAULT_PAYLOAD_RELEASE_MM,
+                 clock_rate_hz: float = DEFAULT_CLOCK_RATE_HZ):
         if not (math.isfinite(control_period_s) and 1e-4 <= control_period_s <= 0.05):
             raise SimRobotError(f'control_period_s must be in [0.0001, 0.05] s, got {control_period_s!r}')
         if not (math.isfinite(snapshot_rate_hz) and 0.1 <= snapshot_rate_hz <= 1000.0):
             raise SimRobotError(f'snapshot_rate_hz must be in [0.1, 1000] Hz, got {snapshot_rate_hz!r}')
         if not (math.isfinite(payload_release_mm) and 0.0 <= payload_release_mm <= 200.0):
             raise SimRobotError(f'payload_release_mm must be in [0, 200] mm, got {payload_release_mm!r}')
+        if not (math.isfinite(clock_rate_hz) and 1.0 <= clock_rate_hz <= 1000.0):
+            raise SimRobotError(f'clock_rate_hz must be in [1, 1000] Hz, got {clock_rate_hz!r}')
         missing = [m.name for m in scene.modules if m.name not in simulation.module_names]
         if missing:
             raise SimRobotError(f'the physics model lacks modules {missing} of scene {scene.name!r}')
@@ -274,6 +292,12 @@ class SimRobot:
         timestep = float(getattr(simulation, 'timestep_s', control_period_s))
         self.control_period_s = max(1, round(control_period_s / timestep)) * timestep
         self.snapshot_period_s = 1.0 / snapshot_rate_hz
+        self.clock_period_s = 1.0 / clock_rate_hz
+        #: Called from the simulation thread with the simulation time (s) after the step
+        #: that reached each clock period (the ROS node publishes it as ``/clock``);
+        #: never with a time the firmware and the physics have not both reached.
+        self.clock_listener = None
+        self._clock_ticks = 0    # clock periods handed out (the next is due at ticks + 1)
         #: Guards the firmware state (modules, motors) shared with the server threads.
         self.lock = threading.Lock()
         self.modules: dict[str, SimModule] = {}
@@ -435,6 +459,17 @@ class SimRobot:
             if self._next_snapshot_s <= self._clock:
                 self._next_snapshot_s = self._clock + self.snapshot_period_s
 
+    def _maybe_tick_clock(self) -> None:
+        # From the tick count, not a running sum: no drift over a long run. A control
+        # period longer than the clock period skips ticks (only the newest time matters).
+        ticks = math.floor((self._clock + 1e-12) / self.clock_period_s)
+        if ticks <= self._clock_ticks:
+            return
+        self._clock_ticks = ticks
+        listener = self.clock_listener
+        if listener is not None:
+            listener(self._clock)
+
     def latest_snapshot(self) -> RobotSnapshot | None:
         """The latest stored snapshot (any thread), None before the first."""
         with self._snapshot_lock:
@@ -449,6 +484,9 @@ class SimRobot:
     # -- the paced loop ------------------------------------------------------------
     def run(self, stop: threading.Event, time_factor: float = 1.0, failed=None) -> None:
         """Step paced to ``time_factor`` x the wall clock (0: unpaced) until `stop` is set.
+
+        Behind its pace by more than ``_MAX_LAG_S`` (paused, starved, or a physics slower
+        than the pace), the loop paces on from where it is: no burst to catch up.
 
         An exception in the physics ends the loop and is kept in :attr:`fault` (and
         reported through `failed(message)`), never a silently dead thread.
@@ -466,8 +504,11 @@ class SimRobot:
                     if ahead > 0:
                         stop.wait(min(ahead, _MAX_SLEEP_S))
                         continue
+                    if ahead < -_MAX_LAG_S:
+                        wall_start, sim_start = time.monotonic(), self._clock
                 self.step()
                 self._maybe_snapshot()
+                self._maybe_tick_clock()
         except Exception as exc:  # noqa: BLE001 - any physics failure is reported, then we stop
             self.fault = f'simulation stopped at t = {self._clock:.3f} s: {type(exc).__name__}: {exc}'
             if failed is not None:
@@ -582,6 +623,8 @@ OPTIONS = {
     'no_load_rpm': (float, MotorModel.no_load_rpm, 'winch output speed at 6 V without load, rpm'),
     'battery_full_v': (float, BatteryModel.full_v, 'battery open-circuit voltage when full, V'),
     'snapshot_rate_hz': (float, DEFAULT_SNAPSHOT_RATE_HZ, 'simulated shapes sampled this often, Hz'),
+    'clock_rate_hz': (float, DEFAULT_CLOCK_RATE_HZ,
+                      'simulation time published on /clock this often, Hz of simulated time'),
     'seed': (int, -1, 'random seed for faults, -1 for a random one'),
     'drop_probability': (float, 0.0, 'chance a reply is dropped (connection closed)'),
 }
@@ -625,6 +668,7 @@ def check_options(opts: argparse.Namespace) -> None:
     number('no_load_rpm', 0.001, 100000.0)
     number('battery_full_v', 0.1, 50.0)
     number('snapshot_rate_hz', 0.1, 1000.0)
+    number('clock_rate_hz', 1.0, 1000.0)
     number('seed', -1, 2**31 - 1)
     number('drop_probability', 0.0, 1.0)
     number('payload_release_mm', 0.0, 200.0)
@@ -664,7 +708,7 @@ def build_robot(opts: argparse.Namespace) -> SimRobot:
     return SimRobot(scene, simulation, motor=motor, battery=battery, faults=faults,
                     stall_torque_nm=opts.stall_torque_nm, snapshot_rate_hz=opts.snapshot_rate_hz,
                     seed=None if opts.seed < 0 else opts.seed,
-                    payload_release_mm=opts.payload_release_mm)
+                    payload_release_mm=opts.payload_release_mm, clock_rate_hz=opts.clock_rate_hz)
 
 
 def build_simulation(scene, *, gravity: bool = True, payload=None,

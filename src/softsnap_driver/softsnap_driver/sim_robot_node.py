@@ -21,8 +21,17 @@ lock) and publishes, in the node's namespace:
   ``tension`` is left 0 (the field's unit is the quasi-static
   model's, rad^2/m; the tendon tension in newtons is in the log).
 
-Stamps are the node's clock when the snapshot is published (with ``time_factor`` 1 the
-simulation runs with the wall clock).
+and, on the absolute ``/clock`` (rosgraph_msgs/Clock, the QoS every ROS clock source uses:
+keep last 1, best effort, volatile), the simulation time every ``clock_rate_hz`` of
+simulated time (default 50 Hz), from the simulation thread right after the step that
+reached it. Every other node of a simulated robot runs with ``use_sim_time:=true`` (the
+demo's and the launch files' graph sets it), so their timers, stamps and the gait follow
+the simulation, also when it runs slower than real time. The simulation time starts at 0
+when sim_robot starts; the first ``/clock`` is one clock period later.
+
+Stamps of the published snapshots are their simulation time (the same clock). This node's
+own timer runs on the steady clock: it publishes what the simulation thread made,
+whatever the time source of the graph.
 """
 from __future__ import annotations
 
@@ -30,8 +39,12 @@ import argparse
 import math
 import sys
 
+from builtin_interfaces.msg import Time
 from geometry_msgs.msg import Point, Pose, PoseStamped
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.clock import Clock, ClockType
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock as ClockMessage
 
 from softsnap_driver.ros_parameters import SoftSnapNode
 from softsnap_driver.sim_robot import (OPTIONS, PHYSICS_TIMESTEP_RANGE_S, RobotSnapshot,
@@ -40,6 +53,11 @@ from softsnap_driver.spinning import run_simulator_main
 from softsnap_interfaces.msg import ModuleShape, RobotShape
 
 WORLD_FRAME = 'world'
+#: QoS of ``/clock``: what rclcpp's ClockQoS and rclpy's TimeSource use (only the newest
+#: time matters; a late subscriber waits for the next one).
+CLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                       reliability=ReliabilityPolicy.BEST_EFFORT,
+                       durability=DurabilityPolicy.VOLATILE)
 #: Ranges of the numeric options (inclusive), as sim_robot.check_options enforces them.
 RANGES = {
     'port_base': (0, 65535),
@@ -54,6 +72,7 @@ RANGES = {
     'no_load_rpm': (0.001, 100000.0),
     'battery_full_v': (0.1, 50.0),
     'snapshot_rate_hz': (0.1, 1000.0),
+    'clock_rate_hz': (1.0, 1000.0),
     'seed': (-1, 2**31 - 1),
     'drop_probability': (0.0, 1.0),
 }
@@ -69,6 +88,12 @@ def _descriptor(name: str, kind: type, text: str) -> ParameterDescriptor:
             descriptor.floating_point_range = [
                 FloatingPointRange(from_value=float(low), to_value=float(high), step=0.0)]
     return descriptor
+
+
+def _stamp(time_s: float) -> Time:
+    """A simulation time (s, >= 0) as a message stamp, to the nanosecond."""
+    sec, nanosec = divmod(round(time_s * 1e9), 1_000_000_000)
+    return Time(sec=int(sec), nanosec=int(nanosec))
 
 
 def _pose(position, orientation_wxyz) -> Pose:
@@ -94,14 +119,35 @@ class SimRobotNode(SoftSnapNode):
         self.payload_publisher = (self.create_publisher(PoseStamped, 'sim/payload_pose', 10)
                                   if opts.payload != 'none' else None)
         self.shape_publisher = self.create_publisher(RobotShape, 'model/shape/simulated', 10)
+        self.clock_publisher = self.create_publisher(ClockMessage, '/clock', CLOCK_QOS)
+        self._clock_message = ClockMessage()
         self._published_time_s = -math.inf
         self._fault_reported = False
+        self.runner.robot.clock_listener = self.clock_callback
         self.runner.start()
         for name, server in self.runner.servers.servers.items():
             self.get_logger().info(f'{name}: serving the firmware protocol on '
                                    f'{server.host}:{server.port}')
         wall_rate = opts.snapshot_rate_hz * max(opts.time_factor, 1.0)
-        self.create_timer(1.0 / min(wall_rate, 200.0), self.snapshot_callback)
+        # The steady clock: with use_sim_time set on this node too (a launch-wide
+        # setting), the timer would otherwise wait for the clock this node makes.
+        self.create_timer(1.0 / min(wall_rate, 200.0), self.snapshot_callback,
+                          clock=Clock(clock_type=ClockType.STEADY_TIME))
+
+    def clock_callback(self, time_s: float) -> None:
+        """Publish the simulation time on /clock (called from the simulation thread).
+
+        Never raises into the simulation loop: a failed publish (the context shutting
+        down) is logged, and the simulation goes on.
+        """
+        message = self._clock_message   # only the simulation thread touches it
+        message.clock = _stamp(time_s)
+        try:
+            self.clock_publisher.publish(message)
+        except Exception as exc:  # noqa: BLE001 - the physics must not stop for a publish
+            if self.context.ok():
+                self.get_logger().error(f'/clock not published: {exc!r}',
+                                        throttle_duration_sec=5.0)
 
     def snapshot_callback(self) -> None:
         """Publish the latest snapshot if it is new; report a stopped simulation once."""
@@ -113,8 +159,7 @@ class SimRobotNode(SoftSnapNode):
         if snapshot is None or snapshot.time_s <= self._published_time_s:
             return
         self._published_time_s = snapshot.time_s
-        stamp = self.get_clock().now().to_msg()
-        self.publish_snapshot(snapshot, stamp)
+        self.publish_snapshot(snapshot, _stamp(snapshot.time_s))
 
     def publish_snapshot(self, snapshot: RobotSnapshot, stamp) -> None:
         base = PoseStamped()

@@ -28,7 +28,11 @@ The summary then adds, from ``sim/base_pose``, ``sim/payload_pose`` and
 payload went (the gripper: whether it held it through the first grasp), the simulated
 versus predicted shape error per module (root mean square over the 12 rib centres, mm)
 and sim_robot's real-time factor; the recording shows the simulated shapes beside the
-commanded and predicted ones, with the robot moving in the world.
+commanded and predicted ones, with the robot moving in the world. Every node then runs on
+sim_robot's ``/clock`` (``use_sim_time``, :func:`softsnap_gaits.graph.robot_graph`), and
+so does the observer: ``--seconds`` counts simulated seconds, and every rate, stamp and
+distance per gait cycle of the summary is in simulated time, whatever the real-time
+factor (the wall time the run took is shown beside it).
 
 The runner observes the robot with its own rclpy node; it holds no science itself (tip
 positions come from :func:`softsnap_model.geometry.rib_centers`).
@@ -56,6 +60,9 @@ from .graph import NodeSpec, robot_graph
 from .isolation import Slot, claim_slot
 
 STOP_TIMEOUT_S = 10.0  # per process, after SIGINT, before SIGKILL
+#: --physics: the run ends early (and says so) if the simulated time stood still this long
+#: in wall seconds (sim_robot stalled or its /clock lost).
+CLOCK_STALL_S = 30.0
 READY_TIMEOUT_S = 60.0  # the whole graph up: discovery + first predicted shapes
 DRAIN_TIMEOUT_S = 10.0  # after the run: the observer takes what is still queued for it
 DRAIN_IDLE_S = 1.0  # ... and stops early once no command arrived for this long
@@ -165,6 +172,7 @@ class Observer:
 
     def __init__(self, scene, namespace: str, physics: bool = False):
         import rclpy
+        from rclpy.parameter import Parameter
         from softsnap_interfaces.msg import (CableLength, GaitPhase, ModelDiagnostics, ModuleShape,
                                              ModuleState)
 
@@ -176,7 +184,11 @@ class Observer:
         self.gait_sent: dict[int, dict[str, int]] = {}
         self.context = rclpy.Context()
         rclpy.init(context=self.context)
-        self.node = rclpy.create_node('demo_observer', namespace=namespace, context=self.context)
+        # --physics: the observer's clock is sim_robot's /clock like every node's, so its
+        # run window and the stamps it judges are on one time line.
+        overrides = [Parameter('use_sim_time', Parameter.Type.BOOL, True)] if physics else []
+        self.node = rclpy.create_node('demo_observer', namespace=namespace, context=self.context,
+                                      parameter_overrides=overrides)
         from rclpy.executors import SingleThreadedExecutor
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
@@ -422,7 +434,12 @@ def first_grasp_hold(scene, gait_name: str, phases, payload_samples) -> dict | N
 
 
 def physics_summary(scene, gait_name: str, observer: Observer, window_ns, sim_log: str) -> dict:
-    """The --physics part of the summary (distances in mm, per gait cycle)."""
+    """The --physics part of the summary (distances in mm, per gait cycle).
+
+    Stamps and `window_ns` are simulated time (every node runs on sim_robot's /clock), so
+    a cycle is the gait's period of simulated time, whatever the real-time factor;
+    ``gait_cycles`` counts the cycles the gait node reported playing in the window.
+    """
     from .gaits import make_gait
     period = make_gait(gait_name, scene).period_s
     base = travel(observer.base_positions, window_ns)
@@ -441,7 +458,10 @@ def physics_summary(scene, gait_name: str, observer: Observer, window_ns, sim_lo
                 factor = float(line.split('real-time factor')[1].split()[0])
             except (IndexError, ValueError):
                 pass
-    return {'gait': gait_name, 'gait_period_s': period,
+    # Gait cycles played inside the window, by the gait's own phase (simulated time).
+    played = [(c + ph) for t, c, ph in observer.phases if window_ns[0] <= t <= window_ns[1]]
+    cycles = float(played[-1] - played[0]) if len(played) > 1 else None
+    return {'gait': gait_name, 'gait_period_s': period, 'gait_cycles': cycles,
             'base_travel': base, 'base_mm_per_cycle': per_cycle(base),
             'payload_travel': payload, 'payload_mm_per_cycle': per_cycle(payload),
             'payload_first_grasp': first_grasp_hold(scene, gait_name, observer.phases,
@@ -458,7 +478,8 @@ def print_physics(p: dict) -> None:
         print('  robot travel: not observed')
     else:
         print(f"  robot travelled {base['distance_mm']:.1f} mm (heading {base['heading_deg']:.0f} deg) "
-              f"in {base['seconds']:.1f} s: {p['base_mm_per_cycle']:.1f} mm per gait cycle")
+              f"in {base['seconds']:.1f} s of simulated time: {p['base_mm_per_cycle']:.1f} mm "
+              'per gait cycle')
     if p['payload_travel'] is not None:
         pay = p['payload_travel']
         print(f"  payload travelled {pay['distance_mm']:.1f} mm: {p['payload_mm_per_cycle']:.1f} mm per cycle")
@@ -661,7 +682,9 @@ def _cell(value, spec: str) -> str:
 
 
 def print_summary(summary: dict) -> None:
-    print(f"\nSoftSnap demo: {summary['scene']}, {summary['seconds']:g} s of gait "
+    clock = (f" of simulated time ({summary['wall_seconds']:g} s of wall time)"
+             if summary.get('sim_time') else '')
+    print(f"\nSoftSnap demo: {summary['scene']}, {summary['seconds']:g} s of gait{clock} "
           "(tip error: commanded shape versus the shape predicted from the measured length, "
           "all the time (running) and at the end of each step (settled: last command before "
           "the commanded contraction changes, n steps); "
@@ -781,6 +804,7 @@ def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
     crashed: list[Process] = []
     not_ready: dict[str, list[str]] = {}
     started = False
+    clock_stalled = False
     try:
         ports = (', '.join(f'{p.parameters["port"]}' for p in specs if p.executable == 'sim_module')
                  or ', '.join(f'{p.parameters["port_base"] or "the scene ports"} and up (sim_robot)'
@@ -818,8 +842,12 @@ def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
             start = time.monotonic()
             window_start_ns = observer.now_ns()
             usage_start = {p.spec.name: p.usage() for p in processes}
-            while check_children() and time.monotonic() - start < args.seconds:
-                observer.spin_for(0.1)
+            if args.physics:
+                # Simulated seconds: the gait runs on /clock, so does the run.
+                clock_stalled = run_for_sim_time(observer, args.seconds, check_children)
+            else:
+                while check_children() and time.monotonic() - start < args.seconds:
+                    observer.spin_for(0.1)
             elapsed = time.monotonic() - start
             window_ns = (window_start_ns, observer.now_ns())
             usage_end = {p.spec.name: p.usage() for p in processes}
@@ -855,7 +883,14 @@ def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
     if not started and not stop_requested:
         return _report_start_failure(args, scene, processes, crashed, not_ready, exit_codes,
                                      run_dir, observer)
-    summary = summarise(scene, observer, round(elapsed, 2), recording, exit_codes, window_ns)
+    seconds = (window_ns[1] - window_ns[0]) * 1e-9 if args.physics else elapsed
+    summary = summarise(scene, observer, round(seconds, 2), recording, exit_codes, window_ns)
+    summary['wall_seconds'] = round(elapsed, 2)
+    summary['sim_time'] = bool(args.physics)
+    if clock_stalled:
+        summary['clock_stalled'] = True
+        print(f'demo: the simulated time stood still for {CLOCK_STALL_S:g} s (sim_robot '
+              'stalled?): the run ended early', file=sys.stderr)
     summary.update(_bag_summary(bag))
     summary['started'] = started
     summary['ros_domain_id'] = slot.domain_id
@@ -875,6 +910,26 @@ def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
     if crashed:
         return 1
     return 130 if stop_requested else 0
+
+
+def run_for_sim_time(observer: Observer, seconds: float, keep_going) -> bool:
+    """Spin until the observer's ROS time (the simulation's) advanced by `seconds`.
+
+    Ends early when `keep_going()` is false, or when the time stood still for
+    CLOCK_STALL_S wall seconds; returns True in that last case.
+    """
+    start_ns = last_ns = observer.now_ns()
+    moved_at = time.monotonic()
+    while keep_going():
+        now_ns = observer.now_ns()
+        if now_ns - start_ns >= seconds * 1e9:
+            return False
+        if now_ns != last_ns:
+            last_ns, moved_at = now_ns, time.monotonic()
+        elif time.monotonic() - moved_at > CLOCK_STALL_S:
+            return True
+        observer.spin_for(0.1)
+    return False
 
 
 def _free_name(path: Path) -> Path:
@@ -928,7 +983,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog='demo', description=__doc__.splitlines()[0])
     parser.add_argument('--scene', default='brittle_star',
                         help='brittle_star, starfish, snake, gripper, ring, or a scene YAML path')
-    parser.add_argument('--seconds', type=float, default=10.0, help='gait run time, s (default 10)')
+    parser.add_argument('--seconds', type=float, default=10.0,
+                        help='gait run time, s (default 10; with --physics, simulated seconds)')
     parser.add_argument('--gait', default=None, help="gait name (default: the scene's default gait)")
     parser.add_argument('--gait-rate', type=float, default=50.0, help='command rate, Hz (default 50)')
     parser.add_argument('--model-rate', type=float, default=100.0, help='prediction rate, Hz (default 100)')

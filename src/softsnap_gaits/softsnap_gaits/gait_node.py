@@ -16,6 +16,13 @@ Parameters: scene, gait, rate, autostart, period, amplitude, time_scale, transit
 
 The node is a thin shell: the gait library (gaits.py) computes contractions and the
 player (player.py) keeps the start/stop/pause state; here they are wired to ROS.
+
+Time: the gait runs on the node's ROS clock (its timer and every stamp). With
+``use_sim_time:=true`` that is ``/clock`` (a simulated robot, ``sim_robot``): the gait then
+plays at the simulation's pace, however fast the simulation runs against the wall clock.
+Until the first ``/clock`` arrives the ROS time is 0: an autostart waits for it, and the
+trigger services refuse with that reason (a gait started at time 0 would jump ahead by
+the whole simulated time when the clock arrives).
 """
 from __future__ import annotations
 
@@ -126,15 +133,16 @@ class GaitNode(SoftSnapNode):
                                        self.timer_callback)
         self.add_on_set_parameters_callback(self.parameters_callback)
 
-        if self.get_parameter('autostart').value:
-            self.player.start(self._now_s())
+        # An autostart waits for a valid time (see "Time" above).
+        self._autostart_pending = bool(self.get_parameter('autostart').value)
+        self._start_if_pending()
         self.get_logger().info(
             f'scene {self.scene.name!r} ({self.scene.path}), modules '
             f'{", ".join(self.scene.module_names)}; gait {gait.name!r} ({gait.type}, period '
             f'{gait.period_s:g} s, amplitude {gait.amplitude_mm:g} mm); publishing '
             f'{self.get_parameter("rate").value:g} Hz on '
             f'{self.resolve_topic_name("gait/phase").rsplit("/", 2)[0]}/<module>/cable_length/command; '
-            f'{"running" if self.player.state == RUNNING else "waiting for ~/start"}')
+            f'{"running" if self.player.state == RUNNING else "waiting for /clock (use_sim_time)" if self._autostart_pending else "waiting for ~/start"}')
 
     # ------------------------------------------------------------------ helpers
     def _accept_number_as_text(self, name: str) -> None:
@@ -146,6 +154,14 @@ class GaitNode(SoftSnapNode):
 
     def _now_s(self) -> float:
         return self.get_clock().now().nanoseconds * 1e-9
+
+    def _start_if_pending(self, now_s: float | None = None) -> None:
+        """Start an autostart once the clock has a time (> 0; with use_sim_time, the
+        first /clock)."""
+        now_s = self._now_s() if now_s is None else now_s
+        if self._autostart_pending and now_s > 0.0:
+            self._autostart_pending = False
+            self.player.start(now_s)
 
     def _gait_config(self, changes: dict) -> dict:
         """Current gait, period and amplitude parameters with `changes` applied."""
@@ -200,6 +216,9 @@ class GaitNode(SoftSnapNode):
 
     def timer_callback(self) -> None:
         now = self.get_clock().now()
+        if now.nanoseconds <= 0:
+            return   # no time yet (use_sim_time before the first /clock): nothing to stamp
+        self._start_if_pending(now.nanoseconds * 1e-9)
         out = self.player.tick(now.nanoseconds * 1e-9)
         stamp = now.to_msg()
         if out.cable_length_mm is not None:
@@ -222,7 +241,14 @@ class GaitNode(SoftSnapNode):
         self.phase_publisher.publish(phase)
 
     def _trigger(self, action, response: Trigger.Response) -> Trigger.Response:
-        response.success, response.message = action(self._now_s())
+        now = self._now_s()
+        if now <= 0.0:
+            response.success = False
+            response.message = 'no time yet: waiting for the first /clock (use_sim_time is set)'
+            self.get_logger().warning(response.message)
+            return response
+        self._autostart_pending = False   # a service call takes over from the autostart
+        response.success, response.message = action(now)
         self.get_logger().info(response.message)
         return response
 

@@ -15,6 +15,13 @@ once. For a scene with modules ``m1..mN`` in namespace ``/<scene>``:
 - ``rerun_logger``: records predicted versus commanded shapes to an ``.rrd`` file;
 - ``bag_recorder`` (only with ``bag=``): ``bag record --all`` of the robot's ROS domain
   to a rosbag2 directory (:mod:`softsnap_gaits.bag`).
+
+With ``physics=True`` every node but ``sim_robot`` and the bag recorder gets
+``use_sim_time: true``: ``sim_robot`` publishes ``/clock``, so the gait, the drivers'
+stamps and stall timing, the model and the recording follow simulated time. The bag
+recorder keeps the wall clock: it stores each message's receive time from the middleware
+(the system clock), as ``ros2 bag record`` does without ``--use-sim-time``, and records
+``/clock`` with the rest, so a replay has the simulated time too.
 """
 from __future__ import annotations
 
@@ -93,7 +100,8 @@ def robot_graph(scene: Scene, *, simulate: bool = True, gait: str | None = None,
         they must be consecutive in scene order (``sim_robot`` takes a first port).
     physics : bool
         Simulate the whole robot in MuJoCo with one ``sim_robot`` instead of one
-        ``sim_module`` per module (needs ``simulate``).
+        ``sim_module`` per module (needs ``simulate``); the other nodes (but the bag
+        recorder) then run on its ``/clock`` (``use_sim_time: true``).
     sim_robot_parameters : mapping, optional
         Extra ``sim_robot`` parameters (payload, time_factor, ...).
     bag : path, optional
@@ -139,6 +147,10 @@ def robot_graph(scene: Scene, *, simulate: bool = True, gait: str | None = None,
         # and any added later are recorded without naming them here.
         nodes.append(NodeSpec('softsnap_gaits', 'bag', 'bag_recorder', ns, {}, arguments=(
             'record', '-o', str(bag), '--all', '--exclude', '^/parameter_events$')))
+    if physics:
+        on_sim_time = {'driver_node', 'model_node', 'gait_node', 'rerun_logger'}
+        nodes = [dataclasses.replace(n, parameters={**n.parameters, 'use_sim_time': True})
+                 if n.executable in on_sim_time else n for n in nodes]
     return nodes
 
 

@@ -45,6 +45,7 @@ import rclpy
 import rclpy.node
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                  SetParametersResult)
+from rclpy.clock import Clock, ClockType
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.logging import get_logger
 from rclpy.parameter import Parameter
@@ -187,7 +188,10 @@ class RerunLoggerNode(SoftSnapNode):
         self._drained: list[tuple] = []  # (subscription, message type, handler)
         self._subscribe(RobotShape, 'model/shape/commanded', self.commanded_shape_callback)
         self._subscribe(RobotShape, 'model/shape/predicted', self.predicted_shape_callback)
-        self.create_timer(DRAIN_PERIOD_S, self.drain_callback)
+        # The steady clock: draining is work pacing, not part of the robot's time (with
+        # use_sim_time a stopped /clock would otherwise leave the inbox undrained).
+        self.create_timer(DRAIN_PERIOD_S, self.drain_callback,
+                          clock=Clock(clock_type=ClockType.STEADY_TIME))
         # sim_robot's shapes and robot pose; silent unless a physics simulation runs.
         self._subscribe(RobotShape, 'model/shape/simulated', self.simulated_shape_callback)
         self._subscribe(PoseStamped, 'sim/base_pose', self.base_pose_callback)
