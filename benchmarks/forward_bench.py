@@ -177,20 +177,35 @@ def threading_loop(n_lengths=2):
 
 
 def load_before(rev):
-    """The single-file solver ``src/softsnap_model/softsnap_model/forward.py`` of git
-    revision ``rev`` (before the split of issue 17), as a module next to the current one,
-    so that both run side by side in this process on the same problems."""
+    """The forward solver of git revision ``rev`` as a module next to the current one, so
+    that both run side by side in this process on the same problems: the subpackage
+    ``softsnap_model/forward/`` (issue 17 on), or the single file ``forward.py`` of
+    revisions before its split (e.g. b3d97c3). Its relative imports (``..geometry``)
+    resolve to the installed ``softsnap_model``."""
     import importlib.util
     import subprocess
     import tempfile
-    text = subprocess.run(['git', '-C', str(REPO), 'show',
-                           f'{rev}:src/softsnap_model/softsnap_model/forward.py'],
-                          check=True, capture_output=True, text=True).stdout
-    path = Path(tempfile.mkdtemp()) / 'forward_before.py'
-    path.write_text(text)
-    spec = importlib.util.spec_from_file_location('softsnap_model._forward_before', path)
+    base = 'src/softsnap_model/softsnap_model/forward'
+    root = Path(tempfile.mkdtemp()) / 'forward_before'
+    root.mkdir()
+    names = subprocess.run(['git', '-C', str(REPO), 'ls-tree', '--name-only', f'{rev}:{base}'],
+                           capture_output=True, text=True)
+    if names.returncode == 0:
+        for name in names.stdout.split():
+            if name.endswith('.py'):
+                (root / name).write_text(subprocess.run(
+                    ['git', '-C', str(REPO), 'show', f'{rev}:{base}/{name}'], check=True,
+                    capture_output=True, text=True).stdout)
+        spec = importlib.util.spec_from_file_location(
+            'softsnap_model._forward_before', root / '__init__.py',
+            submodule_search_locations=[str(root)])
+    else:
+        (root / 'forward.py').write_text(subprocess.run(
+            ['git', '-C', str(REPO), 'show', f'{rev}:{base}.py'], check=True,
+            capture_output=True, text=True).stdout)
+        spec = importlib.util.spec_from_file_location('softsnap_model._forward_before',
+                                                      root / 'forward.py')
     module = importlib.util.module_from_spec(spec)
-    module.__package__ = 'softsnap_model'
     sys.modules[spec.name] = module
     spec.loader.exec_module(module)
     return module
