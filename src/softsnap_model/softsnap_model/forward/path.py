@@ -2,7 +2,7 @@
 
 Owns :class:`_Problem` (everything about one skeleton and threading that does not depend
 on the length: per-segment tensions where branches start and end, the exact samples of
-the whole quasi-static path and its cubic start polynomials), the memoised builders
+the whole quasi-static path and its quintic start polynomials), the memoised builders
 (:func:`_problem`, :func:`_single`, :func:`_single_named`,
 :func:`_threading_cached`), the batch layout of
 problem data (:func:`_stack`) and the length checks that raise the documented errors.
@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..geometry import _G_COEF, _G_TERMS
+from ..geometry import _G_COEF, _G_TERMS, _g_series
 from ..skeleton import Skeleton
 from .branch import _BRANCH_SAMPLES, _branch_derivs, _branch_solve_segments, _pair_profiles
 from .results import InfeasibleLengthError, SnapThroughError
@@ -52,7 +52,7 @@ class _Problem:
     path_lam: np.ndarray     # (P,) increasing tensions along the whole path
     path_len: np.ndarray     # (P,) non-increasing total length there
     path_b: np.ndarray       # (P, n) exact branch magnitudes there
-    path_poly: np.ndarray    # (P-1, 4, n+1) start polynomial per cell, see _path_polynomials
+    path_poly: np.ndarray    # (P-1, 6, n+1) start polynomial per cell, see _path_polynomials
 
 
 @functools.lru_cache(maxsize=_THREADINGS_CACHED)
@@ -92,7 +92,8 @@ def _problem(skeleton: Skeleton, d: tuple) -> _Problem:
     lengths, lp, lpp = _branch_derivs(bb, direction, d1, d2, s)
     path_len = np.minimum.accumulate(lengths.sum(axis=1))
     path_len[0] = straight
-    poly = _path_polynomials(lam_path, path_len, bb, lp, lpp, k, lam_c, lam_end)
+    l3 = _third_derivative(bb, lengths, lp, lpp, direction, d1, d2, s)
+    poly = _path_polynomials(lam_path, path_len, bb, lp, lpp, l3, k, lam_c, lam_end)
     if snap:
         min_mm = float(path_len[-1])
     else:
@@ -105,41 +106,94 @@ def _problem(skeleton: Skeleton, d: tuple) -> _Problem:
                     path_lam=lam_path, path_len=path_len, path_b=bb, path_poly=poly)
 
 
-def _path_polynomials(lam, length, b, lp, lpp, k, lam_c, lam_end):
-    """Cubic Hermite start polynomials of the path cells, in ``t in [0, 1]`` across a cell.
+#: Degree of the start polynomials of the path cells (quintic Hermite, :func:`_path_polynomials`).
+_START_DEGREE = 5
+
+
+def _g_third(b):
+    """Third derivative of ``g(b) = (2 sin(b/2)/b)^2`` by its power series (exact to
+    rounding for ``|b| <= pi``), from the coefficients of ``g = sum gamma_j b^(2j)``."""
+    gamma = _G_COEF[:, 0]
+    j = np.arange(2, gamma.shape[0])
+    coef = gamma[2:] * (2 * j) * (2 * j - 1) * (2 * j - 2)      # of b^(2j - 3)
+    x = b * b
+    acc = np.full(b.shape, coef[-1])
+    for c in coef[-2::-1]:
+        acc = acc * x + c
+    return acc * b
+
+
+def _third_derivative(b, length, lp, lpp, direction, d1, d2, s):
+    """Third derivative ``l3`` of the segment lengths along the branches (in ``b``).
+
+    ``Q = l^2 = (d1 - d2)^2 + g(b) p(b)`` with ``p = (s + e1 b)(s + e2 b)`` (``e = d *
+    direction``; ``g`` is even), so ``Q3 = g3 p + 3 g'' p' + 3 g' p''`` and
+    ``l3 = (Q3 - 6 l' l'') / (2 l)``.
+    """
+    _, g_b, g_bb = _g_series(b)
+    e1, e2 = d1 * direction, d2 * direction
+    p = (s + e1 * b) * (s + e2 * b)
+    p_b = e1 * (s + e2 * b) + e2 * (s + e1 * b)
+    q3 = _g_third(b) * p + 3.0 * g_bb * p_b + 6.0 * g_b * (e1 * e2)
+    return (q3 - 6.0 * lp * lpp) / (2.0 * length)
+
+
+def _path_polynomials(lam, length, b, lp, lpp, l3, k, lam_c, lam_end):
+    """Quintic Hermite start polynomials of the path cells, in ``t in [0, 1]`` across a cell.
 
     Cell ``j`` joins samples ``j`` and ``j + 1``. Along the path every free segment has
-    ``db/dlambda = 1 / (k phi'(b))`` and ``dT/dlambda = sum l' db/dlambda``, so the exact
-    samples also give the slopes of ``lambda`` and ``b`` in the length, one-sided at the
-    cell ends (a segment stops at contact, a mirror one starts at its buckling tension).
-    Returns ``c`` (P-1, 4, n+1): ``[b, lambda](t) = sum_p t^p c[j, p]``. Cells where a
-    slope is not finite (a pitchfork starts, nothing moves) or where the cubic would
-    leave the cell's hull keep the linear interpolant; constant entries stay exact.
+    ``k phi(b) = lambda`` with ``phi = 2 b / -l'``, so ``u = db/dlambda = 1 / (k phi')``
+    and ``v = d2b/dlambda2 = -k phi'' u^3``; the total length ``T`` has ``T' = sum l' u``
+    and ``T'' = sum (l'' u^2 + l' v)``. So the exact samples (with the third derivative
+    ``l3``) also give the first and second derivatives of ``lambda`` and ``b`` in the
+    length, one-sided at the cell ends (a segment stops at contact, a mirror one starts
+    at its buckling tension), and the quintic through values, slopes and curvatures at
+    both ends is accurate to about rounding (error ~ h^6): a cold solve then usually
+    certifies its start with one evaluation and no Newton step.
+    Returns ``c`` (P-1, 6, n+1): ``[b, lambda](t) = sum_p t^p c[j, p]``. Cells where a
+    derivative is not finite (a pitchfork starts, nothing moves) or where the quintic
+    would leave the cell's hull keep the linear interpolant; constant entries stay exact.
     """
     vals = np.concatenate([b, lam[:, None]], axis=1)               # (P, n+1)
     p0, p1 = vals[:-1], vals[1:]
     h = (length[1:] - length[:-1])[:, None]                        # < 0 in a moving cell
     with np.errstate(all='ignore'):
-        db_dlam = 1.0 / (2.0 * k * (b * lpp - lp) / (lp * lp))      # 1 / (k phi'(b))
+        lp2 = lp * lp
+        phi1 = 2.0 * (b * lpp - lp) / lp2                          # phi'(b)
+        phi2 = 2.0 * (b * l3 * lp - 2.0 * lpp * (b * lpp - lp)) / (lp2 * lp)
+        u_all = 1.0 / (k * phi1)
+        v_all = -k * phi2 * u_all ** 3
         # Segments moving across the whole cell (bent, not yet at their branch end).
         free = (lam[:-1, None] >= lam_c) & (lam[1:, None] <= lam_end)
-        slopes = []
+        ends = []
         for at in (slice(None, -1), slice(1, None)):     # cell start, cell end
-            dbl = np.where(free, db_dlam[at], 0.0)
-            dT = np.sum(np.where(free, lp[at] * dbl, 0.0), axis=1, keepdims=True)
-            slopes.append(h * np.concatenate([dbl, np.ones_like(dT)], axis=1) / dT)
-        d0, d1 = slopes
-        c = np.stack([p0, d0, 3.0 * (p1 - p0) - 2.0 * d0 - d1, 2.0 * (p0 - p1) + d0 + d1],
-                     axis=1)
-        # Check the cubic on a few interior points: it must stay in the cell's hull.
+            u = np.where(free, u_all[at], 0.0)
+            v = np.where(free, v_all[at], 0.0)
+            t1 = np.sum(u * lp[at], axis=1, keepdims=True)                    # T'
+            t2 = np.sum(u * u * lpp[at] + v * lp[at], axis=1, keepdims=True)  # T''
+            du = np.concatenate([u, np.ones_like(t1)], axis=1)   # d/dlambda of [b, lambda]
+            dv = np.concatenate([v, np.zeros_like(t1)], axis=1)  # d2/dlambda2
+            # In t: d/dt = h d/dL and d/dL = (d/dlambda) / T'.
+            ends.append((h * du / t1, h * h * (dv / (t1 * t1) - du * t2 / t1 ** 3)))
+        (d0, s0), (d1, s1) = ends
+        # Quintic with the values, slopes d and second derivatives s (in t) at both ends.
+        e_val = p1 - p0 - d0 - 0.5 * s0
+        e_slope = d1 - d0 - s0
+        e_curv = s1 - s0
+        c = np.stack([p0, d0, 0.5 * s0,
+                      10.0 * e_val - 4.0 * e_slope + 0.5 * e_curv,
+                      -15.0 * e_val + 7.0 * e_slope - e_curv,
+                      6.0 * e_val - 3.0 * e_slope + 0.5 * e_curv], axis=1)
+        # Check the quintic on a few interior points: it must stay in the cell's hull.
         t = np.array([0.25, 0.5, 0.75])
-        inner = np.einsum('tp,jpc->jtc', t[:, None] ** np.arange(4), c)
+        inner = np.einsum('tp,jpc->jtc', t[:, None] ** np.arange(_START_DEGREE + 1), c)
         lo, hi = np.minimum(p0, p1)[:, None], np.maximum(p0, p1)[:, None]
         tol = 1e-12 * (1.0 + np.abs(hi))
-        cubic = (np.all(np.isfinite(c), axis=(1, 2)) & (h[:, 0] < 0)
-                 & np.all((inner >= lo - tol) & (inner <= hi + tol), axis=(1, 2)))
-    linear = np.stack([p0, p1 - p0, np.zeros_like(p0), np.zeros_like(p0)], axis=1)
-    c = np.where(cubic[:, None, None], c, linear)
+        smooth = (np.all(np.isfinite(c), axis=(1, 2)) & (h[:, 0] < 0)
+                  & np.all((inner >= lo - tol) & (inner <= hi + tol), axis=(1, 2)))
+    linear = np.zeros_like(c)
+    linear[:, 0], linear[:, 1] = p0, p1 - p0
+    c = np.where(smooth[:, None, None], c, linear)
     # Entries constant over a cell (held straight, at contact) stay exactly constant.
     c[:, 1:] = np.where((p0 == p1)[:, None, :], 0.0, c[:, 1:])
     return c
@@ -288,7 +342,18 @@ def _single(skeleton: Skeleton, d: tuple):
              # in b; the cell search reads Python floats (cheaper than array items).
              q_coef=_q_coefficients(S['dd2'], prob.s, S['e1'], S['e2']),
              two_beta=2.0 * prob.beta, path_len_list=prob.path_len.tolist(),
-             path_lam_list=prob.path_lam.tolist())
+             path_lam_list=prob.path_lam.tolist(),
+             neg_path_len_list=(-prob.path_len).tolist(),
+             minus_i_d=-1j * prob.d,
+             # Mirror segments (index array) and their first table cells in tension,
+             # for the cheap tests of the single-solve path.
+             mirror_idx=np.flatnonzero(S['mirror']),
+             mirror_first_cells=[(float(S['lam_c'][i]), float(S['lam_1'][i]))
+                                 for i in np.flatnonzero(S['mirror'])],
+             # Longer cables than this keep every segment free (no branch end reached):
+             # the path length at the first branch-end tension (a path sample).
+             all_free_above_mm=float(np.interp(prob.lam_end.min(), prob.path_lam,
+                                               prob.path_len)))
     return prob, P, S
 
 
