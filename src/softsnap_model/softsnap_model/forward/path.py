@@ -87,13 +87,25 @@ def _problem(skeleton: Skeleton, d: tuple) -> _Problem:
                                                      4 * _BRANCH_SAMPLES).astype(int)]))
         lam_path = np.unique(np.concatenate([lam_path[keep], lam_c, lam_end, [lam_top]]))
         lam_path = lam_path[lam_path <= lam_top]
-    mu = lam_path[:, None] / k[None, :]
-    bb = _branch_solve_segments(mu, table_mu, table_b, direction, d1, d2, s)
-    lengths, lp, lpp = _branch_derivs(bb, direction, d1, d2, s)
-    path_len = np.minimum.accumulate(lengths.sum(axis=1))
+    # Segments with the same holes and stiffness have the same angle at every tension:
+    # the path is solved once per distinct segment (5 to 7 of 11 for the paper's
+    # threadings; the table build is arithmetic on (samples, segments) arrays) and
+    # gathered back, the totals weighted by how many segments share each column.
+    _, first, inverse, count = np.unique(np.stack([d1, d2, k]), axis=1, return_index=True,
+                                         return_inverse=True, return_counts=True)
+    inverse = inverse.ravel()
+    u1, u2, uk, udir = d1[first], d2[first], k[first], direction[first]
+    mu = lam_path[:, None] / uk[None, :]
+    bu = _branch_solve_segments(mu, table_mu[first], table_b[first], udir, u1, u2, s)
+    lengths, lp, lpp = _branch_derivs(bu, udir, u1, u2, s)
+    count = count.astype(float)
+    path_len = np.minimum.accumulate(lengths @ count)
     path_len[0] = straight
-    l3 = _third_derivative(bb, lengths, lp, lpp, direction, d1, d2, s)
-    poly = _path_polynomials(lam_path, path_len, bb, lp, lpp, l3, k, lam_c, lam_end)
+    l3 = _third_derivative(bu, lengths, lp, lpp, udir, u1, u2, s)
+    poly = _path_polynomials(lam_path, path_len, bu, lp, lpp, l3, uk, lam_c[first],
+                             lam_end[first], count)
+    poly = poly[:, :, np.append(inverse, first.size)]     # columns [b..., lambda]
+    bb = bu[:, inverse]
     if snap:
         min_mm = float(path_len[-1])
     else:
@@ -138,7 +150,7 @@ def _third_derivative(b, length, lp, lpp, direction, d1, d2, s):
     return (q3 - 6.0 * lp * lpp) / (2.0 * length)
 
 
-def _path_polynomials(lam, length, b, lp, lpp, l3, k, lam_c, lam_end):
+def _path_polynomials(lam, length, b, lp, lpp, l3, k, lam_c, lam_end, count):
     """Quintic Hermite start polynomials of the path cells, in ``t in [0, 1]`` across a cell.
 
     Cell ``j`` joins samples ``j`` and ``j + 1``. Along the path every free segment has
@@ -150,6 +162,8 @@ def _path_polynomials(lam, length, b, lp, lpp, l3, k, lam_c, lam_end):
     at its buckling tension), and the quintic through values, slopes and curvatures at
     both ends is accurate to about rounding (error ~ h^6): a cold solve then usually
     certifies its start with one evaluation and no Newton step.
+    The columns are distinct segments, ``count`` (n,) of them each (the sums ``T'``,
+    ``T''`` weight them so).
     Returns ``c`` (P-1, 6, n+1): ``[b, lambda](t) = sum_p t^p c[j, p]``. Cells where a
     derivative is not finite (a pitchfork starts, nothing moves) or where the quintic
     would leave the cell's hull keep the linear interpolant; constant entries stay exact.
@@ -169,8 +183,8 @@ def _path_polynomials(lam, length, b, lp, lpp, l3, k, lam_c, lam_end):
         for at in (slice(None, -1), slice(1, None)):     # cell start, cell end
             u = np.where(free, u_all[at], 0.0)
             v = np.where(free, v_all[at], 0.0)
-            t1 = np.sum(u * lp[at], axis=1, keepdims=True)                    # T'
-            t2 = np.sum(u * u * lpp[at] + v * lp[at], axis=1, keepdims=True)  # T''
+            t1 = ((u * lp[at]) @ count)[:, None]                              # T'
+            t2 = ((u * u * lpp[at] + v * lp[at]) @ count)[:, None]            # T''
             du = np.concatenate([u, np.ones_like(t1)], axis=1)   # d/dlambda of [b, lambda]
             dv = np.concatenate([v, np.zeros_like(t1)], axis=1)  # d2/dlambda2
             # In t: d/dt = h d/dL and d/dL = (d/dlambda) / T'.
