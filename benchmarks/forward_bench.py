@@ -211,10 +211,26 @@ def load_before(rev):
     return module
 
 
+def first_solve_cpu(mod):
+    """Median CPU time (s) of the first solve of each benchmark threading in solver module
+    ``mod``, its per-threading tables forgotten before each (pair profiles kept)."""
+    out = []
+    for text in THREADINGS.values():
+        for name in ('_problem', '_single', '_single_named', '_threading_cached'):
+            cached = getattr(mod, name, None)
+            if cached is not None:
+                cached.cache_clear()
+        t = text.split()
+        out.append(timed(lambda: mod.solve_forward(SK, t, SK.straight_length_mm(t) - 30.0),
+                         1, time.thread_time)[0])
+    return statistics.median(out)
+
+
 def side_by_side(before, probs, reps, rounds):
-    """Ratios (before / now) of CPU times, interleaved round by round: single cold solve
-    (median over problems), batch of one threading and of mixed threadings; plus the
-    largest angle difference between the two solvers."""
+    """CPU times of the solver of ``before`` and of this one, interleaved round by round:
+    single cold solve (median over problems), batch of one threading and of mixed
+    threadings, first solve of a threading. Returns ``{figure: (before s, now s) per
+    round}`` and the largest angle difference between the two solvers."""
     yellow = THREADINGS['yellow'].split()
     yl = np.linspace(130.0, 198.0, 20000)
     ts = [p[1] for p in probs] * (20000 // len(probs))
@@ -222,18 +238,23 @@ def side_by_side(before, probs, reps, rounds):
     diff = max(float(np.max(np.abs(before.solve_forward(SK, t, length).angles
                                    - solve_forward(SK, t, length).angles)))
                for _, t, length in probs)
-    ratios = {'single': [], 'batch, one threading': [], 'batch, mixed': []}
+    figures = {'single cold solve': [], 'batch, one threading (20,000)': [],
+               'batch, mixed (20,000)': [], 'first solve of a threading': []}
     for _ in range(rounds):
         times = {}
         for label, mod in (('before', before), ('now', fwd)):
+            first = first_solve_cpu(mod)
+            for text in THREADINGS.values():      # tables back for the timed solves
+                mod.reachable_range(SK, text.split())
             times[label] = (
                 statistics.median(timed(lambda: mod.solve_forward(SK, t, length), reps,
                                         time.thread_time)[0] for _, t, length in probs),
                 timed(lambda: mod.solve_forward_batch(SK, yellow, yl), 1, time.thread_time)[0],
-                timed(lambda: mod.solve_forward_batch(SK, ts, ls), 1, time.thread_time)[0])
-        for key, b, n in zip(ratios, times['before'], times['now']):
-            ratios[key].append(b / n)
-    return ratios, diff
+                timed(lambda: mod.solve_forward_batch(SK, ts, ls), 1, time.thread_time)[0],
+                first)
+        for key, b, n in zip(figures, times['before'], times['now']):
+            figures[key].append((b, n))
+    return figures, diff
 
 
 def main():
@@ -390,11 +411,15 @@ def main():
         before = load_before(args.before)
         for t in THREADINGS.values():     # build its tables before timing
             before.reachable_range(SK, t.split())
-        ratios, diff = side_by_side(before, probs, reps, rounds)
-        print(f'side by side with the solver of {args.before} (CPU time ratio before / now, '
+        figures, diff = side_by_side(before, probs, reps, rounds)
+        print(f'side by side with the solver of {args.before} (CPU time of this thread, '
               f'median (range) over {rounds} interleaved rounds; angles agree to {diff:.1e} rad):')
-        for key, values in ratios.items():
-            print(f'  {key}: {fmt_spread(values, 1, 2)}x')
+        for key, pairs in figures.items():
+            ratio = [b / n for b, n in pairs]
+            scale, unit = (1e3, 'ms') if 'first' in key else (1e6, 'us')
+            print(f'  {key}: ratio before/now {fmt_spread(ratio, 1, 2)}x; before '
+                  f'{fmt_spread([b for b, _ in pairs], scale, 1)} {unit}, now '
+                  f'{fmt_spread([n for _, n in pairs], scale, 1)} {unit}')
     print(load_line('end'))
 
     import matplotlib

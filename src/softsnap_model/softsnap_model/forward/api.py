@@ -14,7 +14,7 @@ import numpy as np
 from ..skeleton import Skeleton
 from .newton import _solve_single
 from .path import _check_length, _problem, _single_for
-from .results import MAX_ITER, ForwardResult
+from .results import MAX_ITER, ForwardResult, _forward_result
 
 _add_accumulate = np.add.accumulate
 
@@ -221,7 +221,7 @@ def solve_forward(skeleton: Skeleton, threading, cable_length_mm, initial=None, 
                    f'(constraint {out["constraint_residual"]:.3g} mm, stationarity '
                    f'{out["stationarity_residual"]:.3g} rad, min curvature '
                    f'{out["min_curvature"]:.3g})')
-    return ForwardResult(
+    return _forward_result(
         angles=angles, rib_centers=centers, cable_path=holes,
         energy=float(out['energy']), tension=float(out['tension']),
         iterations=int(out['iterations']), converged=converged,
