@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..geometry import _G_COEF, _G_TERMS, _g_series
+from ..geometry import _G_COEF, _G_TERMS
 from ..skeleton import Skeleton
 from .branch import _BRANCH_SAMPLES, _branch_derivs, _branch_solve_segments, _pair_profiles
 from .results import InfeasibleLengthError, SnapThroughError
@@ -97,11 +97,10 @@ def _problem(skeleton: Skeleton, d: tuple) -> _Problem:
     u1, u2, uk, udir = d1[first], d2[first], k[first], direction[first]
     mu = lam_path[:, None] / uk[None, :]
     bu = _branch_solve_segments(mu, table_mu[first], table_b[first], udir, u1, u2, s)
-    lengths, lp, lpp = _branch_derivs(bu, udir, u1, u2, s)
+    lengths, lp, lpp, l3 = _path_derivatives(bu, udir, u1, u2, s)
     count = count.astype(float)
     path_len = np.minimum.accumulate(lengths @ count)
     path_len[0] = straight
-    l3 = _third_derivative(bu, lengths, lp, lpp, udir, u1, u2, s)
     poly = _path_polynomials(lam_path, path_len, bu, lp, lpp, l3, uk, lam_c[first],
                              lam_end[first], count)
     poly = poly[:, :, np.append(inverse, first.size)]     # columns [b..., lambda]
@@ -122,32 +121,49 @@ def _problem(skeleton: Skeleton, d: tuple) -> _Problem:
 _START_DEGREE = 5
 
 
-def _g_third(b):
-    """Third derivative of ``g(b) = (2 sin(b/2)/b)^2`` by its power series (exact to
-    rounding for ``|b| <= pi``), from the coefficients of ``g = sum gamma_j b^(2j)``."""
+def _g_series_coefficients():
+    """(terms, 4) power-series coefficients in ``x = b^2`` of ``g, g'/b, g'', g'''/b`` for
+    ``g(b) = (2 sin(b/2)/b)^2 = sum_j gamma_j b^(2j)`` (the first three columns are
+    :data:`softsnap_model.geometry._G_COEF`)."""
     gamma = _G_COEF[:, 0]
-    j = np.arange(2, gamma.shape[0])
-    coef = gamma[2:] * (2 * j) * (2 * j - 1) * (2 * j - 2)      # of b^(2j - 3)
-    x = b * b
-    acc = np.full(b.shape, coef[-1])
-    for c in coef[-2::-1]:
-        acc = acc * x + c
-    return acc * b
+    j = np.arange(gamma.shape[0])
+    third = np.zeros_like(gamma)
+    # g''' = sum_j gamma_j (2j)(2j-1)(2j-2) b^(2j-3), so g'''/b has x^(j-2) terms.
+    third[:-2] = (gamma * (2 * j) * (2 * j - 1) * (2 * j - 2))[2:]
+    return np.column_stack([_G_COEF, third])
 
 
-def _third_derivative(b, length, lp, lpp, direction, d1, d2, s):
-    """Third derivative ``l3`` of the segment lengths along the branches (in ``b``).
+_G_COEF4 = _g_series_coefficients()
 
-    ``Q = l^2 = (d1 - d2)^2 + g(b) p(b)`` with ``p = (s + e1 b)(s + e2 b)`` (``e = d *
-    direction``; ``g`` is even), so ``Q3 = g3 p + 3 g'' p' + 3 g' p''`` and
-    ``l3 = (Q3 - 6 l' l'') / (2 l)``.
+
+def _path_derivatives(b, direction, d1, d2, s):
+    """``l, l', l'', l'''`` along the branches (in the magnitude ``b``), one series pass.
+
+    Product form of :func:`.newton._branch_eval`: ``Q = l^2 = (d1 - d2)^2 + g(b) p(b)``
+    with ``p = (s + e1 b)(s + e2 b)``, ``e = d * direction`` (``g`` is even), so
+    ``Q' = g' p + g p'``, ``Q'' = g'' p + 2 g' p' + g p''``, ``Q''' = g''' p + 3 g'' p' +
+    3 g' p''`` (``p'' = 2 e1 e2``), and ``l' = Q'/2l``, ``l'' = (Q'' - 2 l'^2)/2l``,
+    ``l''' = (Q''' - 6 l' l'')/2l``. Agrees with ``segment_length_derivatives`` to a few ulp.
     """
-    _, g_b, g_bb = _g_series(b)
+    x = (b * b).ravel()
+    series = np.empty((4, x.size))             # Horner on the four columns at once
+    series[...] = _G_COEF4[-1][:, None]
+    for row in _G_COEF4[-2::-1]:
+        series *= x
+        series += row[:, None]
+    g, g1_over_b, g2, g3_over_b = (col.reshape(b.shape) for col in series)
+    g1, g3 = b * g1_over_b, b * g3_over_b
     e1, e2 = d1 * direction, d2 * direction
-    p = (s + e1 * b) * (s + e2 * b)
-    p_b = e1 * (s + e2 * b) + e2 * (s + e1 * b)
-    q3 = _g_third(b) * p + 3.0 * g_bb * p_b + 6.0 * g_b * (e1 * e2)
-    return (q3 - 6.0 * lp * lpp) / (2.0 * length)
+    p1, p2 = s + e1 * b, s + e2 * b
+    p = p1 * p2
+    p_b = e1 * p2 + e2 * p1
+    p_bb = 2.0 * e1 * e2
+    length = np.sqrt((d1 - d2) ** 2 + g * p)
+    half_inv = 0.5 / length
+    lp = (g1 * p + g * p_b) * half_inv
+    lpp = (g2 * p + 2.0 * g1 * p_b + g * p_bb - 2.0 * lp * lp) * half_inv
+    l3 = (g3 * p + 3.0 * g2 * p_b + 3.0 * g1 * p_bb - 6.0 * lp * lpp) * half_inv
+    return length, lp, lpp, l3
 
 
 def _path_polynomials(lam, length, b, lp, lpp, l3, k, lam_c, lam_end, count):
