@@ -96,7 +96,8 @@ def _problem(skeleton: Skeleton, d: tuple) -> _Problem:
     inverse = inverse.ravel()
     u1, u2, uk, udir = d1[first], d2[first], k[first], direction[first]
     mu = lam_path[:, None] / uk[None, :]
-    bu = _branch_solve_segments(mu, table_mu[first], table_b[first], udir, u1, u2, s)
+    bu = _branch_solve_segments(mu, table_mu[first], table_b[first], prof['dmu'][first],
+                                udir, u1, u2, s)
     lengths, lp, lpp, l3 = _path_derivatives(bu, udir, u1, u2, s)
     count = count.astype(float)
     path_len = np.minimum.accumulate(lengths @ count)
