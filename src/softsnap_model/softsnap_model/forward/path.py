@@ -91,9 +91,11 @@ def _problem(skeleton: Skeleton, d: tuple) -> _Problem:
     # the path is solved once per distinct segment (5 to 7 of 11 for the paper's
     # threadings; the table build is arithmetic on (samples, segments) arrays) and
     # gathered back, the totals weighted by how many segments share each column.
-    _, first, inverse, count = np.unique(np.stack([d1, d2, k]), axis=1, return_index=True,
-                                         return_inverse=True, return_counts=True)
-    inverse = inverse.ravel()
+    position = {}
+    inverse = np.array([position.setdefault(key, len(position)) for key in
+                        zip(d1.tolist(), d2.tolist(), k.tolist())])
+    first = np.unique(inverse, return_index=True)[1]
+    count = np.bincount(inverse)
     u1, u2, uk, udir = d1[first], d2[first], k[first], direction[first]
     mu = lam_path[:, None] / uk[None, :]
     bu = _branch_solve_segments(mu, table_mu[first], table_b[first], prof['dmu'][first],
@@ -167,6 +169,10 @@ def _path_derivatives(b, direction, d1, d2, s):
     return length, lp, lpp, l3
 
 
+# Powers of the interior points t = 1/4, 1/2, 3/4 where the start polynomials are checked.
+_HULL_POWERS = np.array([0.25, 0.5, 0.75])[:, None] ** np.arange(_START_DEGREE + 1)
+
+
 def _path_polynomials(lam, length, b, lp, lpp, l3, k, lam_c, lam_end, count):
     """Quintic Hermite start polynomials of the path cells, in ``t in [0, 1]`` across a cell.
 
@@ -216,17 +222,17 @@ def _path_polynomials(lam, length, b, lp, lpp, l3, k, lam_c, lam_end, count):
                       -15.0 * e_val + 7.0 * e_slope - e_curv,
                       6.0 * e_val - 3.0 * e_slope + 0.5 * e_curv], axis=1)
         # Check the quintic on a few interior points: it must stay in the cell's hull.
-        t = np.array([0.25, 0.5, 0.75])
-        inner = np.einsum('tp,jpc->jtc', t[:, None] ** np.arange(_START_DEGREE + 1), c)
+        inner = np.matmul(_HULL_POWERS, c)                      # (P-1, 3, n+1)
         lo, hi = np.minimum(p0, p1)[:, None], np.maximum(p0, p1)[:, None]
         tol = 1e-12 * (1.0 + np.abs(hi))
-        smooth = (np.all(np.isfinite(c), axis=(1, 2)) & (h[:, 0] < 0)
-                  & np.all((inner >= lo - tol) & (inner <= hi + tol), axis=(1, 2)))
-    linear = np.zeros_like(c)
-    linear[:, 0], linear[:, 1] = p0, p1 - p0
-    c = np.where(smooth[:, None, None], c, linear)
+        smooth = (np.isfinite(c).all(axis=(1, 2)) & (h[:, 0] < 0)
+                  & ((inner >= lo - tol) & (inner <= hi + tol)).all(axis=(1, 2)))
+    rough = ~smooth
+    if rough.any():
+        c[rough] = 0.0
+        c[rough, 0], c[rough, 1] = p0[rough], (p1 - p0)[rough]      # the linear interpolant
     # Entries constant over a cell (held straight, at contact) stay exactly constant.
-    c[:, 1:] = np.where((p0 == p1)[:, None, :], 0.0, c[:, 1:])
+    np.copyto(c[:, 1:], 0.0, where=(p0 == p1)[:, None, :])
     return c
 
 
