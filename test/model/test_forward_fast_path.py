@@ -114,7 +114,8 @@ def test_path_table_columns_shared_by_equal_segments_are_exact():
     same = [i for i in range(11) if (prob.d1[i], prob.d2[i]) == (prob.d1[0], prob.d2[0])]
     assert len(same) > 1
     assert all(np.array_equal(prob.path_b[:, i], prob.path_b[:, 0]) for i in same)
-    assert all(np.array_equal(prob.path_poly[:, :, i], prob.path_poly[:, :, 0]) for i in same)
+    assert all(prob.path_columns[i] == prob.path_columns[0] for i in same)
+    assert prob.path_poly.shape[2] == len(set(zip(prob.d1, prob.d2))) + 1
 
 
 def test_single_solve_result_is_a_complete_frozen_result():

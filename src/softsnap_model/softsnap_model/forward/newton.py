@@ -57,7 +57,7 @@ def _start_from_table(P, L_t):
     lam_lo, lam_hi = np.empty(nb), np.empty(nb)
     start = np.empty((nb, n + 1))
     uid = P['uid']
-    for u, (path_len, path_lam, path_poly) in enumerate(P['paths']):
+    for u, (path_len, path_lam, path_poly, columns) in enumerate(P['paths']):
         sel = uid == u if len(P['paths']) > 1 else slice(None)
         L = L_t[sel]
         m = path_len.shape[0]
@@ -66,7 +66,8 @@ def _start_from_table(P, L_t):
         span = len_lo - len_hi
         w = np.where(span > 0, (len_lo - L) / np.where(span > 0, span, 1.0), 0.5)
         lam_lo[sel], lam_hi[sel] = path_lam[j - 1], path_lam[j]
-        start[sel] = np.einsum('bp,bpc->bc', w[:, None] ** _START_POWERS, path_poly[j - 1])
+        start[sel] = np.einsum('bp,bpc->bc', w[:, None] ** _START_POWERS,
+                               path_poly[j - 1])[:, columns]
     return start[:, n], start[:, :n], lam_lo, lam_hi
 
 
@@ -493,7 +494,9 @@ def _solve_single_inner(S, L, lam0, a0, max_iter, fallback):
     lam_lo, lam_hi = S['path_lam_list'][j - 1], S['path_lam_list'][j]
     w = (len_lo - L) / (len_lo - len_hi) if len_lo > len_hi else 0.5
     w2 = w * w
-    start = np.array([1.0, w, w2, w2 * w, w2 * w2, w2 * w2 * w]) @ S['path_poly'][j - 1]
+    # The polynomials are stored once per distinct segment: gather them per segment.
+    start = (np.array([1.0, w, w2, w2 * w, w2 * w2, w2 * w2 * w])
+             @ S['path_poly'][j - 1])[S['path_columns']]
     b, lam = start[:-1], float(start[-1])
     st = None
     if a0 is not None:

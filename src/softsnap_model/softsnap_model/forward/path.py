@@ -52,7 +52,9 @@ class _Problem:
     path_lam: np.ndarray     # (P,) increasing tensions along the whole path
     path_len: np.ndarray     # (P,) non-increasing total length there
     path_b: np.ndarray       # (P, n) exact branch magnitudes there
-    path_poly: np.ndarray    # (P-1, 6, n+1) start polynomial per cell, see _path_polynomials
+    path_poly: np.ndarray    # (P-1, 6, U+1) start polynomials per cell of the U distinct
+    #                          segments and lambda, see _path_polynomials
+    path_columns: np.ndarray  # (n+1,) column of path_poly for each segment, then lambda
 
 
 @functools.lru_cache(maxsize=_THREADINGS_CACHED)
@@ -106,7 +108,7 @@ def _problem(skeleton: Skeleton, d: tuple) -> _Problem:
     path_len[0] = straight
     poly = _path_polynomials(lam_path, path_len, bu, lp, lpp, l3, uk, lam_c[first],
                              lam_end[first], count)
-    poly = poly[:, :, np.append(inverse, first.size)]     # columns [b..., lambda]
+    columns = np.append(inverse, first.size)     # [b of each segment..., lambda]
     bb = bu[:, inverse]
     if snap:
         min_mm = float(path_len[-1])
@@ -117,7 +119,8 @@ def _problem(skeleton: Skeleton, d: tuple) -> _Problem:
                     mu_c=mu_c, beta=beta,
                     lam_end=lam_end, b_end=b_end, kind=kind, table_mu=table_mu,
                     table_b=table_b, straight_mm=straight, min_mm=min_mm, snap=snap,
-                    path_lam=lam_path, path_len=path_len, path_b=bb, path_poly=poly)
+                    path_lam=lam_path, path_len=path_len, path_b=bb, path_poly=poly,
+                    path_columns=columns)
 
 
 #: Degree of the start polynomials of the path cells (quintic Hermite, :func:`_path_polynomials`).
@@ -331,7 +334,7 @@ def _stack(probs, index):
     out.update({name: rows[:, f] for f, name in enumerate(names)})
     out.update(uid=index, s=probs[0].s, has_mirror=bool(mirror.any()),
                tables_mu=tables_mu, tables_b=tables_b,
-               paths=[(p.path_len, p.path_lam, p.path_poly) for p in probs])
+               paths=[(p.path_len, p.path_lam, p.path_poly, p.path_columns) for p in probs])
     return out
 
 
@@ -373,6 +376,7 @@ def _single(skeleton: Skeleton, d: tuple):
     finite_end = prob.lam_end[np.isfinite(prob.lam_end)]
     S.update(P=P, lam_end_min=float(prob.lam_end.min()),
              neg_path_len=-prob.path_len, path_lam=prob.path_lam, path_poly=prob.path_poly,
+             path_columns=prob.path_columns,
              straight=prob.straight_mm, n_path=prob.path_len.size,
              ones=np.ones(prob.k.shape), has_finite_end=bool(finite_end.size),
              # For the single-solve evaluation (newton._eval_single): l^2 as polynomials
