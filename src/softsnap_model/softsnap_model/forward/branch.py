@@ -2,8 +2,9 @@
 
 Owns the branch rule of the package docstring in code: bend direction, mirror buckling,
 the branch end (contact, shortest length or fold), the per-pair profile tables
-``b_j, mu_j`` and their process-wide cache (:data:`_PROFILE_CACHE`), the exact
-per-segment solve ``2 b + mu l'(b) = 0`` inside a table cell, and the public
+``b_j, mu_j`` (with the slopes ``d mu/db`` there) and their process-wide cache
+(:data:`_PROFILE_CACHE`), the exact per-segment solve ``2 b + mu l'(b) = 0`` inside a
+table cell (from a cubic start in the cell for the path tables), and the public
 :func:`segment_branch` and :func:`segment_angle_at_tension`.
 """
 from __future__ import annotations
