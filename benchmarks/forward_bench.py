@@ -177,29 +177,60 @@ def threading_loop(n_lengths=2):
 
 
 def load_before(rev):
-    """The single-file solver ``src/softsnap_model/softsnap_model/forward.py`` of git
-    revision ``rev`` (before the split of issue 17), as a module next to the current one,
-    so that both run side by side in this process on the same problems."""
+    """The forward solver of git revision ``rev`` as a module next to the current one, so
+    that both run side by side in this process on the same problems: the subpackage
+    ``softsnap_model/forward/`` (issue 17 on), or the single file ``forward.py`` of
+    revisions before its split (e.g. b3d97c3). Its relative imports (``..geometry``)
+    resolve to the installed ``softsnap_model``."""
     import importlib.util
     import subprocess
     import tempfile
-    text = subprocess.run(['git', '-C', str(REPO), 'show',
-                           f'{rev}:src/softsnap_model/softsnap_model/forward.py'],
-                          check=True, capture_output=True, text=True).stdout
-    path = Path(tempfile.mkdtemp()) / 'forward_before.py'
-    path.write_text(text)
-    spec = importlib.util.spec_from_file_location('softsnap_model._forward_before', path)
+    base = 'src/softsnap_model/softsnap_model/forward'
+    root = Path(tempfile.mkdtemp()) / 'forward_before'
+    root.mkdir()
+    names = subprocess.run(['git', '-C', str(REPO), 'ls-tree', '--name-only', f'{rev}:{base}'],
+                           capture_output=True, text=True)
+    if names.returncode == 0:
+        for name in names.stdout.split():
+            if name.endswith('.py'):
+                (root / name).write_text(subprocess.run(
+                    ['git', '-C', str(REPO), 'show', f'{rev}:{base}/{name}'], check=True,
+                    capture_output=True, text=True).stdout)
+        spec = importlib.util.spec_from_file_location(
+            'softsnap_model._forward_before', root / '__init__.py',
+            submodule_search_locations=[str(root)])
+    else:
+        (root / 'forward.py').write_text(subprocess.run(
+            ['git', '-C', str(REPO), 'show', f'{rev}:{base}.py'], check=True,
+            capture_output=True, text=True).stdout)
+        spec = importlib.util.spec_from_file_location('softsnap_model._forward_before',
+                                                      root / 'forward.py')
     module = importlib.util.module_from_spec(spec)
-    module.__package__ = 'softsnap_model'
     sys.modules[spec.name] = module
     spec.loader.exec_module(module)
     return module
 
 
+def first_solve_cpu(mod):
+    """Median CPU time (s) of the first solve of each benchmark threading in solver module
+    ``mod``, its per-threading tables forgotten before each (pair profiles kept)."""
+    out = []
+    for text in THREADINGS.values():
+        for name in ('_problem', '_single', '_single_named', '_threading_cached'):
+            cached = getattr(mod, name, None)
+            if cached is not None:
+                cached.cache_clear()
+        t = text.split()
+        out.append(timed(lambda: mod.solve_forward(SK, t, SK.straight_length_mm(t) - 30.0),
+                         1, time.thread_time)[0])
+    return statistics.median(out)
+
+
 def side_by_side(before, probs, reps, rounds):
-    """Ratios (before / now) of CPU times, interleaved round by round: single cold solve
-    (median over problems), batch of one threading and of mixed threadings; plus the
-    largest angle difference between the two solvers."""
+    """CPU times of the solver of ``before`` and of this one, interleaved round by round:
+    single cold solve (median over problems), batch of one threading and of mixed
+    threadings, first solve of a threading. Returns ``{figure: (before s, now s) per
+    round}`` and the largest angle difference between the two solvers."""
     yellow = THREADINGS['yellow'].split()
     yl = np.linspace(130.0, 198.0, 20000)
     ts = [p[1] for p in probs] * (20000 // len(probs))
@@ -207,18 +238,23 @@ def side_by_side(before, probs, reps, rounds):
     diff = max(float(np.max(np.abs(before.solve_forward(SK, t, length).angles
                                    - solve_forward(SK, t, length).angles)))
                for _, t, length in probs)
-    ratios = {'single': [], 'batch, one threading': [], 'batch, mixed': []}
+    figures = {'single cold solve': [], 'batch, one threading (20,000)': [],
+               'batch, mixed (20,000)': [], 'first solve of a threading': []}
     for _ in range(rounds):
         times = {}
         for label, mod in (('before', before), ('now', fwd)):
+            first = first_solve_cpu(mod)
+            for text in THREADINGS.values():      # tables back for the timed solves
+                mod.reachable_range(SK, text.split())
             times[label] = (
                 statistics.median(timed(lambda: mod.solve_forward(SK, t, length), reps,
                                         time.thread_time)[0] for _, t, length in probs),
                 timed(lambda: mod.solve_forward_batch(SK, yellow, yl), 1, time.thread_time)[0],
-                timed(lambda: mod.solve_forward_batch(SK, ts, ls), 1, time.thread_time)[0])
-        for key, b, n in zip(ratios, times['before'], times['now']):
-            ratios[key].append(b / n)
-    return ratios, diff
+                timed(lambda: mod.solve_forward_batch(SK, ts, ls), 1, time.thread_time)[0],
+                first)
+        for key, b, n in zip(figures, times['before'], times['now']):
+            figures[key].append((b, n))
+    return figures, diff
 
 
 def main():
@@ -375,11 +411,15 @@ def main():
         before = load_before(args.before)
         for t in THREADINGS.values():     # build its tables before timing
             before.reachable_range(SK, t.split())
-        ratios, diff = side_by_side(before, probs, reps, rounds)
-        print(f'side by side with the solver of {args.before} (CPU time ratio before / now, '
+        figures, diff = side_by_side(before, probs, reps, rounds)
+        print(f'side by side with the solver of {args.before} (CPU time of this thread, '
               f'median (range) over {rounds} interleaved rounds; angles agree to {diff:.1e} rad):')
-        for key, values in ratios.items():
-            print(f'  {key}: {fmt_spread(values, 1, 2)}x')
+        for key, pairs in figures.items():
+            ratio = [b / n for b, n in pairs]
+            scale, unit = (1e3, 'ms') if 'first' in key else (1e6, 'us')
+            print(f'  {key}: ratio before/now {fmt_spread(ratio, 1, 2)}x; before '
+                  f'{fmt_spread([b for b, _ in pairs], scale, 1)} {unit}, now '
+                  f'{fmt_spread([n for _, n in pairs], scale, 1)} {unit}')
     print(load_line('end'))
 
     import matplotlib

@@ -70,3 +70,65 @@ def test_public_face_of_the_subpackage():
     for module in ('results', 'branch', 'path', 'newton', 'api', 'batch'):
         doc = getattr(fwd, module).__doc__
         assert doc and len(doc.split()) > 20, module
+
+
+def test_quintic_path_start_is_the_answer_for_most_cold_solves():
+    # Regression for the single-solve cost (issue 17): the path cells' quintic Hermite
+    # start is accurate to rounding, so most cold solves certify it with one evaluation
+    # (no Newton step), and those answers agree with an independent solver (bracketing,
+    # no tables, no Newton: benchmarks/accuracy_check.py) to rounding.
+    import sys
+    from pathlib import Path
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / 'benchmarks'))
+    from accuracy_check import reference_solve
+    n_solves = zero_steps = 0
+    for name in ('yellow', 'blue', 'red', 'snake', 'w'):
+        t = list(PAPER_THREADINGS[name])
+        lo, hi = fwd.reachable_range(SK, t)
+        _, _, S = fwd._single(SK, tuple(SK.threading_mm(t).tolist()))
+        for i, length in enumerate(np.linspace(lo + 0.5, hi - 0.5, 40)):
+            res = fwd.solve_forward(SK, t, length)
+            assert res.converged
+            n_solves += 1
+            zero_steps += res.iterations == 0
+            if res.iterations == 0:
+                start = fwd._solve_single(S, length, max_iter=0, fallback=False)
+                assert np.array_equal(start['angles'], res.angles)
+                if name in ('yellow', 'red', 'w') and i % 4 == 0:
+                    ref = np.asarray(reference_solve(SK, t, length)[0])
+                    assert np.max(np.abs(res.angles - ref)) <= 1e-13, (name, length)
+    assert zero_steps >= 0.9 * n_solves, (zero_steps, n_solves)
+
+
+def test_path_table_columns_shared_by_equal_segments_are_exact():
+    # The path is solved once per distinct (d1, d2, k) segment and gathered back: every
+    # segment's column must still be its exact branch angle at each path tension.
+    t = list(PAPER_THREADINGS['yellow'])     # 11 segments, 5 distinct
+    prob = fwd._problem(SK, tuple(SK.threading_mm(t).tolist()))
+    lam = prob.path_lam[1:-1:7]
+    for i in range(prob.d1.size):
+        exact = np.abs(fwd.segment_angle_at_tension(lam, prob.d1[i], prob.d2[i], SK.spacing_mm,
+                                                    max_angle_rad=SK.contact_angle_rad))
+        assert np.max(np.abs(prob.path_b[1:-1:7, i] - exact)) <= 1e-13, i
+    # Equal segments share their column exactly.
+    same = [i for i in range(11) if (prob.d1[i], prob.d2[i]) == (prob.d1[0], prob.d2[0])]
+    assert len(same) > 1
+    assert all(np.array_equal(prob.path_b[:, i], prob.path_b[:, 0]) for i in same)
+    assert all(prob.path_columns[i] == prob.path_columns[0] for i in same)
+    assert prob.path_poly.shape[2] == len(set(zip(prob.d1, prob.d2))) + 1
+
+
+def test_single_solve_result_is_a_complete_frozen_result():
+    import dataclasses
+    res = fwd.solve_forward(SK, list(PAPER_THREADINGS['blue']), 170.0)
+    assert type(res) is fwd.ForwardResult
+    assert set(vars(res)) == {f.name for f in dataclasses.fields(res)}
+    try:
+        res.tension = 0.0
+    except dataclasses.FrozenInstanceError:
+        pass
+    else:
+        raise AssertionError('ForwardResult must stay frozen')
+    assert res.tie_break_segments == tuple(int(i) for i in np.flatnonzero(
+        (SK.threading_mm(list(PAPER_THREADINGS['blue']))[:-1]
+         + SK.threading_mm(list(PAPER_THREADINGS['blue']))[1:] == 0) & (res.angles != 0)))

@@ -8,13 +8,14 @@ Newton cannot certify.
 """
 from __future__ import annotations
 
+import bisect
 import math
 
 import numpy as np
 
 from ..geometry import _g_series, segment_length_derivatives
 from .branch import _branch_solve
-from .path import _PER_ITEM, _Q_DEGREE
+from .path import _PER_ITEM, _Q_DEGREE, _START_DEGREE
 from .results import CONSTRAINT_TOL_MM, MAX_ITER, STATIONARITY_TOL_RAD
 
 
@@ -30,7 +31,7 @@ _INNER_TOL_RAD = 1e-14
 #: worse start than the table and is left unused, at no cost.
 WARM_START_RADIUS_RAD = 1e-6
 
-_CUBIC = np.arange(4, dtype=float)
+_START_POWERS = np.arange(_START_DEGREE + 1, dtype=float)
 # The batch Newton iterates on the unconverged rows alone once they are at most this
 # fraction of the batch (slicing the per-row data costs about one iteration).
 _SHRINK_FRACTION = 0.5
@@ -40,13 +41,15 @@ _CONSTRAINT_ULPS = 16
 # Reductions without the ndarray-method wrappers (a single solve is call overhead).
 _add_reduce = np.add.reduce
 _max_reduce = np.maximum.reduce
+_min_reduce = np.minimum.reduce
+_mul_accumulate = np.multiply.accumulate
 
 
 def _start_from_table(P, L_t):
     """Initial (lambda, b) and a tension bracket from the exact path tables.
 
     The path tables are exact samples of the path, so ``[lam_lo, lam_hi]`` brackets the
-    root of ``T(lambda) = L_t``; lambda and b come from the cell's cubic Hermite
+    root of ``T(lambda) = L_t``; lambda and b come from the cell's quintic Hermite
     polynomial in the length (:func:`_path_polynomials`). Vectorised per threading
     group (tables are stored once per distinct threading).
     """
@@ -54,7 +57,7 @@ def _start_from_table(P, L_t):
     lam_lo, lam_hi = np.empty(nb), np.empty(nb)
     start = np.empty((nb, n + 1))
     uid = P['uid']
-    for u, (path_len, path_lam, path_poly) in enumerate(P['paths']):
+    for u, (path_len, path_lam, path_poly, columns) in enumerate(P['paths']):
         sel = uid == u if len(P['paths']) > 1 else slice(None)
         L = L_t[sel]
         m = path_len.shape[0]
@@ -63,7 +66,8 @@ def _start_from_table(P, L_t):
         span = len_lo - len_hi
         w = np.where(span > 0, (len_lo - L) / np.where(span > 0, span, 1.0), 0.5)
         lam_lo[sel], lam_hi[sel] = path_lam[j - 1], path_lam[j]
-        start[sel] = np.einsum('bp,bpc->bc', w[:, None] ** _CUBIC, path_poly[j - 1])
+        start[sel] = np.einsum('bp,bpc->bc', w[:, None] ** _START_POWERS,
+                               path_poly[j - 1])[:, columns]
     return start[:, n], start[:, :n], lam_lo, lam_hi
 
 
@@ -202,14 +206,15 @@ def _eval_single(b, S):
     Then ``l = sqrt(Q)``, ``l' = Q' / 2l``, ``l'' = (Q'' - 2 l'^2) / 2l``, the algebra
     of :func:`_branch_eval`; the two agree to a few ulp.
     """
-    powers = np.repeat(b[:, None], _Q_DEGREE + 1, axis=1)
+    powers = np.empty((b.shape[0], _Q_DEGREE + 1))
     powers[:, 0] = 1.0
-    np.multiply.accumulate(powers, axis=1, out=powers)
-    q = np.matmul(powers[:, None, :], S['q_coef'])[:, 0, :]
-    length = np.sqrt(q[:, 0])
+    powers[:, 1:] = b[:, None]
+    _mul_accumulate(powers, axis=1, out=powers)
+    q = np.matmul(powers[:, None, :], S['q_coef'])
+    length = np.sqrt(q[:, 0, 0])
     half_inv = 0.5 / length
-    lp = q[:, 1] * half_inv
-    lpp = (q[:, 2] - 2.0 * lp * lp) * half_inv
+    lp = q[:, 0, 1] * half_inv
+    lpp = (q[:, 0, 2] - 2.0 * lp * lp) * half_inv
     return length, lp, lpp
 
 
@@ -234,11 +239,18 @@ def _newton_single(S, L_t, lam, b, lam_lo, lam_hi, max_iter, tol_mm, tol_rad,
     """:func:`_newton` for one problem with plain-float control flow.
 
     Same iteration and safeguards; 1-D arrays over segments and Python floats for the
-    tension, so an iteration is ~30 small numpy calls (the cost of a single solve).
-    With ``derive_lam`` the tension is first replaced by the least-squares multiplier
-    of the angles ``b`` (``min ||2 k b + lambda l'||`` over the segments neither
-    straight nor at their branch end), from the first evaluation. Call it inside
-    ``np.errstate(all='ignore')`` (divisions by zero only occur in masked entries).
+    tension (a single solve is numpy's per-call overhead: ~25 small calls a step).
+    The stationarity residual is computed only once the constraint is met, and the
+    second-order check (:func:`_curvature_single`) only on the evaluation returned.
+    A start taken without a Newton step (the path tables' quintic, or a warm start) is
+    accepted only if its stationarity residual is within ``tol_rad`` times the smallest
+    curvature: that bounds its angle error by about ``tol_rad`` even next to a buckling
+    or contact point (where a small residual alone allows a larger error); otherwise
+    Newton steps polish it to rounding. With ``derive_lam`` the tension is first
+    replaced by the least-squares multiplier of the angles ``b`` (``min ||2 k b +
+    lambda l'||`` over the segments neither straight nor at their branch end), from
+    the first evaluation. Divisions by zero occur only in masked entries, so the
+    caller enters ``np.errstate`` when segments can be held (:func:`_solve_single`).
     """
     lam_c, lam_end, b_end = S['lam_c'], S['lam_end'], S['b_end']
     two_k, inv_two_k = S['two_k'], S['inv_two_k']
@@ -254,12 +266,15 @@ def _newton_single(S, L_t, lam, b, lam_lo, lam_hi, max_iter, tol_mm, tol_rad,
         if den > 0:
             lam = min(max(float(-(two_k * b) @ lp) / den, lam_lo), lam_hi)
     while True:
-        if has_mirror:
+        # Mirror segments all bent (the usual case): none can be held or kicked.
+        if has_mirror and float(_min_reduce(b[S['mirror_idx']])) <= 0.0:
             kick = mirror & (b <= 0.0) & (lam > lam_c)
             if kick.any():
                 b = np.where(kick, _kick_b(S['P'], np.array([lam]))[0], b)
                 first = None
             held = mirror & (b <= 0.0)
+        else:
+            held = None
         contact = (b >= b_end) & (lam >= lam_end) if lam >= lam_end_min else None
         fixed = held if contact is None else (contact if held is None else held | contact)
         if fixed is not None and not fixed.any():
@@ -269,16 +284,21 @@ def _newton_single(S, L_t, lam, b, lam_lo, lam_hi, max_iter, tol_mm, tol_rad,
         else:
             (length, lp, l_aa), first = first, None
         g = float(_add_reduce(length)) - L_t
-        f = b + lam * inv_two_k * lp
-        if fixed is not None:
-            f[fixed] = 0.0
-        stat = float(_max_reduce(np.abs(f)))
-        if (abs(g) <= tol_mm and stat <= tol_rad) or it == max_iter:
-            break
+        stat = math.inf
+        if abs(g) <= tol_mm or it == max_iter:
+            f = b + lam * inv_two_k * lp
+            if fixed is not None:
+                f[fixed] = 0.0
+            stat = float(_max_reduce(np.abs(f)))
+            if stat <= tol_rad or it == max_iter:
+                curv_min = _curvature_single(S, lam, b, lp, l_aa, held, contact)
+                if it > 0 or it == max_iter or stat <= tol_rad * min(curv_min, 1.0):
+                    break
         it += 1
         inv = 1.0 / lp
-        ft = -two_k * b * inv - lam                   # k phi(b) - lambda
-        jac = two_k * (b * l_aa - lp) * inv * inv     # k phi'(b) > 0 on the branch
+        u = two_k * b * inv
+        ft = -lam - u                                 # k phi(b) - lambda
+        jac = (u * l_aa - two_k) * inv                # k phi'(b) > 0 on the branch
         w = lp / jac
         if fixed is not None:
             ft[fixed] = 0.0
@@ -304,7 +324,23 @@ def _newton_single(S, L_t, lam, b, lam_lo, lam_hi, max_iter, tol_mm, tol_rad,
     if contact is None:
         contact = np.zeros(b.shape, dtype=bool)
     return dict(lam=lam, b=b, length=length, lp=lp, l_aa=l_aa, g=g, stat=stat,
-                held=held, contact=contact, iters=it)
+                held=held, contact=contact, iters=it, curv_min=curv_min)
+
+
+def _curvature_single(S, lam, b, lp, l_aa, held, contact):
+    """Smallest ``1 + lambda l''/(2k)`` over the segments not at contact: the second-order
+    check of :func:`_curvature` for one problem (the equilibrium form ``(l' - b l'')/l'``
+    per free segment, its series next to a pitchfork, the plain form for mirror segments
+    held straight); ``inf`` when every segment is at contact."""
+    curv = (lp - b * l_aa) / lp
+    if S['has_mirror']:
+        near_pitchfork = S['mirror'] & (b < 1e-3)
+        curv = np.where(near_pitchfork, S['two_beta'] * b * b, curv)
+        if held is not None:
+            curv = np.where(held, 1.0 + lam * l_aa * S['inv_two_k'], curv)
+    if contact is None:
+        return float(_min_reduce(curv))
+    return float(np.min(curv, where=~contact, initial=np.inf))
 
 
 def _kick_b(P, lam, rows=None):
@@ -439,21 +475,28 @@ def _solve_single(S, L, lam0=None, a0=None, max_iter=MAX_ITER, fallback=True):
     only if it already meets the inner tolerances (no Newton step); otherwise the solve
     is exactly the cold one. So a warm start never costs Newton iterations or accuracy.
     """
-    # One floating-point context for the whole solve (entering one costs as much as a
-    # few numpy calls): divisions by zero only occur in masked-out entries.
-    with np.errstate(all='ignore'):
-        return _solve_single_inner(S, L, lam0, a0, max_iter, fallback)
+    if S['has_mirror'] or L <= S['all_free_above_mm']:
+        # Segments can be held straight or at contact: divisions by zero then occur in
+        # their masked-out entries, never used. Above ``all_free_above_mm`` the tension
+        # stays below every branch end (Newton keeps it inside the path cell), so the
+        # common case skips the context (entering one costs a few numpy calls).
+        with np.errstate(all='ignore'):
+            return _solve_single_inner(S, L, lam0, a0, max_iter, fallback)
+    return _solve_single_inner(S, L, lam0, a0, max_iter, fallback)
 
 
 def _solve_single_inner(S, L, lam0, a0, max_iter, fallback):
     tol_mm = max(_INNER_TOL_MM, _CONSTRAINT_ULPS * math.ulp(L))
-    m = S['n_path']
-    j = int(S['neg_path_len'].searchsorted(-L, side='left'))
-    j = min(max(j, 1), m - 1)
+    # The path cell of L: path lengths decrease along the path (bisect on the negated
+    # Python list, cheaper than a numpy search for one value).
+    j = min(max(bisect.bisect_left(S['neg_path_len_list'], -L), 1), S['n_path'] - 1)
     len_lo, len_hi = S['path_len_list'][j - 1], S['path_len_list'][j]
     lam_lo, lam_hi = S['path_lam_list'][j - 1], S['path_lam_list'][j]
     w = (len_lo - L) / (len_lo - len_hi) if len_lo > len_hi else 0.5
-    start = np.array([1.0, w, w * w, w * w * w]) @ S['path_poly'][j - 1]
+    w2 = w * w
+    # The polynomials are stored once per distinct segment: gather them per segment.
+    start = (np.array([1.0, w, w2, w2 * w, w2 * w2, w2 * w2 * w])
+             @ S['path_poly'][j - 1])[S['path_columns']]
     b, lam = start[:-1], float(start[-1])
     st = None
     if a0 is not None:
@@ -470,34 +513,29 @@ def _solve_single_inner(S, L, lam0, a0, max_iter, fallback):
             given = lam0 is not None and lam_lo <= lam0 <= lam_hi
             st = _newton_single(S, L, lam0 if given else lam, b_w, lam_lo, lam_hi, 0,
                                 tol_mm, _INNER_TOL_RAD, not given)
-            if not (abs(st['g']) <= tol_mm and st['stat'] <= _INNER_TOL_RAD):
+            if not (abs(st['g']) <= tol_mm and st['stat'] <= _INNER_TOL_RAD
+                    * min(st['curv_min'], 1.0)):
                 st = None
     if st is None:
-        if S['has_mirror']:
+        # Just past a mirror segment's buckling tension (its first table cell), start it
+        # from its own branch (see :func:`_solve_arrays_inner`).
+        if S['has_mirror'] and any(lo < lam < hi for lo, hi in S['mirror_first_cells']):
             past = S['mirror'] & (lam > S['lam_c']) & (lam < S['lam_1'])
-            if past.any():
-                b = np.where(past, _kick_b(S['P'], np.array([lam]))[0], b)
+            b = np.where(past, _kick_b(S['P'], np.array([lam]))[0], b)
         st = _newton_single(S, L, lam, b, lam_lo, lam_hi, max_iter, tol_mm,
                             _INNER_TOL_RAD)
-    b, lp, l_aa, contact = st['b'], st['lp'], st['l_aa'], st['contact']
-    # Second-order check (:func:`_curvature` for one problem): the equilibrium form
-    # (l' - b l'')/l' per free segment, its series next to a pitchfork, and the plain
-    # form for mirror segments held straight.
-    curv = (lp - b * l_aa) / lp
-    if S['has_mirror']:
-        near_pitchfork = S['mirror'] & (b < 1e-3)
-        curv = np.where(near_pitchfork, S['two_beta'] * b * b, curv)
-        curv = np.where(st['held'], 1.0 + st['lam'] * l_aa * S['inv_two_k'], curv)
-    curv_min = float(np.min(curv, where=~contact, initial=np.inf))
+    curv_min = st['curv_min']
     g = abs(st['g'])
     ok = g <= CONSTRAINT_TOL_MM and st['stat'] <= STATIONARITY_TOL_RAD and curv_min > 0
     if not ok and fallback:
-        out = _solve_arrays_inner(S['P'], np.array([L]), max_iter, _INNER_TOL_MM,
-                                  _INNER_TOL_RAD)
+        with np.errstate(all='ignore'):
+            out = _solve_arrays_inner(S['P'], np.array([L]), max_iter, _INNER_TOL_MM,
+                                      _INNER_TOL_RAD)
         return {key: val[0] for key, val in out.items()}
+    b = st['b']
     angles = S['direction'] * b
-    return dict(angles=angles, tension=st['lam'], energy=float(S['k'] @ (angles * angles)),
+    return dict(angles=angles, tension=st['lam'], energy=float(S['k'] @ (b * b)),
                 iterations=st['iters'], converged=ok, constraint_residual=g,
                 stationarity_residual=st['stat'], residual=max(g, st['stat']),
-                is_minimum=curv_min > 0, min_curvature=curv_min if curv_min < np.inf else 1.0,
-                slack=False, at_contact=contact)
+                is_minimum=curv_min > 0, min_curvature=curv_min if curv_min < math.inf else 1.0,
+                slack=False, at_contact=st['contact'])

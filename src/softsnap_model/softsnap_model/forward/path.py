@@ -2,7 +2,7 @@
 
 Owns :class:`_Problem` (everything about one skeleton and threading that does not depend
 on the length: per-segment tensions where branches start and end, the exact samples of
-the whole quasi-static path and its cubic start polynomials), the memoised builders
+the whole quasi-static path and its quintic start polynomials), the memoised builders
 (:func:`_problem`, :func:`_single`, :func:`_single_named`,
 :func:`_threading_cached`), the batch layout of
 problem data (:func:`_stack`) and the length checks that raise the documented errors.
@@ -52,7 +52,9 @@ class _Problem:
     path_lam: np.ndarray     # (P,) increasing tensions along the whole path
     path_len: np.ndarray     # (P,) non-increasing total length there
     path_b: np.ndarray       # (P, n) exact branch magnitudes there
-    path_poly: np.ndarray    # (P-1, 4, n+1) start polynomial per cell, see _path_polynomials
+    path_poly: np.ndarray    # (P-1, 6, U+1) start polynomials per cell of the U distinct
+    #                          segments and lambda, see _path_polynomials
+    path_columns: np.ndarray  # (n+1,) column of path_poly for each segment, then lambda
 
 
 @functools.lru_cache(maxsize=_THREADINGS_CACHED)
@@ -87,12 +89,27 @@ def _problem(skeleton: Skeleton, d: tuple) -> _Problem:
                                                      4 * _BRANCH_SAMPLES).astype(int)]))
         lam_path = np.unique(np.concatenate([lam_path[keep], lam_c, lam_end, [lam_top]]))
         lam_path = lam_path[lam_path <= lam_top]
-    mu = lam_path[:, None] / k[None, :]
-    bb = _branch_solve_segments(mu, table_mu, table_b, direction, d1, d2, s)
-    lengths, lp, lpp = _branch_derivs(bb, direction, d1, d2, s)
-    path_len = np.minimum.accumulate(lengths.sum(axis=1))
+    # Segments with the same holes and stiffness have the same angle at every tension:
+    # the path is solved once per distinct segment (5 to 7 of 11 for the paper's
+    # threadings; the table build is arithmetic on (samples, segments) arrays) and
+    # gathered back, the totals weighted by how many segments share each column.
+    position = {}
+    inverse = np.array([position.setdefault(key, len(position)) for key in
+                        zip(d1.tolist(), d2.tolist(), k.tolist())])
+    first = np.unique(inverse, return_index=True)[1]
+    count = np.bincount(inverse)
+    u1, u2, uk, udir = d1[first], d2[first], k[first], direction[first]
+    mu = lam_path[:, None] / uk[None, :]
+    bu = _branch_solve_segments(mu, table_mu[first], table_b[first], prof['dmu'][first],
+                                udir, u1, u2, s)
+    lengths, lp, lpp, l3 = _path_derivatives(bu, udir, u1, u2, s)
+    count = count.astype(float)
+    path_len = np.minimum.accumulate(lengths @ count)
     path_len[0] = straight
-    poly = _path_polynomials(lam_path, path_len, bb, lp, lpp, k, lam_c, lam_end)
+    poly = _path_polynomials(lam_path, path_len, bu, lp, lpp, l3, uk, lam_c[first],
+                             lam_end[first], count)
+    columns = np.append(inverse, first.size)     # [b of each segment..., lambda]
+    bb = bu[:, inverse]
     if snap:
         min_mm = float(path_len[-1])
     else:
@@ -102,46 +119,123 @@ def _problem(skeleton: Skeleton, d: tuple) -> _Problem:
                     mu_c=mu_c, beta=beta,
                     lam_end=lam_end, b_end=b_end, kind=kind, table_mu=table_mu,
                     table_b=table_b, straight_mm=straight, min_mm=min_mm, snap=snap,
-                    path_lam=lam_path, path_len=path_len, path_b=bb, path_poly=poly)
+                    path_lam=lam_path, path_len=path_len, path_b=bb, path_poly=poly,
+                    path_columns=columns)
 
 
-def _path_polynomials(lam, length, b, lp, lpp, k, lam_c, lam_end):
-    """Cubic Hermite start polynomials of the path cells, in ``t in [0, 1]`` across a cell.
+#: Degree of the start polynomials of the path cells (quintic Hermite, :func:`_path_polynomials`).
+_START_DEGREE = 5
+
+
+def _g_series_coefficients():
+    """(terms, 4) power-series coefficients in ``x = b^2`` of ``g, g'/b, g'', g'''/b`` for
+    ``g(b) = (2 sin(b/2)/b)^2 = sum_j gamma_j b^(2j)`` (the first three columns are
+    :data:`softsnap_model.geometry._G_COEF`)."""
+    gamma = _G_COEF[:, 0]
+    j = np.arange(gamma.shape[0])
+    third = np.zeros_like(gamma)
+    # g''' = sum_j gamma_j (2j)(2j-1)(2j-2) b^(2j-3), so g'''/b has x^(j-2) terms.
+    third[:-2] = (gamma * (2 * j) * (2 * j - 1) * (2 * j - 2))[2:]
+    return np.column_stack([_G_COEF, third])
+
+
+_G_COEF4 = _g_series_coefficients()
+
+
+def _path_derivatives(b, direction, d1, d2, s):
+    """``l, l', l'', l'''`` along the branches (in the magnitude ``b``), one series pass.
+
+    Product form of :func:`.newton._branch_eval`: ``Q = l^2 = (d1 - d2)^2 + g(b) p(b)``
+    with ``p = (s + e1 b)(s + e2 b)``, ``e = d * direction`` (``g`` is even), so
+    ``Q' = g' p + g p'``, ``Q'' = g'' p + 2 g' p' + g p''``, ``Q''' = g''' p + 3 g'' p' +
+    3 g' p''`` (``p'' = 2 e1 e2``), and ``l' = Q'/2l``, ``l'' = (Q'' - 2 l'^2)/2l``,
+    ``l''' = (Q''' - 6 l' l'')/2l``. Agrees with ``segment_length_derivatives`` to a few ulp.
+    """
+    x = (b * b).ravel()
+    series = np.empty((4, x.size))             # Horner on the four columns at once
+    series[...] = _G_COEF4[-1][:, None]
+    for row in _G_COEF4[-2::-1]:
+        series *= x
+        series += row[:, None]
+    g, g1_over_b, g2, g3_over_b = (col.reshape(b.shape) for col in series)
+    g1, g3 = b * g1_over_b, b * g3_over_b
+    e1, e2 = d1 * direction, d2 * direction
+    p1, p2 = s + e1 * b, s + e2 * b
+    p = p1 * p2
+    p_b = e1 * p2 + e2 * p1
+    p_bb = 2.0 * e1 * e2
+    length = np.sqrt((d1 - d2) ** 2 + g * p)
+    half_inv = 0.5 / length
+    lp = (g1 * p + g * p_b) * half_inv
+    lpp = (g2 * p + 2.0 * g1 * p_b + g * p_bb - 2.0 * lp * lp) * half_inv
+    l3 = (g3 * p + 3.0 * g2 * p_b + 3.0 * g1 * p_bb - 6.0 * lp * lpp) * half_inv
+    return length, lp, lpp, l3
+
+
+# Powers of the interior points t = 1/4, 1/2, 3/4 where the start polynomials are checked.
+_HULL_POWERS = np.array([0.25, 0.5, 0.75])[:, None] ** np.arange(_START_DEGREE + 1)
+
+
+def _path_polynomials(lam, length, b, lp, lpp, l3, k, lam_c, lam_end, count):
+    """Quintic Hermite start polynomials of the path cells, in ``t in [0, 1]`` across a cell.
 
     Cell ``j`` joins samples ``j`` and ``j + 1``. Along the path every free segment has
-    ``db/dlambda = 1 / (k phi'(b))`` and ``dT/dlambda = sum l' db/dlambda``, so the exact
-    samples also give the slopes of ``lambda`` and ``b`` in the length, one-sided at the
-    cell ends (a segment stops at contact, a mirror one starts at its buckling tension).
-    Returns ``c`` (P-1, 4, n+1): ``[b, lambda](t) = sum_p t^p c[j, p]``. Cells where a
-    slope is not finite (a pitchfork starts, nothing moves) or where the cubic would
-    leave the cell's hull keep the linear interpolant; constant entries stay exact.
+    ``k phi(b) = lambda`` with ``phi = 2 b / -l'``, so ``u = db/dlambda = 1 / (k phi')``
+    and ``v = d2b/dlambda2 = -k phi'' u^3``; the total length ``T`` has ``T' = sum l' u``
+    and ``T'' = sum (l'' u^2 + l' v)``. So the exact samples (with the third derivative
+    ``l3``) also give the first and second derivatives of ``lambda`` and ``b`` in the
+    length, one-sided at the cell ends (a segment stops at contact, a mirror one starts
+    at its buckling tension), and the quintic through values, slopes and curvatures at
+    both ends is accurate to about rounding (error ~ h^6): a cold solve then usually
+    certifies its start with one evaluation and no Newton step.
+    The columns are distinct segments, ``count`` (n,) of them each (the sums ``T'``,
+    ``T''`` weight them so).
+    Returns ``c`` (P-1, 6, n+1): ``[b, lambda](t) = sum_p t^p c[j, p]``. Cells where a
+    derivative is not finite (a pitchfork starts, nothing moves) or where the quintic
+    would leave the cell's hull keep the linear interpolant; constant entries stay exact.
     """
     vals = np.concatenate([b, lam[:, None]], axis=1)               # (P, n+1)
     p0, p1 = vals[:-1], vals[1:]
     h = (length[1:] - length[:-1])[:, None]                        # < 0 in a moving cell
     with np.errstate(all='ignore'):
-        db_dlam = 1.0 / (2.0 * k * (b * lpp - lp) / (lp * lp))      # 1 / (k phi'(b))
+        lp2 = lp * lp
+        phi1 = 2.0 * (b * lpp - lp) / lp2                          # phi'(b)
+        phi2 = 2.0 * (b * l3 * lp - 2.0 * lpp * (b * lpp - lp)) / (lp2 * lp)
+        u_all = 1.0 / (k * phi1)
+        v_all = -k * phi2 * u_all ** 3
         # Segments moving across the whole cell (bent, not yet at their branch end).
         free = (lam[:-1, None] >= lam_c) & (lam[1:, None] <= lam_end)
-        slopes = []
+        ends = []
         for at in (slice(None, -1), slice(1, None)):     # cell start, cell end
-            dbl = np.where(free, db_dlam[at], 0.0)
-            dT = np.sum(np.where(free, lp[at] * dbl, 0.0), axis=1, keepdims=True)
-            slopes.append(h * np.concatenate([dbl, np.ones_like(dT)], axis=1) / dT)
-        d0, d1 = slopes
-        c = np.stack([p0, d0, 3.0 * (p1 - p0) - 2.0 * d0 - d1, 2.0 * (p0 - p1) + d0 + d1],
-                     axis=1)
-        # Check the cubic on a few interior points: it must stay in the cell's hull.
-        t = np.array([0.25, 0.5, 0.75])
-        inner = np.einsum('tp,jpc->jtc', t[:, None] ** np.arange(4), c)
+            u = np.where(free, u_all[at], 0.0)
+            v = np.where(free, v_all[at], 0.0)
+            t1 = ((u * lp[at]) @ count)[:, None]                              # T'
+            t2 = ((u * u * lpp[at] + v * lp[at]) @ count)[:, None]            # T''
+            du = np.concatenate([u, np.ones_like(t1)], axis=1)   # d/dlambda of [b, lambda]
+            dv = np.concatenate([v, np.zeros_like(t1)], axis=1)  # d2/dlambda2
+            # In t: d/dt = h d/dL and d/dL = (d/dlambda) / T'.
+            ends.append((h * du / t1, h * h * (dv / (t1 * t1) - du * t2 / t1 ** 3)))
+        (d0, s0), (d1, s1) = ends
+        # Quintic with the values, slopes d and second derivatives s (in t) at both ends.
+        e_val = p1 - p0 - d0 - 0.5 * s0
+        e_slope = d1 - d0 - s0
+        e_curv = s1 - s0
+        c = np.stack([p0, d0, 0.5 * s0,
+                      10.0 * e_val - 4.0 * e_slope + 0.5 * e_curv,
+                      -15.0 * e_val + 7.0 * e_slope - e_curv,
+                      6.0 * e_val - 3.0 * e_slope + 0.5 * e_curv], axis=1)
+        # Check the quintic on a few interior points: it must stay in the cell's hull.
+        inner = np.matmul(_HULL_POWERS, c)                      # (P-1, 3, n+1)
         lo, hi = np.minimum(p0, p1)[:, None], np.maximum(p0, p1)[:, None]
         tol = 1e-12 * (1.0 + np.abs(hi))
-        cubic = (np.all(np.isfinite(c), axis=(1, 2)) & (h[:, 0] < 0)
-                 & np.all((inner >= lo - tol) & (inner <= hi + tol), axis=(1, 2)))
-    linear = np.stack([p0, p1 - p0, np.zeros_like(p0), np.zeros_like(p0)], axis=1)
-    c = np.where(cubic[:, None, None], c, linear)
+        smooth = (np.isfinite(c).all(axis=(1, 2)) & (h[:, 0] < 0)
+                  & ((inner >= lo - tol) & (inner <= hi + tol)).all(axis=(1, 2)))
+    rough = ~smooth
+    if rough.any():
+        c[rough] = 0.0
+        c[rough, 0], c[rough, 1] = p0[rough], (p1 - p0)[rough]      # the linear interpolant
     # Entries constant over a cell (held straight, at contact) stay exactly constant.
-    c[:, 1:] = np.where((p0 == p1)[:, None, :], 0.0, c[:, 1:])
+    np.copyto(c[:, 1:], 0.0, where=(p0 == p1)[:, None, :])
     return c
 
 
@@ -240,7 +334,7 @@ def _stack(probs, index):
     out.update({name: rows[:, f] for f, name in enumerate(names)})
     out.update(uid=index, s=probs[0].s, has_mirror=bool(mirror.any()),
                tables_mu=tables_mu, tables_b=tables_b,
-               paths=[(p.path_len, p.path_lam, p.path_poly) for p in probs])
+               paths=[(p.path_len, p.path_lam, p.path_poly, p.path_columns) for p in probs])
     return out
 
 
@@ -282,13 +376,25 @@ def _single(skeleton: Skeleton, d: tuple):
     finite_end = prob.lam_end[np.isfinite(prob.lam_end)]
     S.update(P=P, lam_end_min=float(prob.lam_end.min()),
              neg_path_len=-prob.path_len, path_lam=prob.path_lam, path_poly=prob.path_poly,
+             path_columns=prob.path_columns,
              straight=prob.straight_mm, n_path=prob.path_len.size,
              ones=np.ones(prob.k.shape), has_finite_end=bool(finite_end.size),
              # For the single-solve evaluation (newton._eval_single): l^2 as polynomials
              # in b; the cell search reads Python floats (cheaper than array items).
              q_coef=_q_coefficients(S['dd2'], prob.s, S['e1'], S['e2']),
              two_beta=2.0 * prob.beta, path_len_list=prob.path_len.tolist(),
-             path_lam_list=prob.path_lam.tolist())
+             path_lam_list=prob.path_lam.tolist(),
+             neg_path_len_list=(-prob.path_len).tolist(),
+             minus_i_d=-1j * prob.d,
+             # Mirror segments (index array) and their first table cells in tension,
+             # for the cheap tests of the single-solve path.
+             mirror_idx=np.flatnonzero(S['mirror']),
+             mirror_first_cells=[(float(S['lam_c'][i]), float(S['lam_1'][i]))
+                                 for i in np.flatnonzero(S['mirror'])],
+             # Longer cables than this keep every segment free (no branch end reached):
+             # the path length at the first branch-end tension (a path sample).
+             all_free_above_mm=float(np.interp(prob.lam_end.min(), prob.path_lam,
+                                               prob.path_len)))
     return prob, P, S
 
 

@@ -120,6 +120,15 @@ class ForwardResult:
         return self.converged
 
 
+def _forward_result(**fields) -> ForwardResult:
+    """A :class:`ForwardResult` from every one of its fields, built without the frozen
+    dataclass's ``__init__`` (one ``object.__setattr__`` per field, a measurable part of
+    a single solve). The result is the same frozen, comparable object."""
+    result = object.__new__(ForwardResult)
+    result.__dict__.update(fields)
+    return result
+
+
 @dataclass(frozen=True)
 class BatchResult:
     """Result of :func:`solve_forward_batch`: the ForwardResult fields as arrays.
