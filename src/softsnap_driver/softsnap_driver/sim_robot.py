@@ -468,7 +468,10 @@ class SimRobot:
         self._clock_ticks = ticks
         listener = self.clock_listener
         if listener is not None:
-            listener(self._clock)
+            # The tick's own time (reached during this step): /clock then runs on an exact
+            # grid of its period whatever the control period, so a gait ticking on it
+            # samples the same phases every cycle.
+            listener(ticks * self.clock_period_s)
 
     def latest_snapshot(self) -> RobotSnapshot | None:
         """The latest stored snapshot (any thread), None before the first."""

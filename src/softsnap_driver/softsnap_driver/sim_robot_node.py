@@ -23,8 +23,8 @@ lock) and publishes, in the node's namespace:
 
 and, on the absolute ``/clock`` (rosgraph_msgs/Clock, the QoS every ROS clock source uses:
 keep last 1, best effort, volatile), the simulation time every ``clock_rate_hz`` of
-simulated time (default 50 Hz), from the simulation thread right after the step that
-reached it. Every other node of a simulated robot runs with ``use_sim_time:=true`` (the
+simulated time (default 50 Hz; the tick's own time, an exact grid), from the simulation
+thread right after the step that reached it. Every other node of a simulated robot runs with ``use_sim_time:=true`` (the
 demo's and the launch files' graph sets it), so their timers, stamps and the gait follow
 the simulation, also when it runs slower than real time. The simulation time starts at 0
 when sim_robot starts; the first ``/clock`` is one clock period later.
