@@ -41,6 +41,7 @@ from std_srvs.srv import Trigger
 from softsnap_driver.core import DEFAULT_CLAMP_MARGIN_M, CableCalibration
 from softsnap_driver.diagnostics import DriverHealth, battery_state, diagnostic_name
 from softsnap_driver.link import LinkConfig, LinkReport, ModuleLink
+from softsnap_driver.protocol import FIRMWARE_DEADBAND_COUNTS
 from softsnap_driver.ros_parameters import SoftSnapNode
 from softsnap_driver.spinning import spin_until_shutdown
 
@@ -95,6 +96,10 @@ PARAMETERS = {
     'stop_deadline_s': (1.0, _float(
         'Retry reach until the stop is confirmed, for at most this long, then report and keep trying, s',
         0.05, 60.0)),
+    'target_deadband_counts': (FIRMWARE_DEADBAND_COUNTS, _int(
+        'A new target this close to the module\'s target waits for the next poll slot '
+        '(at most one poll period) instead of a request of its own, counts (0: send every change)',
+        0, 100_000)),
     'diagnostics_period_s': (1.0, ParameterDescriptor(
         description='Period of /diagnostics and <module>/battery messages, s', read_only=True,
         floating_point_range=[FloatingPointRange(from_value=0.1, to_value=60.0)])),
@@ -195,6 +200,10 @@ class DriverNode(SoftSnapNode):
         self._state_msg = ModuleState()
         self._state_msg.header.frame_id = m
         self._state_msg.module = m
+        # State throttle (report_callback): link-clock time the next state is due anyway,
+        # and the event fields of the last state published.
+        self._state_due = -math.inf
+        self._state_events = None
         self.link = ModuleLink(config, self.report_callback, self.get_logger())
         self.link.start()
         self.commands = CommandInbox(self._inbox, f'{m}/cable_length/command', 100,
@@ -224,7 +233,8 @@ class DriverNode(SoftSnapNode):
             reboot_min_jump_counts=values['reboot_min_jump_counts'],
             max_speed_counts_per_s=values['max_speed_counts_per_s'],
             stop_on_shutdown=values['stop_on_shutdown'],
-            stall_timeout_s=values['stall_timeout_s'], stop_deadline_s=values['stop_deadline_s'])
+            stall_timeout_s=values['stall_timeout_s'], stop_deadline_s=values['stop_deadline_s'],
+            target_deadband_counts=values['target_deadband_counts'])
 
     def _values_with(self, parameters: list[Parameter]) -> dict:
         values = {name: self.get_parameter(name).value for name in PARAMETERS}
@@ -264,15 +274,31 @@ class DriverNode(SoftSnapNode):
         self._latest_report = report
         if not self.context.ok():
             return
+        measure = report.fresh and math.isfinite(report.measured_length_m)
+        c = report.counters
+        status = report.status
+        # What a watcher must see at once; the rest (count, target, power, the command
+        # counters) waits for the next state at most one poll period later.
+        events = (report.online, report.calibrated, status is not None and status.paused,
+                  c.request_failures, c.commands_clamped, c.commands_refused,
+                  c.reboots_detected, c.stale_stops, c.stalls_detected, c.internal_errors,
+                  c.stops_unconfirmed, report.last_error, report.last_error_stamp)
+        due = report.stamp >= self._state_due or events != self._state_events
+        if not (measure or due):
+            return
         # One message object per topic, filled in place: only the link's worker thread
         # calls this, and publish() serialises the message before it returns.
         sec, nanosec = divmod(self.get_clock().now().nanoseconds, 1_000_000_000)
-        status = report.status
-        if report.fresh and math.isfinite(report.measured_length_m):
+        if measure:
             measured = self._measured_msg
             measured.header.stamp.sec, measured.header.stamp.nanosec = sec, nanosec
             measured.cable_length = report.measured_length_m
             self.measured_publisher.publish(measured)
+        if not due:
+            return
+        # Due again a little before the next poll's report: jitter must not skip a poll.
+        self._state_due = report.stamp + 0.9 * self.link.config.poll_period_s
+        self._state_events = events
         state = self._state_msg
         state.header.stamp.sec, state.header.stamp.nanosec = sec, nanosec
         state.online = report.online
@@ -288,7 +314,6 @@ class DriverNode(SoftSnapNode):
             state.encoder_errors = status.encoder_errors
         else:
             state.motor_power = report.pwm_power
-        c = report.counters
         state.request_failures = c.request_failures
         state.commands_received = c.commands_received
         state.targets_sent = c.targets_sent
