@@ -200,10 +200,10 @@ class DriverNode(SoftSnapNode):
         self._state_msg = ModuleState()
         self._state_msg.header.frame_id = m
         self._state_msg.module = m
-        # State throttle (report_callback): link-clock time the next state is due anyway,
-        # and the event fields of the last state published.
-        self._state_due = -math.inf
-        self._state_events = None
+        # Publishing throttle (report_callback): link-clock time the next report is due
+        # anyway, and the event fields of the last state published.
+        self._publish_due = -math.inf
+        self._published_events = None
         self.link = ModuleLink(config, self.report_callback, self.get_logger())
         self.link.start()
         self.commands = CommandInbox(self._inbox, f'{m}/cable_length/command', 100,
@@ -274,31 +274,28 @@ class DriverNode(SoftSnapNode):
         self._latest_report = report
         if not self.context.ok():
             return
-        measure = report.fresh and math.isfinite(report.measured_length_m)
         c = report.counters
         status = report.status
-        # What a watcher must see at once; the rest (count, target, power, the command
-        # counters) waits for the next state at most one poll period later.
+        # Published at the poll rate, however many commands the link sends (each reply
+        # is a status): what a watcher must see at once (events) is published at once.
+        # The latest report is never lost: the next poll comes a poll period after it.
         events = (report.online, report.calibrated, status is not None and status.paused,
                   c.request_failures, c.commands_clamped, c.commands_refused,
                   c.reboots_detected, c.stale_stops, c.stalls_detected, c.internal_errors,
                   c.stops_unconfirmed, report.last_error, report.last_error_stamp)
-        due = report.stamp >= self._state_due or events != self._state_events
-        if not (measure or due):
+        if report.stamp < self._publish_due and events == self._published_events:
             return
+        # Due again a little before the next poll's report: jitter must not skip a poll.
+        self._publish_due = report.stamp + 0.9 * self.link.config.poll_period_s
+        self._published_events = events
         # One message object per topic, filled in place: only the link's worker thread
         # calls this, and publish() serialises the message before it returns.
         sec, nanosec = divmod(self.get_clock().now().nanoseconds, 1_000_000_000)
-        if measure:
+        if report.fresh and math.isfinite(report.measured_length_m):
             measured = self._measured_msg
             measured.header.stamp.sec, measured.header.stamp.nanosec = sec, nanosec
             measured.cable_length = report.measured_length_m
             self.measured_publisher.publish(measured)
-        if not due:
-            return
-        # Due again a little before the next poll's report: jitter must not skip a poll.
-        self._state_due = report.stamp + 0.9 * self.link.config.poll_period_s
-        self._state_events = events
         state = self._state_msg
         state.header.stamp.sec, state.header.stamp.nanosec = sec, nanosec
         state.online = report.online
