@@ -291,3 +291,32 @@ def test_watchdog_and_stop_service_confirm_lost_stops_over_dds(start_node, ros_n
     assert_module_stopped_near(server, decided)
     assert probe.wait_state(lambda s: s.stops_unconfirmed == 0 and s.internal_errors == 0)
     assert driver.alive()
+
+
+def test_command_decoding_equals_rclpy_deserialisation():
+    """The inbox decodes serialised commands by hand: bit-equal to rclpy's own decoding
+    for every frame_id length (every padding) and odd values; None (rclpy decodes) for
+    bytes it does not know."""
+    import random
+    import struct
+    from rclpy.serialization import deserialize_message, serialize_message
+    from softsnap_interfaces.msg import CableLength
+    from softsnap_driver.driver_node import decode_cable_length
+    rng = random.Random(5)
+    for text in range(12):
+        for value in (0.15, 0.0, -1.0, math.nan, math.inf, -math.inf, 5e-324, 1e308):
+            msg = CableLength(cable_length=value)
+            msg.header.frame_id = 'yellow'[:text] + 'x' * max(text - 6, 0)
+            msg.header.stamp.sec = rng.randint(-2**31, 2**31 - 1)
+            msg.header.stamp.nanosec = rng.randint(0, 10**9 - 1)
+            raw = serialize_message(msg)
+            back = deserialize_message(raw, CableLength)
+            stamp_ns, length = decode_cable_length(raw)
+            assert stamp_ns == back.header.stamp.sec * 10**9 + back.header.stamp.nanosec
+            assert struct.pack('<d', length) == struct.pack('<d', back.cable_length), (text, value)
+    # Big-endian CDR, laid out by hand: sec 3, nanosec 4, frame_id 'a', 0.25 m.
+    big = b'\x00\x00\x00\x00' + struct.pack('>iII', 3, 4, 2) + b'a\x00' + b'\x00' * 2 + struct.pack('>d', 0.25)
+    assert decode_cable_length(big) == (3_000_000_004, 0.25)
+    for unknown in (b'', b'\x00\x01', b'\x00\x07' + raw[2:], raw[:-1],
+                    raw[:12] + struct.pack('<I', 2**32 - 1) + raw[16:]):
+        assert decode_cable_length(unknown) is None
