@@ -313,10 +313,14 @@ class ModuleLink:
             self._last_command_time = self._clock()
             self._commands_accepted += 1
             self._stale_handled = False
-            if self._stop_wanted is not None:
+            superseded = self._stop_wanted is not None
+            if superseded:
                 self._stop_wanted = None
                 self._clear_error('stop')
-            self._cond.notify_all()
+            # A target the worker would hold for the poll slot needs no wake: its wait
+            # never outlasts the next poll, and after a request it looks again at once.
+            if superseded or not self._within_deadband(self._config, cmd):
+                self._cond.notify_all()
         return cmd
 
     def request(self, kind: str, timeout: float | None = None) -> tuple[bool, str]:
