@@ -3,9 +3,10 @@
 For a module named M (parameter ``module``), relative to the node's namespace:
 
 - subscribes ``M/cable_length/command`` (softsnap_interfaces/CableLength, metres);
-- publishes ``M/cable_length/measured`` (CableLength, metres) after every status reply
-  while the module is calibrated, and ``M/state`` (softsnap_interfaces/ModuleState)
-  after every request and at the poll rate while offline;
+- publishes ``M/cable_length/measured`` (CableLength, metres) while the module is
+  calibrated and ``M/state`` (softsnap_interfaces/ModuleState) at the poll rate, from the
+  freshest reply (online or not), and the state at once when an event field changes
+  (:meth:`DriverNode.report_callback`, docs/driver.md "Publishing rate");
 - publishes ``M/battery`` (sensor_msgs/BatteryState) and, on the absolute
   ``/diagnostics``, a diagnostic_msgs/DiagnosticArray with the module's status, every
   ``diagnostics_period_s`` (levels: :mod:`softsnap_driver.diagnostics`,
