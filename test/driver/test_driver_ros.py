@@ -194,6 +194,37 @@ def test_stale_command_stream_stops_the_module(start_node, ros_node, sim_server)
     assert 'no command' in probe.last().last_error
 
 
+def test_state_and_measured_come_at_the_poll_rate_while_commands_stream(start_node, ros_node, sim_server):
+    """50 Hz commands give 25-50 replies a second; state and measured are published at
+    the 10 Hz poll rate (before: after every reply), and the latest state is not lost."""
+    server = sim_server()
+    start_node('softsnap_driver', 'driver_node', *driver_args(server.port, poll_rate_hz=10.0))
+    probe = ModuleProbe(ros_node)
+    probe.wait_ready()
+    probe.command(0.19)
+    assert probe.wait_state(lambda s: s.commands_received == 1 and s.targets_sent == 1)
+    probe.states.clear()
+    probe.measured.clear()
+    commands = 100
+    for i in range(commands):                       # 50 Hz, 0.5 mm (45 counts): each one sent
+        probe.command(0.19 - 0.0005 * (i + 1))
+        ros_node.spin_until(lambda: False, 0.02)
+    final = 0.19 - 0.0005 * commands
+    assert probe.wait_state(lambda s: s.commands_received == commands + 1), probe.last()
+    assert ros_node.spin_until(lambda: within_deadband(probe.measured[-1].cable_length, final), 10)
+    with server.lock:
+        replies = len(server.module.received_targets)
+    assert replies > 50, replies                     # the link sent more than the polls
+    stamps = [s.header.stamp.sec + s.header.stamp.nanosec * 1e-9 for s in probe.states]
+    span = stamps[-1] - stamps[0]
+    # About one state per 0.09-0.1 s (nothing in the event fields changes here); before,
+    # one per reply.
+    assert len(probe.states) <= span / 0.085 + 3, (len(probe.states), span, replies)
+    measured = [m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for m in probe.measured]
+    assert len(measured) <= (measured[-1] - measured[0]) / 0.085 + 3, len(measured)
+    assert probe.last().last_error == '' and probe.last().online
+
+
 def test_parameters_are_validated(start_node, ros_node, sim_server, tmp_path):
     from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
     from rcl_interfaces.srv import SetParameters
@@ -291,3 +322,32 @@ def test_watchdog_and_stop_service_confirm_lost_stops_over_dds(start_node, ros_n
     assert_module_stopped_near(server, decided)
     assert probe.wait_state(lambda s: s.stops_unconfirmed == 0 and s.internal_errors == 0)
     assert driver.alive()
+
+
+def test_command_decoding_equals_rclpy_deserialisation():
+    """The inbox decodes serialised commands by hand: bit-equal to rclpy's own decoding
+    for every frame_id length (every padding) and odd values; None (rclpy decodes) for
+    bytes it does not know."""
+    import random
+    import struct
+    from rclpy.serialization import deserialize_message, serialize_message
+    from softsnap_interfaces.msg import CableLength
+    from softsnap_driver.driver_node import decode_cable_length
+    rng = random.Random(5)
+    for text in range(12):
+        for value in (0.15, 0.0, -1.0, math.nan, math.inf, -math.inf, 5e-324, 1e308):
+            msg = CableLength(cable_length=value)
+            msg.header.frame_id = 'yellow'[:text] + 'x' * max(text - 6, 0)
+            msg.header.stamp.sec = rng.randint(-2**31, 2**31 - 1)
+            msg.header.stamp.nanosec = rng.randint(0, 10**9 - 1)
+            raw = serialize_message(msg)
+            back = deserialize_message(raw, CableLength)
+            stamp_ns, length = decode_cable_length(raw)
+            assert stamp_ns == back.header.stamp.sec * 10**9 + back.header.stamp.nanosec
+            assert struct.pack('<d', length) == struct.pack('<d', back.cable_length), (text, value)
+    # Big-endian CDR, laid out by hand: sec 3, nanosec 4, frame_id 'a', 0.25 m.
+    big = b'\x00\x00\x00\x00' + struct.pack('>iII', 3, 4, 2) + b'a\x00' + b'\x00' * 2 + struct.pack('>d', 0.25)
+    assert decode_cable_length(big) == (3_000_000_004, 0.25)
+    for unknown in (b'', b'\x00\x01', b'\x00\x07' + raw[2:], raw[:-1],
+                    raw[:12] + struct.pack('<I', 2**32 - 1) + raw[16:]):
+        assert decode_cable_length(unknown) is None

@@ -426,3 +426,85 @@ def test_failed_set_is_retried_after_a_growing_pause(sim_server):
     for gap, pause in zip(gaps, (0.05, 0.1, 0.2, 0.4, 0.4)):
         assert gap >= pause * 0.95, gaps
     print(f'pauses between failed requests: {[round(g, 3) for g in gaps]} s')
+
+
+def received(server):
+    with server.lock:
+        return list(server.module.received_targets)
+
+
+def test_small_target_change_waits_for_the_poll_slot_and_a_large_one_goes_at_once(sim_server, link_to):
+    """Target deadband: a change within target_deadband_counts of the module's target is
+    sent as the next poll, never earlier (by the sim's own stamps); a larger one at once."""
+    poll = 2.0
+    server = sim_server()
+    link = link_to(server, poll_period_s=poll, target_deadband_counts=DEADBAND_COUNTS)
+    base = CAL.command(0.19).count
+    link.command(CAL.length_m(base))                    # the first target: at once
+    assert wait_for(lambda: targets(server) == [base])
+    link.command(CAL.length_m(base + DEADBAND_COUNTS))  # within the deadband: waits
+    assert wait_for(lambda: targets(server)[-1] == base + DEADBAND_COUNTS, 4 * poll)
+    first, small = received(server)
+    # Causal, so it holds under any load: the waiting target left one poll period after
+    # the reply to the first set, as the poll (no status request went out in between).
+    assert small.time_s - first.time_s >= poll
+    far = base + 2 * DEADBAND_COUNTS + 1               # 31 counts from the module's target
+    link.command(CAL.length_m(far))
+    assert wait_for(lambda: targets(server)[-1] == far, 4 * poll)
+    assert received(server)[-1].time_s - small.time_s < poll    # before the next poll slot
+    assert wait_for(lambda: last(link).counters.targets_sent == 3)
+
+
+def test_stream_of_small_steps_needs_fewer_requests_and_ends_on_its_final_target(sim_server, link_to):
+    poll = 0.1
+    server = sim_server()
+    link = link_to(server, poll_period_s=poll)          # default deadband: the firmware's
+    base = CAL.command(0.19).count
+    link.command(CAL.length_m(base))
+    assert wait_for(lambda: targets(server) == [base])
+    steps, step = 75, 12                                # 50 Hz for 1.5 s, 0.13 mm a step
+    for i in range(1, steps + 1):
+        link.command(CAL.length_m(base + step * i), stamp_ns=i)
+        time.sleep(0.02)
+    final = base + step * steps
+    assert wait_for(lambda: targets(server)[-1] == final)          # the final target, always
+    sent = received(server)
+    assert len(sent) <= steps // 2, [s.target for s in sent]
+    # Every set either moved the target beyond the deadband or took a poll's place (sent
+    # a poll period or more after the one before: causal, by the sim's stamps).
+    for a, b in zip(sent, sent[1:]):
+        assert abs(b.target - a.target) > DEADBAND_COUNTS or b.time_s - a.time_s >= poll, (a, b)
+    deadband_m = (DEADBAND_COUNTS + 0.5) / CAL.counts_per_mm / 1000
+    assert wait_for(lambda: last(link).fresh
+                    and abs(last(link).measured_length_m - CAL.length_m(final)) <= deadband_m + 1e-9)
+    assert last(link).counters.commands_received == steps + 1
+    assert last(link).counters.targets_sent == len(received(server))
+
+
+def test_zero_target_deadband_sends_every_changed_target(sim_server, link_to):
+    server = sim_server()
+    link = link_to(server, poll_period_s=2.0, target_deadband_counts=0)
+    base = CAL.command(0.19).count
+    for i in range(5):
+        link.command(CAL.length_m(base + i))
+        assert wait_for(lambda: targets(server)[-1:] == [base + i], 1.5)   # not the 2 s slot
+    assert targets(server) == [base + i for i in range(5)]
+
+
+def test_stop_is_not_delayed_by_a_waiting_target_and_drops_it(sim_server, link_to):
+    poll = 1.5
+    server = sim_server()
+    link = link_to(server, poll_period_s=poll)
+    base = CAL.command(0.19).count
+    link.command(CAL.length_m(base))
+    assert wait_for(lambda: targets(server) == [base])
+    link.command(CAL.length_m(base + 10))               # waits for the poll slot
+    time.sleep(0.3)                                     # (sent by now without the deadband)
+    ok, message = link.request('stop')
+    confirmed_at = time.monotonic()                     # the sim's clock too
+    assert ok and 'confirmed' in message, message
+    assert confirmed_at < received(server)[0].time_s + poll   # before the waiting target's slot
+    time.sleep(poll + 0.3)
+    assert targets(server) == [base]                    # the stop won: never sent after it
+    with server.lock:
+        assert server.module.target == server.module.encoder_count   # held where it stopped

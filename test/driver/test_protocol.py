@@ -1,4 +1,5 @@
 """Protocol client: request encoding, reply parsing, and a real loopback socket."""
+import socket
 import threading
 import time
 
@@ -8,6 +9,7 @@ from softsnap_driver.firmware import SimModule, http_reply
 from softsnap_driver.protocol import (MalformedReply, ModuleClient, ModuleConnectionError,
                                       ModuleError, ModuleTimeout, encode_request,
                                       encode_set_request, parse_reply)
+from softsnap_driver.sim_module import SimServer
 
 
 def firmware_reply(**overrides) -> bytes:
@@ -114,6 +116,19 @@ def test_client_commands_against_sim(sim_server):
     moving = client.reach().encoder_count
     assert server.module.target == moving != 4000
     assert client.calibrate().encoder_count == 0 and server.module.target == 0
+
+
+def test_client_resolves_its_host_once_and_again_after_a_failed_connect(free_port, monkeypatch):
+    lookups = []
+    real = socket.getaddrinfo
+    monkeypatch.setattr(socket, 'getaddrinfo', lambda *a, **k: lookups.append(a[0]) or real(*a, **k))
+    client = ModuleClient('localhost', free_port, timeout_s=0.5)   # a name, not an address
+    with pytest.raises(ModuleConnectionError, match='refused'):
+        client.status()
+    with SimServer(SimModule(start_time=time.monotonic()), port=free_port):
+        for _ in range(3):
+            assert client.set_target(100, 200).motor_power == 200
+    assert lookups == ['localhost', 'localhost']     # the failed connect, then once
 
 
 def test_refused_connection_is_typed(free_port):

@@ -3,9 +3,10 @@
 For a module named M (parameter ``module``), relative to the node's namespace:
 
 - subscribes ``M/cable_length/command`` (softsnap_interfaces/CableLength, metres);
-- publishes ``M/cable_length/measured`` (CableLength, metres) after every status reply
-  while the module is calibrated, and ``M/state`` (softsnap_interfaces/ModuleState)
-  after every request and at the poll rate while offline;
+- publishes ``M/cable_length/measured`` (CableLength, metres) while the module is
+  calibrated and ``M/state`` (softsnap_interfaces/ModuleState) at the poll rate, from the
+  freshest reply (online or not), and the state at once when an event field changes
+  (:meth:`DriverNode.report_callback`, docs/driver.md "Publishing rate");
 - publishes ``M/battery`` (sensor_msgs/BatteryState) and, on the absolute
   ``/diagnostics``, a diagnostic_msgs/DiagnosticArray with the module's status, every
   ``diagnostics_period_s`` (levels: :mod:`softsnap_driver.diagnostics`,
@@ -28,6 +29,7 @@ from __future__ import annotations
 
 import math
 import re
+import struct
 import sys
 import threading
 import time
@@ -41,6 +43,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.serialization import deserialize_message
 from diagnostic_msgs.msg import DiagnosticArray
 from sensor_msgs.msg import BatteryState
 from softsnap_interfaces.msg import CableLength, ModuleState
@@ -49,6 +52,7 @@ from std_srvs.srv import Trigger
 from softsnap_driver.core import DEFAULT_CLAMP_MARGIN_M, CableCalibration
 from softsnap_driver.diagnostics import DriverHealth, battery_state, diagnostic_name
 from softsnap_driver.link import LinkConfig, LinkReport, ModuleLink
+from softsnap_driver.protocol import FIRMWARE_DEADBAND_COUNTS
 from softsnap_driver.ros_parameters import SoftSnapNode
 from softsnap_driver.spinning import spin_until_shutdown
 
@@ -103,6 +107,10 @@ PARAMETERS = {
     'stop_deadline_s': (1.0, _float(
         'Retry reach until the stop is confirmed, for at most this long, then report and keep trying, s',
         0.05, 60.0)),
+    'target_deadband_counts': (FIRMWARE_DEADBAND_COUNTS, _int(
+        'A new target this close to the module\'s target waits for the next poll slot '
+        '(at most one poll period) instead of a request of its own, counts (0: send every change)',
+        0, 100_000)),
     'diagnostics_period_s': (1.0, ParameterDescriptor(
         description='Period of /diagnostics and <module>/battery messages, s', read_only=True,
         floating_point_range=[FloatingPointRange(from_value=0.1, to_value=60.0)])),
@@ -112,6 +120,28 @@ PARAMETERS = {
 #: Longest the command thread blocks in one wait (s): it notices a stop this fast.
 COMMAND_WAIT_S = 0.05
 
+#: XCDR1 encapsulation ids (the first two bytes of a serialised message): byte order.
+_CDR_BYTE_ORDER = {b'\x00\x00': '>', b'\x00\x01': '<'}
+
+
+def decode_cable_length(raw: bytes) -> tuple[int, float] | None:
+    """``(header stamp in ns, cable_length in m)`` of a serialised CableLength, or None.
+
+    The layout (XCDR1; alignment counts from the end of the 4-byte encapsulation header):
+    int32 ``sec``, uint32 ``nanosec``, uint32 length of ``frame_id`` with its NUL, its
+    bytes, padding to a multiple of 8, float64 ``cable_length``. None for bytes laid out
+    otherwise: the caller then lets rclpy deserialise them. Why by hand: building the
+    Python message cost about a third of the command thread's time per message.
+    """
+    order = _CDR_BYTE_ORDER.get(raw[:2])
+    if order is None or len(raw) < 16:
+        return None
+    sec, nanosec, text = struct.unpack_from(order + 'iII', raw, 4)
+    at = 4 + ((12 + text + 7) & ~7)
+    if text < 1 or at + 8 > len(raw):
+        return None
+    return sec * 1_000_000_000 + nanosec, struct.unpack_from(order + 'd', raw, at)[0]
+
 
 class CommandInbox:
     """Takes the command topic's messages on a thread of its own, blocked in ``rcl_wait``.
@@ -120,7 +150,8 @@ class CommandInbox:
     of the node's entities (parameter and trigger services...) in Python, about 0.5 ms a
     message on the loaded development machine, so 50 Hz commands alone cost 2-3% of a
     core. Here one wait set holds the one subscription, on an inbox node no executor
-    spins, and each message goes straight to ``handle(msg)`` (which must not raise).
+    spins; each message is taken serialised, decoded (:func:`decode_cable_length`) and
+    goes straight to ``handle(cable_length_m, stamp_ns)`` (which must not raise).
     The thread never dies silently: an unexpected error is logged (throttled) and the
     loop goes on; it ends on :meth:`stop` or when the context shuts down.
     """
@@ -143,14 +174,22 @@ class CommandInbox:
                     wait_set.clear_entities()
                     wait_set.add_subscription(handle)
                     wait_set.wait(int(COMMAND_WAIT_S * 1e9))
-                    while (taken := handle.take_message(CableLength, False)) is not None:
-                        self._handle(taken[0])
+                    while (taken := handle.take_message(CableLength, True)) is not None:
+                        self._take(taken[0])
             except Exception as exc:  # noqa: BLE001 - report and go on; never die silently
                 if self._stop.is_set() or not context.ok():
                     return  # shutting down: the context or the handle is gone
                 self._node.get_logger().error(f'command thread: {exc!r}',
                                               throttle_duration_sec=1.0)
                 time.sleep(COMMAND_WAIT_S)
+
+    def _take(self, raw: bytes) -> None:
+        decoded = decode_cable_length(raw)
+        if decoded is None:
+            msg = deserialize_message(raw, CableLength)
+            stamp = msg.header.stamp
+            decoded = stamp.sec * 1_000_000_000 + stamp.nanosec, msg.cable_length
+        self._handle(decoded[1], decoded[0])
 
     def stop(self, timeout: float) -> None:
         self._stop.set()
@@ -205,6 +244,10 @@ class DriverNode(SoftSnapNode):
         self._state_msg = ModuleState()
         self._state_msg.header.frame_id = m
         self._state_msg.module = m
+        # Publishing throttle (report_callback): link-clock time the next report is due
+        # anyway, and the event fields of the last state published.
+        self._publish_due = -math.inf
+        self._published_events = None
         # The module's motion is timed on the simulation's clock when there is one.
         self.sim_time = bool(self.get_parameter('use_sim_time').value)
         motion_clock = self._ros_time_s if self.sim_time else None
@@ -244,7 +287,8 @@ class DriverNode(SoftSnapNode):
             reboot_min_jump_counts=values['reboot_min_jump_counts'],
             max_speed_counts_per_s=values['max_speed_counts_per_s'],
             stop_on_shutdown=values['stop_on_shutdown'],
-            stall_timeout_s=values['stall_timeout_s'], stop_deadline_s=values['stop_deadline_s'])
+            stall_timeout_s=values['stall_timeout_s'], stop_deadline_s=values['stop_deadline_s'],
+            target_deadband_counts=values['target_deadband_counts'])
 
     def _values_with(self, parameters: list[Parameter]) -> dict:
         values = {name: self.get_parameter(name).value for name in PARAMETERS}
@@ -263,14 +307,13 @@ class DriverNode(SoftSnapNode):
         self.link.update_config(self._config_from(self._values_with([])))
 
     # -- ROS inputs --------------------------------------------------------------------
-    def command_callback(self, msg: CableLength) -> None:
+    def command_callback(self, cable_length_m: float, stamp_ns: int) -> None:
         try:
-            stamp = msg.header.stamp
-            self.link.command(msg.cable_length, stamp.sec * 1_000_000_000 + stamp.nanosec)
+            self.link.command(cable_length_m, stamp_ns)
         except ValueError:
             pass  # counted, logged (throttled) and reported in the state by the link
         except Exception as exc:  # noqa: BLE001 - no input may take the driver down
-            self.get_logger().error(f'command {msg.cable_length!r} not handled: {exc!r}')
+            self.get_logger().error(f'command {cable_length_m!r} not handled: {exc!r}')
 
     def _trigger_callback(self, kind: str):
         def callback(request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
@@ -284,10 +327,23 @@ class DriverNode(SoftSnapNode):
         self._latest_report = report
         if not self.context.ok():
             return
+        c = report.counters
+        status = report.status
+        # Published at the poll rate, however many commands the link sends (each reply
+        # is a status): what a watcher must see at once (events) is published at once.
+        # The latest report is never lost: the next poll comes a poll period after it.
+        events = (report.online, report.calibrated, status is not None and status.paused,
+                  c.request_failures, c.commands_clamped, c.commands_refused,
+                  c.reboots_detected, c.stale_stops, c.stalls_detected, c.internal_errors,
+                  c.stops_unconfirmed, report.last_error, report.last_error_stamp)
+        if report.stamp < self._publish_due and events == self._published_events:
+            return
+        # Due again a little before the next poll's report: jitter must not skip a poll.
+        self._publish_due = report.stamp + 0.9 * self.link.config.poll_period_s
+        self._published_events = events
         # One message object per topic, filled in place: only the link's worker thread
         # calls this, and publish() serialises the message before it returns.
         sec, nanosec = divmod(self.get_clock().now().nanoseconds, 1_000_000_000)
-        status = report.status
         if report.fresh and math.isfinite(report.measured_length_m):
             measured = self._measured_msg
             measured.header.stamp.sec, measured.header.stamp.nanosec = sec, nanosec
@@ -308,7 +364,6 @@ class DriverNode(SoftSnapNode):
             state.encoder_errors = status.encoder_errors
         else:
             state.motor_power = report.pwm_power
-        c = report.counters
         state.request_failures = c.request_failures
         state.commands_received = c.commands_received
         state.targets_sent = c.targets_sent

@@ -15,11 +15,25 @@ What the thread does, in priority order, each time it wakes:
 3. a stop that is still wanted but not yet confirmed (watchdog, ``stop`` service, stall,
    reboot): retried after the failure backoff until confirmed or a new command arrives;
 4. the newest commanded target (latest wins: commands that arrive while a request is in
-   flight coalesce, only the newest matters; an unchanged target is not re-sent); after
-   a failed request it waits for the backoff pause before it is sent again;
+   flight coalesce, only the newest matters; an unchanged target is not re-sent; a
+   target within the target deadband of the module's target waits for the poll slot,
+   below); after a failed request it waits for the backoff pause before it is sent again;
 5. a status poll every ``poll_period_s``.
 
-Every firmware reply is a full status, so each successful request is reported.
+Every firmware reply is a full status, so each successful request is reported, and a
+``set`` counts as the poll (the next poll is due ``poll_period_s`` after any reply).
+
+Target deadband: a new target that differs from the last target the module acknowledged
+(same PWM power) by at most ``target_deadband_counts`` (default: the firmware's own
+30-count deadband) is not sent at once: it stays the pending target (a newer command
+still replaces it) and goes out as the ``set`` that takes the place of the next poll, so
+at most ``poll_period_s`` later. A larger change, a new PWM power, and the first target
+after a stop, a calibration or a reboot go out at once. So a stream of small steps (50
+Hz commands of a slow motion) costs one request per poll period or per deadband of
+motion, whichever comes first, instead of one per command; the module's target lags the
+newest command by at most that deadband for at most one poll period; the final target is
+always sent; and stops are never delayed (they come before targets, above, and drop the
+pending target). ``target_deadband_counts = 0`` sends every changed target at once.
 
 Confirmed stops: a stop is a state the driver confirms, not a request it sent. The
 firmware's ``reach`` sets its target to the current count; its reply carries that count.
@@ -138,6 +152,7 @@ class LinkConfig:
     stop_on_shutdown: bool = True
     stall_timeout_s: float = 1.0        # 0 disables stall detection
     stop_deadline_s: float = 1.0        # confirm a stop within this (s), else report and retry
+    target_deadband_counts: int = FIRMWARE_DEADBAND_COUNTS   # see "Target deadband"; 0: off
 
 
 @dataclass(frozen=True)
@@ -314,10 +329,14 @@ class ModuleLink:
             self._last_command_time = self._clock()
             self._commands_accepted += 1
             self._stale_handled = False
-            if self._stop_wanted is not None:
+            superseded = self._stop_wanted is not None
+            if superseded:
                 self._stop_wanted = None
                 self._clear_error('stop')
-            self._cond.notify_all()
+            # A target the worker would hold for the poll slot needs no wake: its wait
+            # never outlasts the next poll, and after a request it looks again at once.
+            if superseded or not self._within_deadband(self._config, cmd):
+                self._cond.notify_all()
         return cmd
 
     def request(self, kind: str, timeout: float | None = None) -> tuple[bool, str]:
@@ -400,7 +419,9 @@ class ModuleLink:
             if now >= self._retry_at:
                 return 'stop', self._stop_wanted
         elif (self._pending is not None and self._online and self._calibrated
-                and now >= self._retry_at):
+                and now >= self._retry_at
+                and (now >= self._next_poll or not self._within_deadband(config, self._pending))):
+            # A small change waits for the poll slot and goes out instead of the poll.
             pending, self._pending = self._pending, None
             return 'set', pending
         if now >= self._next_poll:
@@ -408,10 +429,17 @@ class ModuleLink:
         if now >= self._last_report + config.poll_period_s:
             return 'heartbeat', None
         wake = min(self._next_poll, self._last_report + config.poll_period_s, stale_at)
-        if self._stop_wanted is not None or (self._pending is not None and self._online
-                                             and self._calibrated):
-            wake = min(wake, self._retry_at)    # in the future here, else a job was returned
+        if ((self._stop_wanted is not None or (self._pending is not None and self._online
+                                               and self._calibrated))
+                and self._retry_at > now):
+            wake = min(wake, self._retry_at)
         return 'wait', max(wake - now, 0.0)
+
+    def _within_deadband(self, config: LinkConfig, cmd: TargetCommand) -> bool:
+        """Whether ``cmd`` may wait for the next poll slot (see "Target deadband")."""
+        sent = self._sent
+        return (sent is not None and sent[1] == config.pwm_power
+                and abs(cmd.count - sent[0]) <= config.target_deadband_counts)
 
     def _loop(self) -> None:
         while True:

@@ -11,9 +11,10 @@ Layers:
 
 - pure functions :func:`encode_request`, :func:`encode_set_request` and
   :func:`parse_reply` (bytes in, bytes or :class:`ModuleStatus` out);
-- :class:`ModuleClient`, which owns the socket work: one TCP connection per request,
-  an explicit deadline per request, and a lock so that only one request at a time goes
-  to the module (the firmware serves one client).
+- :class:`ModuleClient`, which owns the socket work: one TCP connection per request
+  (the firmware closes it after its reply: there is no keep-alive), an explicit deadline
+  per request, and a lock so that only one request at a time goes to the module (the
+  firmware serves one client).
 
 Errors are typed: :class:`ModuleConnectionError` (refused, reset, closed without a
 reply), :class:`ModuleTimeout` (no complete reply within the deadline) and
@@ -197,7 +198,7 @@ def parse_power_history(text: str) -> tuple[float, ...]:
                                      f'{chunk!r}')
     raw = bytes.fromhex(text)
     counts = struct.unpack(f'>{len(raw) // 2}H', raw)  # POWER_DIGITS = 4: 2 bytes each
-    return tuple(count * POWER_UNIT_W for count in counts)
+    return tuple(map(POWER_UNIT_W.__mul__, counts))   # a quarter of a generator's time
 
 
 def parse_reply(raw: bytes) -> ModuleStatus:
@@ -313,6 +314,9 @@ class ModuleClient:
         self.timeout_s = float(timeout_s)
         self._lock = threading.Lock()
         self._closed = False
+        # (family, address) of the host, resolved at the first request and again after a
+        # failed connect: resolving cost about as much CPU as the connect itself.
+        self._addresses: list[tuple[int, tuple]] | None = None
 
     def __repr__(self) -> str:
         return f'ModuleClient({self.host!r}, {self.port}, timeout_s={self.timeout_s})'
@@ -349,12 +353,31 @@ class ModuleClient:
                 raise ModuleConnectionError(f'{self!r} is closed')
             return parse_reply(self._exchange(payload, timeout_s))
 
+    def _connect(self, timeout: float) -> socket.socket:
+        """A connected socket, trying each address of the host in turn (like
+        ``socket.create_connection``); raises the last ``OSError``."""
+        if self._addresses is None:
+            self._addresses = [(family, address) for family, _, _, _, address in
+                               socket.getaddrinfo(self.host, self.port, 0, socket.SOCK_STREAM)]
+        error: OSError = OSError(f'{self.host} has no address')
+        for family, address in self._addresses:
+            sock = socket.socket(family, socket.SOCK_STREAM)
+            try:
+                sock.settimeout(timeout)
+                sock.connect(address)
+                return sock
+            except OSError as exc:
+                sock.close()
+                error = exc
+        self._addresses = None
+        raise error
+
     def _exchange(self, payload: bytes, timeout_s: float | None = None) -> bytes:
         timeout = self.timeout_s if timeout_s is None else min(max(timeout_s, 1e-3), self.timeout_s)
         deadline = time.monotonic() + timeout
         where = f'{self.host}:{self.port}'
         try:
-            sock = socket.create_connection((self.host, self.port), timeout=timeout)
+            sock = self._connect(timeout)
         except ConnectionRefusedError as exc:
             raise ModuleConnectionError(f'{where} refused the connection') from exc
         except (socket.timeout, TimeoutError) as exc:
