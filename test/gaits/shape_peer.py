@@ -1,9 +1,11 @@
-"""RobotShape messages covering the CDR layout's corners, and a peer process publishing them.
+"""Messages covering the CDR layouts' corners, and a peer process publishing them.
 
 `sample_shapes()` is shared by the CDR tests: strings of every length modulo 8 (they
 move the alignment of what follows), empty sequences, negative stamps, NaN and infinite
-values. Run as a script, it publishes them on ``shape_cdr/in`` once two subscriptions
-(the test's raw and deserialising ones) are matched, then waits for SIGINT.
+values; `sample_lengths()` and `sample_states()` likewise for CableLength and
+ModuleState. Run as a script, it publishes them on ``TOPIC``, ``TOPIC_length`` and
+``TOPIC_state`` once two subscriptions to each (the test's raw and deserialising ones)
+are matched, then waits for SIGINT.
 """
 from __future__ import annotations
 
@@ -51,23 +53,54 @@ def sample_shapes() -> list:
     return messages
 
 
+def sample_lengths() -> list:
+    from softsnap_interfaces.msg import CableLength
+
+    messages = []
+    for i in range(9):
+        msg = CableLength(cable_length=(math.nan if i == 4 else 0.198 - 0.0031 * i))
+        msg.header.stamp.sec, msg.header.stamp.nanosec = 1_795_000_000 + i, 7 * i
+        msg.header.frame_id = 'f' * i  # every length modulo 8
+        messages.append(msg)
+    return messages
+
+
+def sample_states() -> list:
+    from softsnap_interfaces.msg import ModuleState
+
+    messages = []
+    for i in range(10):
+        msg = ModuleState(module='m' * i + ('grün' if i == 9 else ''), online=bool(i % 2),
+                          paused=bool(i % 3), measured_cable_length=0.19 - 0.001 * i,
+                          target_cable_length=math.nan if i % 4 else 0.18,
+                          encoder_count=-1234 * i, encoder_target=99 * i, motor_power=255 - i,
+                          battery_voltage=7.4 - 0.125 * i, last_error='e' * i)
+        msg.header.stamp.sec, msg.header.stamp.nanosec = 1_795_000_100 + i, 11 * i
+        msg.header.frame_id = 'g' * (i % 5)
+        messages.append(msg)
+    return messages
+
+
 def main(topic: str) -> int:
     import time
 
     import rclpy
     from rclpy.qos import QoSProfile, ReliabilityPolicy
-    from softsnap_interfaces.msg import RobotShape
+    from softsnap_interfaces.msg import CableLength, ModuleState, RobotShape
 
     rclpy.init()
     node = rclpy.create_node('shape_peer')
-    publisher = node.create_publisher(
-        RobotShape, topic, QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
+    qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+    publishers = [(node.create_publisher(RobotShape, topic, qos), sample_shapes()),
+                  (node.create_publisher(CableLength, f'{topic}_length', qos), sample_lengths()),
+                  (node.create_publisher(ModuleState, f'{topic}_state', qos), sample_states())]
     try:
-        while publisher.get_subscription_count() < 2:
+        while any(p.get_subscription_count() < 2 for p, _ in publishers):
             time.sleep(0.05)
         time.sleep(0.5)  # discovery completes on both ends
-        for msg in sample_shapes():
-            publisher.publish(msg)
+        for publisher, messages in publishers:
+            for msg in messages:
+                publisher.publish(msg)
         print('published', flush=True)
         while True:
             time.sleep(1.0)
@@ -80,4 +113,4 @@ def main(topic: str) -> int:
 
 
 if __name__ == '__main__':
-    sys.exit(main(sys.argv[1] if len(sys.argv) > 1 else 'shape_cdr/in'))
+    sys.exit(main(sys.argv[1] if len(sys.argv) > 1 else 'cdr/in'))

@@ -1,8 +1,9 @@
-"""The rerun logger's RobotShape CDR reader against rclpy's own deserialisation.
+"""The rerun logger's CDR readers against rclpy's own deserialisation.
 
-Every field of every sample (strings of each length modulo 8, empty sequences, NaN,
-negative stamps) must equal what rclpy's ``deserialize_message`` makes of the same
-bytes: serialised here, and taken raw from a real DDS subscription fed by another process.
+Every field of every sample RobotShape, CableLength and ModuleState (strings of each
+length modulo 8, empty sequences, NaN, negative stamps) must equal what rclpy's
+``deserialize_message`` makes of the same bytes: serialised here, and taken raw from a
+real DDS subscription fed by another process.
 """
 from __future__ import annotations
 
@@ -16,11 +17,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from softsnap_gaits import shape_cdr
-from softsnap_gaits.shape_cdr import CdrError, decode_robot_shape
+from softsnap_gaits import cdr
+from softsnap_gaits.cdr import (CdrError, decode_cable_length, decode_module_state,
+                                 decode_robot_shape)
 
 sys.path.insert(0, str(Path(__file__).parent))
-from shape_peer import sample_shapes  # noqa: E402
+from shape_peer import sample_lengths, sample_shapes, sample_states  # noqa: E402
 
 
 def stamp_ns(stamp) -> int:
@@ -31,7 +33,7 @@ def same_float(a: float, b: float) -> bool:
     return a == b or (math.isnan(a) and math.isnan(b))
 
 
-def assert_same(decoded: shape_cdr.RobotShapeCdr, msg) -> None:
+def assert_same(decoded: cdr.RobotShapeCdr, msg) -> None:
     """Every field of ``decoded`` equals the rclpy message ``msg``, bit for bit."""
     assert decoded.stamp_ns == stamp_ns(msg.header.stamp)
     assert decoded.frame_id == msg.header.frame_id
@@ -64,6 +66,35 @@ def test_every_sample_decodes_to_rclpys_deserialisation_of_the_same_bytes():
     for msg in samples:
         data = serialize_message(msg)
         assert_same(decode_robot_shape(data), deserialize_message(data, RobotShape))
+
+
+def assert_same_length(decoded: tuple[int, float], msg) -> None:
+    assert decoded[0] == stamp_ns(msg.header.stamp)
+    assert same_float(decoded[1], msg.cable_length)
+
+
+def assert_same_state(decoded: tuple[int, str, float], msg) -> None:
+    # float32 on the wire: a message built in Python holds the unrounded value.
+    assert decoded == (stamp_ns(msg.header.stamp), msg.module,
+                       float(np.float32(msg.battery_voltage)))
+
+
+def test_lengths_and_states_decode_to_rclpys_deserialisation_of_the_same_bytes():
+    from rclpy.serialization import deserialize_message, serialize_message
+    from softsnap_interfaces.msg import CableLength, ModuleState
+
+    for msg in sample_lengths():
+        data = serialize_message(msg)
+        assert_same_length(decode_cable_length(data), deserialize_message(data, CableLength))
+    for msg in sample_states():
+        data = serialize_message(msg)
+        assert_same_state(decode_module_state(data), deserialize_message(data, ModuleState))
+    # A float32 battery voltage: the value rclpy gives is the rounded one, and so is ours.
+    assert decode_module_state(serialize_message(sample_states()[1]))[2] == np.float32(7.275)
+    with pytest.raises(CdrError, match='truncated'):
+        decode_cable_length(serialize_message(sample_lengths()[3])[:20])
+    with pytest.raises(CdrError, match='0x0000'):
+        decode_module_state(b'\x00\x00\x00\x00' + bytes(60))
 
 
 def test_a_robot_shape_of_the_brittle_star_decodes_with_its_points():
@@ -123,7 +154,7 @@ def test_a_string_without_its_nul_is_refused():
 
     data = bytearray(serialize_message(RobotShape(robot='abc')))
     # header: stamp (8), frame_id '' (4 + 1), pad to 4 -> robot's length at body offset 16.
-    body = shape_cdr.HEADER_SIZE
+    body = cdr.HEADER_SIZE
     assert data[body + 16:body + 24] == b'\x04\x00\x00\x00abc\x00'
     data[body + 23] = ord('d')
     with pytest.raises(CdrError, match='robot.*NUL'):
@@ -132,24 +163,36 @@ def test_a_string_without_its_nul_is_refused():
 
 @pytest.mark.ros
 def test_raw_dds_samples_decode_to_what_rclpy_delivers(ros_node, tmp_path):
-    """Another process publishes the samples; this one subscribes twice to the same
-    topic, raw and deserialised, and the raw bytes must decode to the same messages."""
+    """Another process publishes the samples; this one subscribes twice to each topic,
+    raw and deserialised, and the raw bytes must decode to the same messages."""
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from softsnap_interfaces.msg import RobotShape
 
-    topic = f'shape_cdr_{os.getpid()}'
+    from softsnap_interfaces.msg import CableLength, ModuleState
+
+    topic = f'cdr_{os.getpid()}'
     qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
-    raw, rclpy_msgs = [], []
-    ros_node.create_subscription(RobotShape, topic, raw.append, qos, raw=True)
-    ros_node.create_subscription(RobotShape, topic, rclpy_msgs.append, qos)
+    cases = [(RobotShape, topic, sample_shapes(), decode_robot_shape, assert_same),
+             (CableLength, f'{topic}_length', sample_lengths(), decode_cable_length,
+              assert_same_length),
+             (ModuleState, f'{topic}_state', sample_states(), decode_module_state,
+              assert_same_state)]
+    received = []  # (raw bytes, rclpy messages) per case
+    for msg_type, name, *_ in cases:
+        raw, rclpy_msgs = [], []
+        ros_node.create_subscription(msg_type, name, raw.append, qos, raw=True)
+        ros_node.create_subscription(msg_type, name, rclpy_msgs.append, qos)
+        received.append((raw, rclpy_msgs))
     log = open(tmp_path / 'peer.log', 'w')
     peer = subprocess.Popen([sys.executable, str(Path(__file__).parent / 'shape_peer.py'), topic],
                             stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
-    expected = len(sample_shapes())
+    def all_received() -> bool:
+        return all(len(raw) >= len(case[2]) and len(msgs) >= len(case[2])
+                   for (raw, msgs), case in zip(received, cases))
+
     try:
-        assert ros_node.spin_until(
-            lambda: len(raw) >= expected and len(rclpy_msgs) >= expected, 60.0), \
-            (len(raw), len(rclpy_msgs), (tmp_path / 'peer.log').read_text())
+        assert ros_node.spin_until(all_received, 60.0), (
+            [(len(r), len(m)) for r, m in received], (tmp_path / 'peer.log').read_text())
     finally:
         os.killpg(peer.pid, signal.SIGINT)
         try:
@@ -157,7 +200,9 @@ def test_raw_dds_samples_decode_to_what_rclpy_delivers(ros_node, tmp_path):
         except subprocess.TimeoutExpired:
             os.killpg(peer.pid, signal.SIGKILL)
             peer.wait()
-    assert all(isinstance(b, bytes) for b in raw)
-    for data, msg, sent in zip(raw, rclpy_msgs, sample_shapes()):
-        assert msg.robot == sent.robot  # in publishing order on both subscriptions
-        assert_same(decode_robot_shape(data), msg)
+    for (raw, rclpy_msgs), (_, _, sent, decode, check) in zip(received, cases):
+        assert all(isinstance(b, bytes) for b in raw)
+        assert len(raw) == len(rclpy_msgs) == len(sent)
+        for data, msg, original in zip(raw, rclpy_msgs, sent):
+            check(decode(data), msg)
+            check(decode(data), original)  # and what was sent, in publishing order
