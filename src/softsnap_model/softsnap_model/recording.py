@@ -41,6 +41,7 @@ Plots are grouped by quantity first because a blueprint view selects a subtree
 from __future__ import annotations
 
 import argparse
+import functools
 import math
 import sys
 import time
@@ -118,6 +119,7 @@ def module_path(module: str) -> str:
     return f'{ROBOT_ROOT}/{module}'
 
 
+@functools.lru_cache(maxsize=4096)  # called for every row: the paths are few
 def shape_path(module: str, source: str, part: str) -> str:
     """Entity of one drawn part (spine, ribs, cable) of a module's shape."""
     if source not in SOURCES:
@@ -125,6 +127,7 @@ def shape_path(module: str, source: str, part: str) -> str:
     return f'{module_path(module)}/{source}/{part}'
 
 
+@functools.lru_cache(maxsize=4096)
 def plot_path(quantity: str, module: str, *series: str) -> str:
     """Entity of a time series: ``plots/<quantity>/<module>[/<series>]``.
 
@@ -352,7 +355,7 @@ def _as_vector(values, name: str) -> np.ndarray:
     arr = np.asarray(values, dtype=float)
     if arr.ndim != 1:
         raise ValueError(f'{name} must be a flat sequence, got shape {arr.shape}')
-    if not np.all(np.isfinite(arr)):
+    if not np.isfinite(arr).all():
         raise ValueError(f'{name} must be finite, got {arr.tolist()}')
     return arr
 
