@@ -19,8 +19,10 @@ measuring window after a warm-up. Cases:
 - ``rerun``: rerun_logger recording the 5-module robot: both RobotShape topics at 50 Hz
   (commanded shapes change every message, predicted ones at 20 Hz: in between the
   model node re-sends them unchanged), commands at 50 Hz, measured lengths and states at
-  20 Hz, the logger's default 30 Hz rate limit. The recordings of "before" and "after"
-  are read back and their entity sets compared (they must be equal).
+  20 Hz, the logger's default 30 Hz rate limit (550 messages/s). The publisher counts
+  what it sent, so the table gives CPU per message. The recordings of "before" and
+  "after" are read back and their entity sets compared (they must be equal).
+  Only this case: ``--cases baseline rerun``.
 
 ``--before REF`` also runs every case with the nodes' code as of git revision REF
 (extracted with ``git archive`` to a temporary directory and put first on PYTHONPATH;
