@@ -10,7 +10,9 @@ Subscribes (relative names, so they live in the robot's namespace, e.g. /brittle
 
 and writes a .rrd file and/or streams to a viewer. Everything about rerun (entity paths,
 colours, blueprint, units) lives in softsnap_model.recording; this node only adapts
-messages and parameters. See docs/rerun.md.
+messages and parameters. The shape, length and state topics are taken raw (CDR bytes)
+and read by softsnap_gaits.cdr, much cheaper than rclpy's deserialisation. See
+docs/rerun.md.
 
 Parameters (read-only except ``rate``):
   output      .rrd path; '' = runs/<robot>-<UTC time>.rrd under the current directory;
