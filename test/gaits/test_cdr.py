@@ -68,6 +68,19 @@ def test_every_sample_decodes_to_rclpys_deserialisation_of_the_same_bytes():
         assert_same(decode_robot_shape(data), deserialize_message(data, RobotShape))
 
 
+def test_the_fallback_from_an_rclpy_message_gives_the_same_structure():
+    """What the logger uses for bytes the reader refuses: rclpy's message, converted."""
+    from rclpy.serialization import deserialize_message, serialize_message
+    from softsnap_interfaces.msg import RobotShape
+
+    for msg in sample_shapes():
+        converted = cdr.from_message(deserialize_message(serialize_message(msg), RobotShape))
+        assert_same(converted, msg)
+        assert type(converted) is cdr.RobotShapeCdr and all(
+            type(m) is cdr.ModuleShapeCdr and m.rib_centers.shape[1:] == (3,)
+            for m in converted.modules)
+
+
 def assert_same_length(decoded: tuple[int, float], msg) -> None:
     assert decoded[0] == stamp_ns(msg.header.stamp)
     assert same_float(decoded[1], msg.cable_length)

@@ -179,7 +179,7 @@ class RerunLoggerNode(SoftSnapNode):
         self._closed = False
         self._last_shapes: dict[tuple[str, str], tuple] = {}  # (stamp ns, angles) last seen
         self._last_poses: tuple | None = None  # (module names, pose bytes) last handed on
-        self.cdr_fallbacks = 0  # RobotShapes the CDR reader refused (rclpy decoded them)
+        self.cdr_fallbacks = 0  # messages the cdr reader refused (rclpy decoded them)
 
         # A recording needs no low latency, so messages are not dispatched one by one (an
         # executor wake costs ~0.5 ms on the loaded development machine, and the demo sends
