@@ -426,7 +426,7 @@ def case_rerun(code_dir, work: Path, warmup, seconds, recording: Path):
 
     try:
         # The publisher's count: every message offered to the node (it takes them all
-        # unless starved for a second: its queues hold 50 each, drained every 50 ms).
+        # unless starved for a second: its queues hold 100 each, drained every 100 ms).
         return measure(node, warmup, seconds, log, work / 'counters', ready=recording_grows)
     finally:
         stop(pub)
