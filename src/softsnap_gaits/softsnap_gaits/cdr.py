@@ -7,8 +7,8 @@ CableLength, and that was most of the logger's CPU. This module reads exactly th
 ``RobotShape`` / ``ModuleShape`` layout, a ``CableLength`` and the leading fields of a
 ``ModuleState`` with ``struct`` and numpy views of the buffer instead; it imports no rclpy.
 
-The wire format is plain CDR (XCDR1, what rmw_fastrtps and rmw_cyclonedds send for ROS
-types), little-endian: a 4-byte encapsulation header (representation 0x0001), then the
+The wire format is plain CDR (XCDR1, what ROS 2's rmw implementations send for ROS
+types; tested here with the default, rmw_fastrtps_cpp), little-endian: a 4-byte encapsulation header (representation 0x0001), then the
 fields in message order, each primitive aligned to its own size counted from the end of
 that header; a string is a uint32 length (NUL included), the bytes and the NUL; a
 sequence is a uint32 count and its elements, the first element aligned to its type (no
