@@ -23,8 +23,10 @@ measuring window after a warm-up. Cases:
 - ``rerun``: rerun_logger recording the 5-module robot: both RobotShape topics at 50 Hz
   (commanded shapes change every message, predicted ones at 20 Hz: in between the
   model node re-sends them unchanged), commands at 50 Hz, measured lengths and states at
-  20 Hz, the logger's default 30 Hz rate limit. The recordings of "before" and "after"
-  are read back and their entity sets compared (they must be equal).
+  20 Hz, the logger's default 30 Hz rate limit (550 messages/s). The publisher counts
+  what it sent, so the table gives CPU per message. The recordings of "before" and
+  "after" are read back and their entity sets compared (they must be equal).
+  Only this case: ``--cases baseline rerun``.
 
 ``--before REF`` also runs every case with the nodes' code as of git revision REF
 (extracted with ``git archive`` to a temporary directory and put first on PYTHONPATH;
@@ -241,8 +243,9 @@ def publish_driver_commands(rate: float, straight_m: float) -> None:
         pass
 
 
-def publish_robot(rate: float) -> None:
-    """(child process) What the rerun logger sees in the demo of the 5-module brittle star."""
+def publish_robot(rate: float, out: str) -> None:
+    """(child process) What the rerun logger sees in the demo of the 5-module brittle star;
+    writes the count of messages published so far to ``out`` twice a second."""
     import rclpy
     from geometry_msgs.msg import Point, Pose
     from softsnap_interfaces.msg import CableLength, ModuleShape, ModuleState, RobotShape
@@ -286,6 +289,8 @@ def publish_robot(rate: float) -> None:
     period = 1.0 / rate
     start = time.monotonic()
     tick = 0
+    sent = 0
+    counters = Path(out)
     try:
         while True:
             stamp = node.get_clock().now().to_msg()
@@ -296,16 +301,23 @@ def publish_robot(rate: float) -> None:
                                  for i, m in enumerate(scene.modules)]
                 robot.base_poses = poses
                 shape_pubs[source].publish(robot)
+                sent += 1
             for i, m in enumerate(scene.modules):
                 length = CableLength(cable_length=0.17 + 0.01 * math.sin(tick * 0.07 + i))
                 length.header.stamp = stamp
                 pubs[(m.name, 'command')].publish(length)
+                sent += 1
                 if tick % 5 in (0, 2):  # 20 Hz at a 50 Hz tick
                     pubs[(m.name, 'measured')].publish(length)
                     state = ModuleState(module=m.name, online=True, battery_voltage=7.4)
                     state.header.stamp = stamp
                     pubs[(m.name, 'state')].publish(state)
+                    sent += 2
             tick += 1
+            if tick % int(max(1, rate // 2)) == 0:
+                tmp = counters.with_suffix('.tmp')
+                tmp.write_text(f'messages {sent}\n')
+                tmp.rename(counters)
             time.sleep(max(0.0, start + tick * period - time.monotonic()))
     except KeyboardInterrupt:
         pass
@@ -455,13 +467,15 @@ def case_rerun(code_dir, work: Path, warmup, seconds, recording: Path):
     node = start_ros_node('rerun_logger', [
         '-r', f'__ns:={NS}', '-p', f'output:={recording}', '-p', 'scene:=brittle_star'],
         code_dir, log)
-    pub = start(run_child('robot', '50'), None, work / 'robot.log')
+    pub = start(run_child('robot', '50', str(work / 'counters')), None, work / 'robot.log')
 
     def recording_grows() -> bool:  # the node logs: its file has grown past the static part
         return recording.exists() and recording.stat().st_size > 200_000
 
     try:
-        return measure(node, warmup, seconds, log, ready=recording_grows)
+        # The publisher's count: every message offered to the node (it takes them all
+        # unless starved for a second: its queues hold 100 each, drained every 100 ms).
+        return measure(node, warmup, seconds, log, work / 'counters', ready=recording_grows)
     finally:
         stop(pub)
         stop(node)
@@ -520,7 +534,7 @@ def main() -> int:
         {'lengths': lambda: publish_lengths(rest[0], float(rest[1]), bool(int(rest[2])),
                                             *(int(v) for v in rest[3:5]), *rest[5:6]),
          'commands': lambda: publish_driver_commands(float(rest[0]), float(rest[1])),
-         'robot': lambda: publish_robot(float(rest[0])),
+         'robot': lambda: publish_robot(float(rest[0]), rest[1]),
          'listen': lambda: listen(rest[0], rest[1]),
          'sim': lambda: run_sim(os.environ['NODE_COST_WORK'])}[kind]()
         return 0

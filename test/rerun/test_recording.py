@@ -236,6 +236,42 @@ def test_column_batches_record_the_same_rows_as_one_log_per_row(tmp_path, read_r
         assert columns.scalars(entity) == rows.scalars(entity), entity
 
 
+def test_column_batches_of_a_module_whose_rib_count_changes_match_one_log_per_row(
+        tmp_path, read_rrd):
+    """Rows of different rib counts in one flush take the row-by-row path: the same values
+    as logging each row at once, given rib centres (with z) and without."""
+    def write(path, flush_period_s):
+        rec = rec_mod.open_recording(path)
+        recorder = rec_mod.RobotRecorder(rec, rate_hz=0.0, flush_period_s=flush_period_s)
+        for tick, segments in enumerate((11, 11, 7, 11, 3)):
+            angles = arc_angles(0.2 * tick - 0.3, segments)
+            centres = rec_mod.rib_frames(angles).centres_m + [0.0, 0.0, 0.001 * tick]
+            recorder.shape(STAMP0 + tick * PERIOD, 'yellow', 'commanded', angles, centres)
+            recorder.shape(STAMP0 + tick * PERIOD, 'yellow', 'predicted', angles)
+        recorder.flush()
+        rec_mod.close_recording(rec)
+
+    write(tmp_path / 'rows.rrd', 0.0)
+    write(tmp_path / 'columns.rrd', 10.0)
+    rows, columns = read_rrd(tmp_path / 'rows.rrd'), read_rrd(tmp_path / 'columns.rrd')
+    for source in ('commanded', 'predicted'):
+        for part in ('spine', 'ribs'):
+            entity = f'robot/yellow/{source}/{part}'
+            got, want = (r.values(entity, 'LineStrips3D:strips') for r in (columns, rows))
+            # points of the spine strip, or strips of the ribs: one per rib
+            assert [len(np.asarray(v[0] if part == 'spine' else v)) for v in got] == [
+                12, 12, 8, 12, 4]
+            for a, b in zip(got, want, strict=True):
+                np.testing.assert_array_equal(np.asarray(a, dtype=float), np.asarray(b, dtype=float))
+    # A tip error only between shapes of equal rib counts: every predicted shape against
+    # its tick's commanded one (only z differs: tick mm), and the second commanded shape
+    # against the first predicted one; the same in both files.
+    tip = columns.scalars('plots/tip_error_mm/yellow')
+    assert tip == rows.scalars('plots/tip_error_mm/yellow')
+    assert len(tip) == 6 and tip[1] > 10.0
+    np.testing.assert_allclose([tip[0], *tip[2:]], [0.0, 1.0, 2.0, 3.0, 4.0], atol=1e-9)
+
+
 def test_unchanged_shapes_are_logged_once(tmp_path, read_rrd):
     rec = rec_mod.open_recording(tmp_path / 'still.rrd')
     recorder = rec_mod.RobotRecorder(rec, rate_hz=0.0, skip_unchanged=True, flush_period_s=1.0)

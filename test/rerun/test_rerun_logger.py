@@ -246,3 +246,38 @@ def test_unknown_scene_is_refused_with_its_name(tmp_path, start_node):
     assert proc.proc.wait(30) == 2
     assert 'no_such_robot' in log_of(proc), log_of(proc)
     assert not (tmp_path / 'x.rrd').exists()
+
+
+def test_malformed_message_bytes_are_logged_and_the_node_keeps_recording(
+        tmp_path, start_node, ros_node, read_rrd):
+    """The node takes its topics raw: bytes that are no RobotShape or CableLength (a
+    truncated message, junk) are refused with an error line, and the next good messages
+    are recorded."""
+    from rclpy.serialization import serialize_message
+    from softsnap_interfaces.msg import CableLength
+
+    output = tmp_path / 'junk.rrd'
+    proc = start_node('softsnap_gaits', 'rerun_logger', '--ros-args', '-r', f'__ns:={NS}',
+                      '-p', f'output:={output}', '-p', 'rate:=0.0', '-p', 'modules:=[yellow]')
+    _, poses = scene_poses()
+    pubs = publishers(ros_node, ['yellow'])
+    wait_matched(ros_node, pubs, proc)
+    good = serialize_message(robot_shape('predicted', 0, ['yellow'], {'yellow'}, poses))
+    length = CableLength(cable_length=0.19)
+    stamp(length.header, STAMP0)
+    # rclpy publishes bytes as they are: a serialised message, or anything else.
+    pubs['predicted'].publish(good[:len(good) // 2])
+    pubs['predicted'].publish(b'\x00\x01\x00\x00' + b'\xff' * 40)
+    pubs[('yellow', 'command')].publish(b'\x00\x01\x00\x00\x07')
+    ros_node.spin_until(lambda: False, 0.5)
+    pubs['predicted'].publish(good)
+    pubs[('yellow', 'command')].publish(length)
+    wait_for_rows(output, 'robot/yellow/predicted/spine', 1, ros_node)
+    wait_for_rows(output, 'plots/cable_length_mm/yellow/commanded', 1, ros_node)
+    assert proc.alive()
+    assert proc.stop() == 0, log_of(proc)
+    log = log_of(proc)
+    assert 'message not logged' in log and 'model/shape/predicted' in log, log
+    rrd = read_rrd(output)
+    assert rrd.times('robot/yellow/predicted/spine') == [STAMP0]
+    np.testing.assert_allclose(rrd.scalars('plots/cable_length_mm/yellow/commanded'), [190.0])

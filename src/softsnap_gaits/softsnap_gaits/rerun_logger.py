@@ -10,7 +10,9 @@ Subscribes (relative names, so they live in the robot's namespace, e.g. /brittle
 
 and writes a .rrd file and/or streams to a viewer. Everything about rerun (entity paths,
 colours, blueprint, units) lives in softsnap_model.recording; this node only adapts
-messages and parameters. See docs/rerun.md.
+messages and parameters. The shape, length and state topics are taken raw (CDR bytes)
+and read by softsnap_gaits.cdr, much cheaper than rclpy's deserialisation. See
+docs/rerun.md.
 
 Parameters (read-only except ``rate``):
   output      .rrd path; '' = runs/<robot>-<UTC time>.rrd under the current directory;
@@ -51,23 +53,29 @@ from rclpy.logging import get_logger
 from rclpy.parameter import Parameter
 from geometry_msgs.msg import PoseStamped
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.serialization import deserialize_message
 
 from softsnap_driver.ros_parameters import SoftSnapNode
 from softsnap_driver.spinning import spin_until_shutdown
 from softsnap_interfaces.msg import CableLength, ModuleState, RobotShape
 from softsnap_model import recording
 
+from softsnap_gaits import cdr
+
 # Reliable, like the default QoS the model node, the drivers and the gait node publish
 # with, so samples sent right after discovery are not lost; a KEEP_LAST reader never
-# blocks a publisher. The depth absorbs bursts (one RobotShape per model tick per source).
-SUBSCRIPTION_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=50,
+# blocks a publisher. The depth absorbs bursts (one RobotShape per model tick per source):
+# 100 holds 1 s of a 100 Hz model, 10 drain periods.
+SUBSCRIPTION_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
                               reliability=ReliabilityPolicy.RELIABLE)
 MAX_RATE_HZ = 1000.0
 #: Default of the flush_period parameter (s): a live viewer lags by at most this much;
 #: longer periods cost less CPU (one send_columns per entity and flush).
 DEFAULT_FLUSH_PERIOD_S = 1.0
 #: How often the inbox is drained (s): the most a message waits before it is handled.
-DRAIN_PERIOD_S = 0.05
+#: 0.1 rather than 0.05 saved ~1% of a core (a timer wake costs ~0.5 ms under load); a
+#: recording needs no lower latency, and rows wait up to flush_period anyway.
+DRAIN_PERIOD_S = 0.1
 
 
 def stamp_ns(stamp) -> int:
@@ -174,26 +182,33 @@ class RerunLoggerNode(SoftSnapNode):
                             for m in getattr(scene, 'modules', [])}
         self._closed = False
         self._last_shapes: dict[tuple[str, str], tuple] = {}  # (stamp ns, angles) last seen
+        self._last_poses: tuple | None = None  # (module names, pose bytes) last handed on
+        self.cdr_fallbacks = 0  # messages the cdr reader refused (rclpy decoded them)
 
         # A recording needs no low latency, so messages are not dispatched one by one (an
         # executor wake costs ~0.5 ms on the loaded development machine, and the demo sends
         # ~550 messages/s): the subscriptions live on an inbox node that no executor
         # spins, and a timer takes everything that arrived every DRAIN_PERIOD_S, topic by
-        # topic (the queues' depth holds 2.5 s at 20 Hz). The inbox's node-local remap
+        # topic (the queues' depth holds 1 s at 100 Hz). The inbox's node-local remap
         # keeps a `-r __node:=NAME` from giving it this node's name.
         self._inbox = rclpy.node.Node(
             f'{self.get_name()}_inbox', namespace=self.get_namespace(), context=self.context,
             start_parameter_services=False, enable_rosout=False,
             cli_args=['--ros-args', '-r', f'__node:={self.get_name()}_inbox'])
-        self._drained: list[tuple] = []  # (subscription, message type, handler)
-        self._subscribe(RobotShape, 'model/shape/commanded', self.commanded_shape_callback)
-        self._subscribe(RobotShape, 'model/shape/predicted', self.predicted_shape_callback)
+        self._drained: list[tuple] = []  # (subscription, message type, raw, handler)
+        # Shapes are taken raw, as CDR bytes, and read by cdr: rclpy's deserialisation
+        # builds ~100 Python objects per RobotShape and was most of this node's CPU.
+        self._subscribe(RobotShape, 'model/shape/commanded', self.commanded_shape_callback,
+                        raw=True)
+        self._subscribe(RobotShape, 'model/shape/predicted', self.predicted_shape_callback,
+                        raw=True)
         # The steady clock: draining is work pacing, not part of the robot's time (with
         # use_sim_time a stopped /clock would otherwise leave the inbox undrained).
         self.create_timer(DRAIN_PERIOD_S, self.drain_callback,
                           clock=Clock(clock_type=ClockType.STEADY_TIME))
         # sim_robot's shapes and robot pose; silent unless a physics simulation runs.
-        self._subscribe(RobotShape, 'model/shape/simulated', self.simulated_shape_callback)
+        self._subscribe(RobotShape, 'model/shape/simulated', self.simulated_shape_callback,
+                        raw=True)
         self._subscribe(PoseStamped, 'sim/base_pose', self.base_pose_callback)
         self._module_subscriptions: dict[str, list] = {}
         for module in sorted(modules or ()):
@@ -235,31 +250,35 @@ class RerunLoggerNode(SoftSnapNode):
         names = [n for n in (self.get_parameter('modules').value or []) if n]
         return frozenset(names) or None
 
-    def _subscribe(self, msg_type, topic: str, handler):
+    def _subscribe(self, msg_type, topic: str, handler, raw: bool = False):
         subscription = self._inbox.create_subscription(msg_type, topic, lambda msg: None,
-                                                       SUBSCRIPTION_QOS)
-        self._drained.append((subscription, msg_type, handler))
+                                                       SUBSCRIPTION_QOS, raw=raw)
+        self._drained.append((subscription, msg_type, raw, handler))
         return subscription
 
     def _subscribe_module(self, module: str) -> None:
         if module in self._module_subscriptions:
             return
+        # Raw too: these are most of the messages (7 of 11 in the demo), and rclpy would
+        # build a message, a Header and a Time object for each.
         self._module_subscriptions[module] = [
             self._subscribe(CableLength, f'{module}/cable_length/command',
-                            lambda msg, m=module: self.cable_length_callback(msg, m, 'commanded')),
+                            lambda data, m=module: self.cable_length_callback(data, m, 'commanded'),
+                            raw=True),
             self._subscribe(CableLength, f'{module}/cable_length/measured',
-                            lambda msg, m=module: self.cable_length_callback(msg, m, 'measured')),
+                            lambda data, m=module: self.cable_length_callback(data, m, 'measured'),
+                            raw=True),
             self._subscribe(ModuleState, f'{module}/state',
-                            lambda msg, m=module: self.state_callback(msg, m)),
+                            lambda data, m=module: self.state_callback(data, m), raw=True),
         ]
 
     def drain_callback(self) -> None:
         """Handle every message that arrived since the last drain, then flush if due."""
         if self._closed:
             return
-        for subscription, msg_type, handler in list(self._drained):  # may grow meanwhile
+        for subscription, msg_type, raw, handler in list(self._drained):  # may grow meanwhile
             with subscription.handle:
-                while (taken := subscription.handle.take_message(msg_type, False)) is not None:
+                while (taken := subscription.handle.take_message(msg_type, raw)) is not None:
                     try:
                         handler(taken[0])
                     except Exception as exc:  # noqa: BLE001 - one bad message must not stop the rest
@@ -275,16 +294,32 @@ class RerunLoggerNode(SoftSnapNode):
         ns = stamp_ns(header.stamp)
         return ns if ns else self.get_clock().now().nanoseconds
 
-    def commanded_shape_callback(self, msg: RobotShape) -> None:
-        self._robot_shape(msg, 'commanded')
+    def commanded_shape_callback(self, data: bytes) -> None:
+        self._robot_shape(self._decode(data), 'commanded')
 
-    def predicted_shape_callback(self, msg: RobotShape) -> None:
-        self._robot_shape(msg, 'predicted')
+    def predicted_shape_callback(self, data: bytes) -> None:
+        self._robot_shape(self._decode(data), 'predicted')
 
-    def simulated_shape_callback(self, msg: RobotShape) -> None:
+    def simulated_shape_callback(self, data: bytes) -> None:
         # Its base poses are in the world: the module frames keep the model's poses in
         # the robot frame, and the robot frame follows sim/base_pose.
-        self._robot_shape(msg, 'simulated', base_poses=False)
+        self._robot_shape(self._decode(data), 'simulated', base_poses=False)
+
+    def _decode(self, data: bytes) -> cdr.RobotShapeCdr:
+        """A raw RobotShape, read by the cdr module; see `_fallback`."""
+        try:
+            return cdr.decode_robot_shape(data)
+        except cdr.CdrError:
+            return cdr.from_message(self._fallback(data, RobotShape))
+
+    def _fallback(self, data: bytes, msg_type):
+        """rclpy's deserialisation of bytes the cdr reader refused (another encoding, say
+        big-endian); bytes rclpy refuses too raise, and the drain logs that."""
+        self.cdr_fallbacks += 1
+        if self.cdr_fallbacks == 1:
+            self.get_logger().warning(f'{msg_type.__name__} bytes not plain little-endian '
+                                      'CDR: rclpy decodes them (slower)')
+        return deserialize_message(data, msg_type)
 
     def base_pose_callback(self, msg: PoseStamped) -> None:
         if not self._closed:
@@ -292,54 +327,70 @@ class RerunLoggerNode(SoftSnapNode):
             self.recorder.robot_pose(self._stamp(msg.header), (p.x, p.y, p.z),
                                      (q.x, q.y, q.z, q.w))
 
-    def _robot_shape(self, msg: RobotShape, source: str, base_poses: bool = True) -> None:
+    def _robot_shape(self, msg: cdr.RobotShapeCdr, source: str,
+                     base_poses: bool = True) -> None:
         if self._closed:
             return
-        stamp = self._stamp(msg.header)
-        if not base_poses:
+        stamp = msg.stamp_ns or self.get_clock().now().nanoseconds
+        names = tuple(shape.module for shape in msg.modules)
+        # Base poses rarely change: hand them on only when their bytes or the modules do.
+        poses_seen = (names, msg.base_poses.tobytes())
+        if not base_poses or poses_seen == self._last_poses:
             pass
         elif len(msg.base_poses) == len(msg.modules):
-            self.recorder.base_poses(stamp, {
-                shape.module: ((p.position.x, p.position.y, p.position.z),
-                               (p.orientation.x, p.orientation.y, p.orientation.z,
-                                p.orientation.w))
-                for shape, p in zip(msg.modules, msg.base_poses)})
+            self.recorder.base_poses(stamp, {name: (pose[:3], pose[3:])
+                                             for name, pose in zip(names, msg.base_poses)})
+            self._last_poses = poses_seen
         else:
-            self.recorder.base_poses(stamp, {shape.module: self.scene_poses[shape.module]
-                                             for shape in msg.modules
-                                             if shape.module in self.scene_poses})
+            self.recorder.base_poses(stamp, {name: self.scene_poses[name] for name in names
+                                             if name in self.scene_poses})
+            self._last_poses = poses_seen
         for shape in msg.modules:
             if not self.recorder.wants(shape.module):
                 continue
             self._subscribe_module(shape.module)
-            shape_stamp = stamp_ns(shape.header.stamp) or stamp
+            shape_stamp = shape.stamp_ns or stamp
             source_of = shape.source if shape.source in recording.SOURCES else source
             if self.recorder.skip_unchanged:
                 # The model node re-sends an unchanged module's message as it was: same
                 # stamp, same angles. Skip it before converting its points.
                 # Only a logged shape counts: one the rate limit dropped is taken later.
-                seen = (shape_stamp, shape.angles)
+                seen = (shape_stamp, shape.angles.tobytes())
                 if self._last_shapes.get((shape.module, source_of)) == seen:
                     self.recorder.unchanged += 1
                     continue
-            centres = [(p.x, p.y, p.z) for p in shape.rib_centers] or None
+            centres = shape.rib_centers if len(shape.rib_centers) else None
             try:
                 if self.recorder.shape(shape_stamp, shape.module, source_of,
                                        shape.angles, centres,
                                        None if source == 'simulated' else shape.solve_time):
-                    self._last_shapes[(shape.module, source_of)] = (shape_stamp, shape.angles)
+                    self._last_shapes[(shape.module, source_of)] = (
+                        shape_stamp, shape.angles.tobytes())
             except ValueError as exc:
                 self.get_logger().warning(f'{shape.module} {source} shape not logged: {exc}',
                                           throttle_duration_sec=5.0)
 
-    def cable_length_callback(self, msg: CableLength, module: str, kind: str) -> None:
-        if not self._closed:
-            self.recorder.cable_length(self._stamp(msg.header), module, kind, msg.cable_length)
+    def cable_length_callback(self, data: bytes, module: str, kind: str) -> None:
+        if self._closed:
+            return
+        try:
+            stamp, length = cdr.decode_cable_length(data)
+        except cdr.CdrError:  # another encoding: rclpy reads it
+            msg = self._fallback(data, CableLength)
+            stamp, length = stamp_ns(msg.header.stamp), msg.cable_length
+        self.recorder.cable_length(stamp or self.get_clock().now().nanoseconds, module, kind,
+                                   length)
 
-    def state_callback(self, msg: ModuleState, module: str) -> None:
-        if not self._closed:
-            self.recorder.module_state(self._stamp(msg.header), msg.module or module,
-                                       msg.battery_voltage)
+    def state_callback(self, data: bytes, module: str) -> None:
+        if self._closed:
+            return
+        try:
+            stamp, name, battery_v = cdr.decode_module_state(data)
+        except cdr.CdrError:
+            msg = self._fallback(data, ModuleState)
+            stamp, name, battery_v = stamp_ns(msg.header.stamp), msg.module, msg.battery_voltage
+        self.recorder.module_state(stamp or self.get_clock().now().nanoseconds,
+                                   name or module, battery_v)
 
     # --- shutdown -----------------------------------------------------------------------
 

@@ -41,6 +41,7 @@ Plots are grouped by quantity first because a blueprint view selects a subtree
 from __future__ import annotations
 
 import argparse
+import functools
 import math
 import sys
 import time
@@ -50,6 +51,7 @@ from typing import Callable, Iterable, Mapping, Sequence
 from urllib.parse import quote
 
 import numpy as np
+import pyarrow as pa
 import rerun as rr
 import rerun.blueprint as rrb
 
@@ -117,6 +119,7 @@ def module_path(module: str) -> str:
     return f'{ROBOT_ROOT}/{module}'
 
 
+@functools.lru_cache(maxsize=4096)  # called for every row: the paths are few
 def shape_path(module: str, source: str, part: str) -> str:
     """Entity of one drawn part (spine, ribs, cable) of a module's shape."""
     if source not in SOURCES:
@@ -124,6 +127,7 @@ def shape_path(module: str, source: str, part: str) -> str:
     return f'{module_path(module)}/{source}/{part}'
 
 
+@functools.lru_cache(maxsize=4096)
 def plot_path(quantity: str, module: str, *series: str) -> str:
     """Entity of a time series: ``plots/<quantity>/<module>[/<series>]``.
 
@@ -351,7 +355,7 @@ def _as_vector(values, name: str) -> np.ndarray:
     arr = np.asarray(values, dtype=float)
     if arr.ndim != 1:
         raise ValueError(f'{name} must be a flat sequence, got shape {arr.shape}')
-    if not np.all(np.isfinite(arr)):
+    if not np.isfinite(arr).all():
         raise ValueError(f'{name} must be finite, got {arr.tolist()}')
     return arr
 
@@ -535,6 +539,37 @@ def log_scalar(rec: rr.RecordingStream, path: str, value: float) -> None:
 
 # --- the recorder the ROS node drives ---------------------------------------------------
 
+class _ArrowBatch:
+    """A component batch (rerun's ComponentBatchLike) over a ready arrow array."""
+
+    def __init__(self, array):
+        self._array = array
+
+    def as_arrow_array(self):
+        return self._array
+
+
+def _strips_column(strips: np.ndarray) -> rr.ComponentColumn:
+    """The LineStrips3D:strips column of ``strips`` (rows, k, m, 3), k strips of m points a
+    row, built as arrow arrays in a few numpy calls: what ``LineStrips3D.columns(...)
+    .partition(...)`` builds, which walks the strips one by one in Python (about two thirds
+    of a flush's CPU)."""
+    rows, k, m = strips.shape[:3]
+    points = pa.array(np.ascontiguousarray(strips, dtype=np.float32).reshape(-1))
+    points = pa.FixedSizeListArray.from_arrays(points, type=_STRIP_TYPE.value_type)
+    lines = pa.ListArray.from_arrays(pa.array(np.arange(0, rows * k * m + 1, m, dtype=np.int32)),
+                                     points, type=_STRIP_TYPE)
+    return rr.ComponentColumn(_STRIPS_DESCRIPTOR, _ArrowBatch(lines),
+                              offsets=np.arange(0, rows * k + 1, k, dtype=np.int32))
+
+
+# The columns' descriptors and the strips' arrow type, as rerun's own archetypes build them.
+_SCALARS_DESCRIPTOR = next(iter(rr.Scalars.columns(scalars=np.zeros(1)))).descriptor
+_STRIPS_DESCRIPTOR, _STRIP_TYPE = (lambda column: (
+    column.descriptor, column.component_batch.as_arrow_array().type))(
+    next(iter(rr.LineStrips3D.columns(strips=np.zeros((1, 2, 3))))))
+
+
 class RateLimiter:
     """At most ``rate_hz`` events per key, measured on the events' own time stamps.
 
@@ -611,11 +646,16 @@ class RobotRecorder:
         self.unchanged = 0
         self._clock = clock
         self._poses: dict[str, tuple[tuple[float, ...], tuple[float, ...]]] = {}
-        self._latest: dict[tuple[str, str], RibFrames] = {}
+        # (module, source) -> (rib count, last rib centre (m)) of the latest shape, logged
+        # or not: the other source's tip error is measured against it.
+        self._latest_tip: dict[tuple[str, str], tuple[int, np.ndarray]] = {}
         self._last_input: dict[tuple[str, str], tuple] = {}  # (angles, centres) last logged
         self._styled: set[object] = set()
         # entity path -> ('scalar' | 'strips', stamps ns, values), oldest row first.
         self._buffers: dict[str, tuple[str, list[int], list]] = {}
+        # (module, source) -> (stamps ns, rib centres (n, 3) m, angles (n - 1,) rad) of
+        # buffered shapes: their strips are computed at flush, for all rows at once.
+        self._shape_buffers: dict[tuple[str, str], tuple[list[int], list, list]] = {}
         self._first_buffered = math.inf  # clock time of the oldest buffered row
         log_scene_setup(rec)
         if self.colors:
@@ -675,12 +715,20 @@ class RobotRecorder:
 
     def flush(self) -> None:
         """Send every buffered row: one ``send_columns`` per entity, rows in arrival order."""
+        shapes, self._shape_buffers = self._shape_buffers, {}
+        for (module, source), (stamps, centres, angles) in shapes.items():
+            for part, strips in self._shape_strips(module, centres, angles):
+                self._buffers[shape_path(module, source, part)] = ('strips', stamps, strips)
         buffers, self._buffers = self._buffers, {}
         self._first_buffered = math.inf
         for path, (kind, stamps, values) in buffers.items():
             index = [rr.TimeColumn(TIMELINE, timestamp=np.array(stamps, dtype='datetime64[ns]'))]
             if kind == 'scalar':
-                columns = rr.Scalars.columns(scalars=np.array(values, dtype=float))
+                columns = [rr.ComponentColumn(  # as Scalars.columns(...) builds it, minus its
+                    _SCALARS_DESCRIPTOR,        # per-call archetype machinery
+                    _ArrowBatch(pa.array(np.array(values, dtype=np.float64))))]
+            elif isinstance(values, np.ndarray):  # (rows, k, m, 3): k strips of m points a row
+                columns = [_strips_column(values)]
             else:
                 counts = [len(v) for v in values]
                 if len({v.shape[1:] for v in values}) == 1:
@@ -689,6 +737,34 @@ class RobotRecorder:
                     strips = [strip for v in values for strip in v]
                 columns = rr.LineStrips3D.columns(strips=strips).partition(counts)
             self.rec.send_columns(path, indexes=index, columns=columns)
+
+    def _shape_strips(self, module: str, centres: list[np.ndarray], angles: list[np.ndarray]
+                      ) -> list[tuple[str, np.ndarray | list[np.ndarray]]]:
+        """(part, strips) of buffered shapes, strips (rows, k, m, 3) or one (k, m, 3) array
+        per row: the values of `rib_segments_m` and `cable_points_m` row by row, computed
+        for all rows with one numpy call per step (a row at a time took ~10 calls a shape)."""
+        threading = self.threadings_mm.get(module)
+        if len({len(c) for c in centres}) > 1:  # the module's rib count changed: row by row
+            frames = [RibFrames(c, np.concatenate(([0.0], np.cumsum(a))))
+                      for c, a in zip(centres, angles)]
+            parts = [('spine', [f.centres_m[None] for f in frames]),
+                     ('ribs', [rib_segments_m(f) for f in frames])]
+            if threading is not None:
+                parts.append(('cable', [cable_points_m(f, threading)[None] for f in frames]))
+            return parts
+        c = np.stack(centres)  # (rows, n, 3)
+        t = np.zeros(c.shape[:2])
+        np.cumsum(np.stack(angles), axis=1, out=t[:, 1:])  # spine headings, rad
+        sin_t, cos_t = np.sin(t), np.cos(t)
+        half = RIB_HALF_LENGTH_MM * MM
+        offset = np.stack((-half * sin_t, half * cos_t, np.zeros_like(t)), axis=-1)
+        ribs = np.stack((c + offset, c - offset), axis=2)  # (rows, n, 2, 3)
+        parts = [('spine', c[:, None]), ('ribs', ribs)]
+        if threading is not None:
+            d = threading * MM
+            cable = c + np.stack((d * sin_t, -d * cos_t, np.zeros_like(t)), axis=-1)
+            parts.append(('cable', cable[:, None]))
+        return parts
 
     # --- data sources ---------------------------------------------------------------------
 
@@ -721,14 +797,25 @@ class RobotRecorder:
         if not self.wants(module):
             return False
         key = (module, source)
+        angles = _as_vector(angles_rad, 'angles_rad')
+        centres = (None if rib_centres_m is None or not len(rib_centres_m) else
+                   np.asarray(rib_centres_m, dtype=float).reshape(-1, 3))
         if self.skip_unchanged:
-            given = (tuple(angles_rad), None if rib_centres_m is None else
-                     np.asarray(rib_centres_m, dtype=float).tobytes())
+            given = (angles.tobytes(), None if centres is None else centres.tobytes())
             if self._last_input.get(key) == given:
                 self.unchanged += 1
                 return False
-        frames = rib_frames(angles_rad, rib_centres_m, self.spacing_mm)
-        self._latest[key] = frames
+        if centres is None:
+            planar = rib_centres_mm(angles, self.spacing_mm) * MM
+            centres = np.column_stack((planar, np.zeros(len(planar))))
+        elif len(centres) != len(angles) + 1:
+            raise ValueError(f'expected {len(angles) + 1} rib centres for {len(angles)} '
+                             f'angles, got {len(centres)}')
+        threading = self.threadings_mm.get(module)
+        if threading is not None and len(threading) != len(centres):
+            raise ValueError(f'{module}: expected {len(centres)} hole offsets (one per rib), '
+                             f'got {len(threading)}')
+        self._latest_tip[key] = (len(centres), centres[-1])
         if not self._admit(module, source, stamp_ns):
             return False
         if self.skip_unchanged:
@@ -737,22 +824,36 @@ class RobotRecorder:
             self._styled.add(key)
             log_shape_styles(self.rec, module, source, module in self.threadings_mm,
                              self.color(module))
-        self._row(shape_path(module, source, 'spine'), 'strips', stamp_ns,
-                  frames.centres_m[None])
-        self._row(shape_path(module, source, 'ribs'), 'strips', stamp_ns, rib_segments_m(frames))
-        threading = self.threadings_mm.get(module)
-        if threading is not None:
-            self._row(shape_path(module, source, 'cable'), 'strips', stamp_ns,
-                      cable_points_m(frames, threading)[None])
+        if self.flush_period_s:  # strips computed at flush, for all buffered rows at once
+            buffer = self._shape_buffers.get(key)
+            if buffer is None:
+                buffer = self._shape_buffers[key] = ([], [], [])
+                if self._first_buffered == math.inf:
+                    self._first_buffered = self._clock()
+            buffer[0].append(stamp_ns)
+            buffer[1].append(centres)
+            buffer[2].append(angles)
+        else:
+            frames = RibFrames(centres, np.concatenate(([0.0], np.cumsum(angles))))
+            self._row(shape_path(module, source, 'spine'), 'strips', stamp_ns,
+                      frames.centres_m[None])
+            self._row(shape_path(module, source, 'ribs'), 'strips', stamp_ns,
+                      rib_segments_m(frames))
+            if threading is not None:
+                self._row(shape_path(module, source, 'cable'), 'strips', stamp_ns,
+                          cable_points_m(frames, threading)[None])
         if solve_time_s is not None:
             self._row(plot_path('solve_time_ms', module, source), 'scalar', stamp_ns,
                       solve_time_s * 1e3)
-        # The tip error plot compares the model's two shapes; a simulated one has no partner.
+        # The tip error plot compares the model's two shapes (the latest of the other one,
+        # logged or not); a simulated one has no partner.
         other = (None if source == 'simulated' else
-                 self._latest.get((module, 'predicted' if source == 'commanded' else 'commanded')))
-        if other is not None and len(other.centres_m) == len(frames.centres_m):
-            pair = (frames, other) if source == 'commanded' else (other, frames)
-            self._row(plot_path('tip_error_mm', module), 'scalar', stamp_ns, tip_error_mm(*pair))
+                 self._latest_tip.get((module, 'predicted' if source == 'commanded'
+                                       else 'commanded')))
+        if other is not None and other[0] == len(centres):
+            tip = centres[-1] - other[1] if source == 'commanded' else other[1] - centres[-1]
+            self._row(plot_path('tip_error_mm', module), 'scalar', stamp_ns,
+                      float(np.linalg.norm(tip) / MM))
         if self.flush_period_s:
             self.flush_if_due()
         return True
