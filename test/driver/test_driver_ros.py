@@ -332,7 +332,7 @@ def test_command_decoding_equals_rclpy_deserialisation():
     import struct
     from rclpy.serialization import deserialize_message, serialize_message
     from softsnap_interfaces.msg import CableLength
-    from softsnap_driver.driver_node import decode_cable_length
+    from softsnap_driver.cdr import CdrError, decode_cable_length
     rng = random.Random(5)
     for text in range(12):
         for value in (0.15, 0.0, -1.0, math.nan, math.inf, -math.inf, 5e-324, 1e308):
@@ -350,4 +350,5 @@ def test_command_decoding_equals_rclpy_deserialisation():
     assert decode_cable_length(big) == (3_000_000_004, 0.25)
     for unknown in (b'', b'\x00\x01', b'\x00\x07' + raw[2:], raw[:-1],
                     raw[:12] + struct.pack('<I', 2**32 - 1) + raw[16:]):
-        assert decode_cable_length(unknown) is None
+        with pytest.raises(CdrError):
+            decode_cable_length(unknown)

@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from softsnap_gaits import cdr
-from softsnap_gaits.cdr import (CdrError, decode_cable_length, decode_module_state,
+from softsnap_driver import cdr
+from softsnap_driver.cdr import (CdrError, decode_cable_length, decode_module_state,
                                  decode_robot_shape)
 
 sys.path.insert(0, str(Path(__file__).parent))

@@ -10,7 +10,8 @@ from softsnap_interfaces.msg import CableLength, ModuleShape, RobotShape
 
 from softsnap_model.predictor import SOURCES, RobotPredictor
 from softsnap_model.scene import load_scene
-from softsnap_model.shape_wire import ModuleShapeWire, RobotShapeWire, cable_length_from_cdr
+from softsnap_driver.cdr import decode_cable_length
+from softsnap_model.shape_wire import ModuleShapeWire, RobotShapeWire
 
 
 @pytest.fixture(scope='module')
@@ -116,7 +117,7 @@ def test_cable_length_is_read_from_the_bytes(frame_id):
     msg = CableLength(cable_length=0.171234)
     msg.header.stamp.sec, msg.header.stamp.nanosec = 1_700_000_123, 987_654_321
     msg.header.frame_id = frame_id
-    length, stamp_ns = cable_length_from_cdr(serialize_message(msg))
+    stamp_ns, length = decode_cable_length(serialize_message(msg))
     assert length == 0.171234
     assert stamp_ns == 1_700_000_123_987_654_321
 
@@ -126,11 +127,11 @@ def test_cable_length_is_read_from_the_bytes(frame_id):
                                   + bytes(12)])
 def test_cable_length_reader_refuses_what_it_cannot_read(data):
     with pytest.raises(ValueError):
-        cable_length_from_cdr(data)
+        decode_cable_length(data)
 
 
 def test_non_finite_lengths_survive_the_reader():
     # The predictor refuses them with a reason: the reader must hand them on unchanged.
     for value in (math.nan, math.inf, -1.0):
-        length, _ = cable_length_from_cdr(serialize_message(CableLength(cable_length=value)))
+        _, length = decode_cable_length(serialize_message(CableLength(cable_length=value)))
         assert length == value or (math.isnan(value) and math.isnan(length))

@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import math
 import re
-import struct
 import sys
 import threading
 import time
@@ -49,6 +48,7 @@ from sensor_msgs.msg import BatteryState
 from softsnap_interfaces.msg import CableLength, ModuleState
 from std_srvs.srv import Trigger
 
+from softsnap_driver.cdr import CdrError, decode_cable_length
 from softsnap_driver.core import DEFAULT_CLAMP_MARGIN_M, CableCalibration
 from softsnap_driver.diagnostics import DriverHealth, battery_state, diagnostic_name
 from softsnap_driver.link import LinkConfig, LinkReport, ModuleLink
@@ -120,29 +120,6 @@ PARAMETERS = {
 #: Longest the command thread blocks in one wait (s): it notices a stop this fast.
 COMMAND_WAIT_S = 0.05
 
-#: XCDR1 encapsulation ids (the first two bytes of a serialised message): byte order.
-_CDR_BYTE_ORDER = {b'\x00\x00': '>', b'\x00\x01': '<'}
-
-
-def decode_cable_length(raw: bytes) -> tuple[int, float] | None:
-    """``(header stamp in ns, cable_length in m)`` of a serialised CableLength, or None.
-
-    The layout (XCDR1; alignment counts from the end of the 4-byte encapsulation header):
-    int32 ``sec``, uint32 ``nanosec``, uint32 length of ``frame_id`` with its NUL, its
-    bytes, padding to a multiple of 8, float64 ``cable_length``. None for bytes laid out
-    otherwise: the caller then lets rclpy deserialise them. Why by hand: building the
-    Python message cost about a third of the command thread's time per message.
-    """
-    order = _CDR_BYTE_ORDER.get(raw[:2])
-    if order is None or len(raw) < 16:
-        return None
-    sec, nanosec, text = struct.unpack_from(order + 'iII', raw, 4)
-    at = 4 + ((12 + text + 7) & ~7)
-    if text < 1 or at + 8 > len(raw):
-        return None
-    return sec * 1_000_000_000 + nanosec, struct.unpack_from(order + 'd', raw, at)[0]
-
-
 class CommandInbox:
     """Takes the command topic's messages on a thread of its own, blocked in ``rcl_wait``.
 
@@ -150,7 +127,7 @@ class CommandInbox:
     of the node's entities (parameter and trigger services...) in Python, about 0.5 ms a
     message on the loaded development machine, so 50 Hz commands alone cost 2-3% of a
     core. Here one wait set holds the one subscription, on an inbox node no executor
-    spins; each message is taken serialised, decoded (:func:`decode_cable_length`) and
+    spins; each message is taken serialised, decoded (:func:`softsnap_driver.cdr.decode_cable_length`) and
     goes straight to ``handle(cable_length_m, stamp_ns)`` (which must not raise).
     The thread never dies silently: an unexpected error is logged (throttled) and the
     loop goes on; it ends on :meth:`stop` or when the context shuts down.
@@ -184,12 +161,13 @@ class CommandInbox:
                 time.sleep(COMMAND_WAIT_S)
 
     def _take(self, raw: bytes) -> None:
-        decoded = decode_cable_length(raw)
-        if decoded is None:
+        try:
+            stamp_ns, length_m = decode_cable_length(raw)
+        except CdrError:  # another encoding: rclpy reads it
             msg = deserialize_message(raw, CableLength)
             stamp = msg.header.stamp
-            decoded = stamp.sec * 1_000_000_000 + stamp.nanosec, msg.cable_length
-        self._handle(decoded[1], decoded[0])
+            stamp_ns, length_m = stamp.sec * 1_000_000_000 + stamp.nanosec, msg.cable_length
+        self._handle(length_m, stamp_ns)
 
     def stop(self, timeout: float) -> None:
         self._stop.set()

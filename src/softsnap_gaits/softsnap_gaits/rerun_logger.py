@@ -11,7 +11,7 @@ Subscribes (relative names, so they live in the robot's namespace, e.g. /brittle
 and writes a .rrd file and/or streams to a viewer. Everything about rerun (entity paths,
 colours, blueprint, units) lives in softsnap_model.recording; this node only adapts
 messages and parameters. The shape, length and state topics are taken raw (CDR bytes)
-and read by softsnap_gaits.cdr, much cheaper than rclpy's deserialisation. See
+and read by softsnap_driver.cdr, much cheaper than rclpy's deserialisation. See
 docs/rerun.md.
 
 Parameters (read-only except ``rate``):
@@ -60,7 +60,7 @@ from softsnap_driver.spinning import spin_until_shutdown
 from softsnap_interfaces.msg import CableLength, ModuleState, RobotShape
 from softsnap_model import recording
 
-from softsnap_gaits import cdr
+from softsnap_driver import cdr
 
 # Reliable, like the default QoS the model node, the drivers and the gait node publish
 # with, so samples sent right after discovery are not lost; a KEEP_LAST reader never

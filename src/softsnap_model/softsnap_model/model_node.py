@@ -35,7 +35,6 @@ import gc
 import math
 import os
 import queue
-import struct
 import sys
 import threading
 import time
@@ -57,6 +56,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from sensor_msgs.msg import JointState
 from visualization_msgs.msg import MarkerArray
 
+from softsnap_driver.cdr import CdrError, decode_cable_length
 from softsnap_driver.ros_parameters import SoftSnapNode
 from softsnap_driver.spinning import spin_until_shutdown
 from softsnap_interfaces.msg import CableLength, Design, ModelDiagnostics, ModuleShape, RobotShape
@@ -69,7 +69,7 @@ from .inverse import DesignCancelled, DesignTimedOut, design_threading
 from .loads import DEFAULT_BENDING_STIFFNESS_NMM, Loads, solve_loaded
 from .predictor import SOURCES, ModulePrediction, RobotPredictor
 from .scene import SceneError, load_scene
-from .shape_wire import ModuleShapeWire, RobotShapeWire, cable_length_from_cdr
+from .shape_wire import ModuleShapeWire, RobotShapeWire
 from . import standard_messages as standard
 
 MM_PER_M = 1000.0
@@ -352,8 +352,8 @@ class ModelNode(SoftSnapNode):
         """A serialised CableLength taken from a length topic: submit it to the predictor."""
         self.lengths_taken[(module, source)] += 1
         try:
-            length_m, stamp_ns = cable_length_from_cdr(data)
-        except (ValueError, struct.error):
+            stamp_ns, length_m = decode_cable_length(data)
+        except CdrError:
             try:  # another encoding: let rclpy read it
                 msg = deserialize_message(data, CableLength)
             except Exception as error:  # undecodable bytes must not stop the tick
@@ -405,7 +405,7 @@ class ModelNode(SoftSnapNode):
         """Submit every length message that arrived since the last tick, oldest first.
 
         Taken as bytes: reading the two fields needed costs a quarter of building the
-        message object (see :func:`~softsnap_model.shape_wire.cable_length_from_cdr`).
+        message object (see :func:`softsnap_driver.cdr.decode_cable_length`).
         """
         for module, source, subscription in self._length_subscriptions:
             with subscription.handle:
@@ -514,7 +514,7 @@ class ModelNode(SoftSnapNode):
             length = CableLength(cable_length=0.1234567)
             length.header.stamp.sec, length.header.stamp.nanosec = 17, 42
             length.header.frame_id = 'abc'
-            if cable_length_from_cdr(serialize_message(length)) != (0.1234567, 17_000_000_042):
+            if decode_cable_length(serialize_message(length)) != (17_000_000_042, 0.1234567):
                 raise ValueError('CableLength read back differently')
         except Exception as error:
             self.get_logger().warning(

@@ -17,7 +17,8 @@ bytes to the same message as one built field by field (:func:`module_shape_field
 gives the fields), and uses message objects instead if it does not.
 
 Units follow the messages (SI): lengths in m, rib centres converted from the core's
-mm here; stamps in ns are split into (sec, nanosec).
+mm here; stamps in ns are split into (sec, nanosec). The readers of the same format are
+in ``softsnap_driver.cdr``.
 """
 from __future__ import annotations
 
@@ -25,7 +26,7 @@ import struct
 
 import numpy as np
 
-__all__ = ['CDR_LE', 'ModuleShapeWire', 'RobotShapeWire', 'cable_length_from_cdr']
+__all__ = ['CDR_LE', 'ModuleShapeWire', 'RobotShapeWire']
 
 #: Encapsulation header of little-endian plain CDR.
 CDR_LE = b'\x00\x01\x00\x00'
@@ -35,7 +36,6 @@ NS_PER_S = 1_000_000_000
 _STAMP = struct.Struct('<iI')
 _F64 = struct.Struct('<d')
 _F64X2 = struct.Struct('<dd')
-_HEADER_LEN = struct.Struct('<iII')
 
 
 class _Writer:
@@ -242,23 +242,3 @@ class ModuleShapeWire(_ShapeBuffer):
         """CDR bytes of one module's shape (``stamp_ns`` if its length had no stamp)."""
         self._update([shape], stamp_ns)
         return bytes(self.buf)
-
-
-def cable_length_from_cdr(data: bytes) -> tuple[float, int]:
-    """(cable_length m, header stamp ns) of a serialised ``softsnap_interfaces/CableLength``.
-
-    Taking the bytes and reading the two fields costs about a quarter of what rclpy's
-    conversion to a message object costs (7 against 27-35 µs a message measured on the
-    development machine). Raises ValueError for anything but little-endian plain CDR
-    of the right size (the caller then falls back to rclpy's deserialisation).
-    """
-    if data[:2] != CDR_LE[:2] or len(data) < 24:
-        raise ValueError(f'not a little-endian CDR CableLength ({len(data)} bytes, '
-                         f'encapsulation {bytes(data[:2]).hex()})')
-    sec, nanosec, frame_len = _HEADER_LEN.unpack_from(data, 4)
-    at = 12 + frame_len
-    at += -at % 8
-    if 4 + at + 8 > len(data):
-        raise ValueError(f'CableLength of {len(data)} bytes is too short for a frame_id '
-                         f'of {frame_len} bytes')
-    return _F64.unpack_from(data, 4 + at)[0], sec * NS_PER_S + nanosec

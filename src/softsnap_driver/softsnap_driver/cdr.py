@@ -1,21 +1,27 @@
-"""Read the rerun logger's messages straight from their serialised (CDR) bytes.
+"""Read this project's messages straight from their serialised (CDR) bytes (no rclpy).
 
-The rerun logger takes its topics raw (``create_subscription(..., raw=True)``) because
-rclpy's own deserialisation builds a Python object for every field: 12
-``geometry_msgs/Point`` objects per module of a RobotShape, a Header and a Time for every
-CableLength, and that was most of the logger's CPU. This module reads exactly the
-``RobotShape`` / ``ModuleShape`` layout, a ``CableLength`` and the leading fields of a
-``ModuleState`` with ``struct`` and numpy views of the buffer instead; it imports no rclpy.
+The one place for the wire format of ``softsnap_interfaces`` messages taken raw
+(``create_subscription(..., raw=True)`` or ``take_message(..., raw=True)``): rclpy's own
+deserialisation builds a Python object for every field (12 ``geometry_msgs/Point``
+objects per module of a RobotShape, a Header and a Time for every CableLength), and that
+was most of the CPU of the nodes that take them at 50-100 Hz. Readers here:
+
+- :func:`decode_cable_length`: the driver's commands, the model node's lengths and the
+  rerun logger's lengths;
+- :func:`decode_robot_shape` and :func:`decode_module_state`: the rerun logger.
+
+(``softsnap_model.shape_wire`` writes shapes in the same format.)
 
 The wire format is plain CDR (XCDR1, what ROS 2's rmw implementations send for ROS
-types; tested here with the default, rmw_fastrtps_cpp), little-endian: a 4-byte encapsulation header (representation 0x0001), then the
-fields in message order, each primitive aligned to its own size counted from the end of
-that header; a string is a uint32 length (NUL included), the bytes and the NUL; a
-sequence is a uint32 count and its elements, the first element aligned to its type (no
-padding for an empty sequence). Anything else (big-endian, XCDR2, a truncated buffer)
-raises `CdrError` so the caller can fall back to rclpy's ``deserialize_message``.
-``test/gaits/test_cdr.py`` checks every field against rclpy's deserialisation of the
-same bytes, over real DDS too.
+types; tested here with the default, rmw_fastrtps_cpp): a 4-byte encapsulation header
+(representation 0x0001 little-endian, 0x0000 big-endian), then the fields in message
+order, each primitive aligned to its own size counted from the end of that header; a
+string is a uint32 length (NUL included), the bytes and the NUL; a sequence is a uint32
+count and its elements, the first element aligned to its type (no padding for an empty
+sequence). Only ``CableLength`` is read in both byte orders; anything else (XCDR2, a
+truncated buffer) raises `CdrError` so the caller can fall back to rclpy's
+``deserialize_message``. ``test/gaits/test_cdr.py`` checks every field against rclpy's
+deserialisation of the same bytes, over real DDS too.
 """
 from __future__ import annotations
 
@@ -178,16 +184,33 @@ def _check_header(buf: bytes) -> None:
                        f'got representation 0x{buf[:2].hex()}')
 
 
+#: XCDR1 encapsulation ids (the first two bytes) by byte order, for CableLength.
+_CABLE_LENGTH_LAYOUT = {
+    b'\x00\x01': (struct.Struct('<iII'), struct.Struct('<d')),   # little-endian
+    b'\x00\x00': (struct.Struct('>iII'), struct.Struct('>d')),   # big-endian
+}
+
+
 def decode_cable_length(buf: bytes) -> tuple[int, float]:
-    """(header stamp in ns, cable_length in m) of a serialised ``CableLength``."""
-    _check_header(buf)
-    try:
-        sec, nanosec = _STAMP.unpack_from(buf, HEADER_SIZE)
-        _, pos = _string(buf, HEADER_SIZE + 8, 'header.frame_id')
-        (length,) = _F64.unpack_from(buf, pos + -(pos - HEADER_SIZE) % 8)
-    except (struct.error, ValueError) as exc:  # ValueError: bad UTF-8
-        raise CdrError(f'CableLength truncated or malformed: {exc}') from None
-    return sec * 1_000_000_000 + nanosec, length
+    """(header stamp in ns, cable_length in m) of a serialised ``CableLength``.
+
+    Layout: int32 ``sec``, uint32 ``nanosec``, uint32 length of ``frame_id`` with its
+    NUL, its bytes, padding to a multiple of 8, float64 ``cable_length``. The frame id is
+    skipped, not decoded: this runs for every command and length message.
+    """
+    layout = _CABLE_LENGTH_LAYOUT.get(bytes(buf[:2]))
+    if layout is None:
+        raise CdrError('only plain CDR (representation 0x0001 or 0x0000) is read, '
+                       f'got representation 0x{bytes(buf[:2]).hex()}')
+    header, value = layout
+    if len(buf) < HEADER_SIZE + 12:
+        raise CdrError(f'CableLength truncated: {len(buf)} bytes')
+    sec, nanosec, text = header.unpack_from(buf, HEADER_SIZE)
+    at = HEADER_SIZE + ((12 + text + 7) & ~7)
+    if text < 1 or at + 8 > len(buf):
+        raise CdrError(f'CableLength truncated or malformed: a frame_id of {text} bytes '
+                       f'in {len(buf)} bytes')
+    return sec * 1_000_000_000 + nanosec, value.unpack_from(buf, at)[0]
 
 
 def decode_module_state(buf: bytes) -> tuple[int, str, float]:
