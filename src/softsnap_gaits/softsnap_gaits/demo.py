@@ -26,12 +26,14 @@ gets a 10 g ball of 45 mm radius between its fingers and the ring a ball to cage
 The summary then adds, from ``sim/base_pose``, ``sim/payload_pose`` and
 ``model/shape/simulated``: the distance the robot travelled per gait cycle, where the
 payload went (the gripper: whether it held it through the first grasp), the simulated
-versus predicted shape error per module (root mean square over the 12 rib centres, mm)
-and sim_robot's real-time factor; the recording shows the simulated shapes beside the
+versus predicted shape error per module (root mean square over the 12 rib centres, mm,
+against ``solve_forward`` at each snapshot's own cable length; also with the winch at
+rest) and sim_robot's real-time factor; the recording shows the simulated shapes beside the
 commanded and predicted ones, with the robot moving in the world.
 
 The runner observes the robot with its own rclpy node; it holds no science itself (tip
-positions come from :func:`softsnap_model.geometry.rib_centers`).
+positions come from :func:`softsnap_model.geometry.rib_centers`, predicted shapes for
+simulated ones from :func:`softsnap_model.forward.solve_forward`).
 """
 from __future__ import annotations
 
