@@ -27,7 +27,11 @@ arrives) adds in the demo's setting.
 
 Deterministic (not a timing benchmark): the same numbers on every machine with the same
 MuJoCo build. Two cycles of the brittle star take about a minute per setting on a
-loaded 2-core machine.
+loaded 2-core machine. Last, per setting, how hard the ribs press on the ground (their
+contact normal forces over their weight, sampled every step) and how far the hub rose:
+legs that cannot give out of their plane jam against the ground as they sweep, which
+raises their friction (docs/sim_robot.md); with the hub held this is unbounded, so the
+"hub held" row overstates the ground's share.
 
 Usage: nice .venv/bin/python benchmarks/shape_error_breakdown.py [--scene brittle_star]
        [--gait walk] [--modules yellow,orange] [--cycles 2] [--links-per-segment 2]
@@ -36,6 +40,7 @@ from __future__ import annotations
 
 import argparse
 
+import mujoco
 import numpy as np
 
 from softsnap_driver.sim_robot import ScriptedCommands, SimRobot
@@ -93,13 +98,56 @@ def rms_mm(centres_m: np.ndarray, reference_mm: np.ndarray) -> float:
     return float(np.sqrt(np.mean(distance ** 2)))
 
 
+class RibLoad:
+    """The ribs' ground contact normal forces over their weight, and the robot's height,
+    sampled before every physics step (how hard the legs press on the ground)."""
+
+    def __init__(self, sim: RobotSimulation):
+        self.sim = sim
+        m = sim.model
+        ribs = [int(b) for name in sim.module_names for b in sim._rib_ids[name][1:]]
+        self.ribs = np.zeros(m.nbody, dtype=bool)
+        self.ribs[ribs] = True
+        self.weight_n = float(np.sum(m.body_mass[ribs])) * float(np.linalg.norm(m.opt.gravity))
+        self.ratios: list = []
+        self.heights_mm: list = []
+        self._force = np.zeros(6)
+
+    def sample(self) -> None:
+        m, d = self.sim.model, self.sim.data
+        total = 0.0
+        for i in range(d.ncon):
+            c = d.contact[i]
+            if self.ribs[m.geom_bodyid[c.geom1]] or self.ribs[m.geom_bodyid[c.geom2]]:
+                mujoco.mj_contactForce(m, d, i, self._force)
+                total += self._force[0]
+        if self.weight_n > 0.0:
+            self.ratios.append(total / self.weight_n)
+        self.heights_mm.append(float(self.sim.robot_base_pose()[0][2]) * 1e3)
+
+    def summary(self) -> str:
+        if not self.ratios or max(self.ratios) == 0.0:
+            return 'no rib on the ground'
+        r = np.asarray(self.ratios)
+        hop = max(self.heights_mm) - self.heights_mm[0]
+        return (f'ribs press on the ground with {r.mean():.2f} x their weight on average '
+                f'(top 1 %: {np.percentile(r, 99):.1f} x, max {r.max():.1f} x; '
+                f'{r[0]:.2f} x at the start); the hub rose up to {hop:.1f} mm')
+
+
 def run(scene, gait, names, cycles: int, links: int, setting: dict, lag_s: float,
-        rest_s: float) -> dict:
-    """Per module: (errors, settled flags, lagged errors) over the gait's snapshots."""
+        rest_s: float) -> tuple[dict, RibLoad]:
+    """Per module: (errors, settled flags, lagged errors) over the gait's snapshots; and
+    the ribs' contact load over the gait."""
     robot = SimRobot(scene, simulation(scene, links, **setting))
     sim = robot.simulation
     robot.run_until(SETTLE_S)
     script = ScriptedCommands(gait.contraction_mm, start_s=robot.clock())
+    load = RibLoad(sim)
+
+    def on_step(r):
+        script(r)
+        load.sample()
     threading = {m.name: m.threading_mm for m in scene.modules}
     cache: dict = {}
 
@@ -118,7 +166,7 @@ def run(scene, gait, names, cycles: int, links: int, setting: dict, lag_s: float
     k = 0
     while robot.clock() < end - 1e-9:
         k += 1
-        robot.run_until(SETTLE_S + k / SNAPSHOT_HZ, script)
+        robot.run_until(SETTLE_S + k / SNAPSHOT_HZ, on_step)
         for n in names:
             length_mm = robot.cable_length_m(n, robot.modules[n].position) * 1e3
             history[n].append(length_mm)
@@ -128,7 +176,7 @@ def run(scene, gait, names, cycles: int, links: int, setting: dict, lag_s: float
             settled.append(len(history[n]) > rest and len(set(history[n][-rest - 1:])) == 1)
             earlier = history[n][max(0, len(history[n]) - 1 - lag)]
             lagged.append(rms_mm(centres, reference(n, earlier)))
-    return out
+    return out, load
 
 
 def main(argv=None) -> int:
@@ -166,15 +214,17 @@ def main(argv=None) -> int:
         cells.append(f'{float(np.sqrt(np.mean(d ** 2))):>10.2f} (max {fid.max_rib_error_mm:.2f})')
     print(f"{'static, settled (fidelity check)':<{width}}" + ''.join(cells), flush=True)
     last = None
+    loads = []
     for label, setting in SETTINGS:
-        result = run(scene, gait, names, args.cycles, args.links_per_segment, setting, args.lag,
-                     args.rest)
+        result, load = run(scene, gait, names, args.cycles, args.links_per_segment, setting,
+                           args.lag, args.rest)
         cells = []
         for n in names:
             errors, settled, _ = (np.asarray(x) for x in result[n])
             rest = f'{errors[settled].mean():.1f}' if settled.any() else '-'
             cells.append(f'{errors.mean():>8.1f} / {errors.max():5.1f} ({rest:>5})')
         print(f'{label:<{width}}' + ''.join(cells), flush=True)
+        loads.append((label, load.summary()))
         if 'the demo' in label:
             last = result
     cells = []
@@ -182,6 +232,8 @@ def main(argv=None) -> int:
         lagged = np.asarray(last[n][2])
         cells.append(f'{lagged.mean():>8.1f} / {lagged.max():5.1f}        ')
     print(f"{f'the demo, paired {args.lag:g} s late':<{width}}" + ''.join(cells), flush=True)
+    for label, text in loads:
+        print(f'{label}: {text}')
     return 0
 
 
