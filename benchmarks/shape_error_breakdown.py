@@ -29,9 +29,9 @@ Deterministic (not a timing benchmark): the same numbers on every machine with t
 MuJoCo build. Two cycles of the brittle star take about a minute per setting on a
 loaded 2-core machine. Last, per setting, how hard the ribs press on the ground (their
 contact normal forces over their weight, sampled every step) and how far the hub rose:
-legs that cannot give out of their plane jam against the ground as they sweep, which
-raises their friction (docs/sim_robot.md); with the hub held this is unbounded, so the
-"hub held" row overstates the ground's share.
+the robot, rigid out of the ground plane, tilts under its legs' friction and shifts
+weight onto the ribs, which raises their friction (docs/sim_robot.md); with the hub held
+this is unbounded, so the "hub held" row overstates the ground's share.
 
 Usage: nice .venv/bin/python benchmarks/shape_error_breakdown.py [--scene brittle_star]
        [--gait walk] [--modules yellow,orange] [--cycles 2] [--links-per-segment 2]
@@ -57,9 +57,9 @@ SETTLE_S = 0.3
 SNAPSHOT_HZ = 30.0
 
 #: Half the default rib friction (0.6): how the ground's share scales with friction. (A
-#: frictionless ground is no reference: with nothing holding the legs in place, contact
-#: forces of several newtons on single ribs launch the robot off the ground, up to
-#: 150 mm, and the legs swing wildly; docs/sim_robot.md.)
+#: near-frictionless ground is no reference with MuJoCo's pyramidal friction cones, the
+#: model's default: at 1e-4 contact forces of several newtons on single ribs launch the
+#: robot up to 150 mm off the ground; docs/sim_robot.md.)
 HALF_FRICTION = 0.3
 
 SETTINGS = (
