@@ -44,6 +44,8 @@ def test_demo_with_physics_runs_the_gripper_on_sim_robot(tmp_path, read_rrd):
         error = physics['shape_error_mm'][name]
         assert error is not None and error['n'] > 5, (name, error)
         assert 0.0 <= error['mean'] <= error['max'] < 200.0, (name, error)
+        # The grasp holds its winches still for seconds: snapshots with the winch at rest.
+        assert error['settled_n'] > 0 and 0.0 <= error['settled_mean'] <= error['max'], (name, error)
     # The gripper hangs from a fixed connector: it does not travel; its ball is observed
     # and the first grasp judged (held or not is the physics' answer, not the test's).
     assert physics['base_travel']['distance_mm'] < 1.0, physics['base_travel']

@@ -26,8 +26,9 @@ gets a 10 g ball of 45 mm radius between its fingers and the ring a ball to cage
 The summary then adds, from ``sim/base_pose``, ``sim/payload_pose`` and
 ``model/shape/simulated``: the distance the robot travelled per gait cycle, where the
 payload went (the gripper: whether it held it through the first grasp), the simulated
-versus predicted shape error per module (root mean square over the 12 rib centres, mm)
-and sim_robot's real-time factor; the recording shows the simulated shapes beside the
+versus predicted shape error per module (root mean square over the 12 rib centres, mm,
+against ``solve_forward`` at each snapshot's own cable length; also with the winch at
+rest) and sim_robot's real-time factor; the recording shows the simulated shapes beside the
 commanded and predicted ones, with the robot moving in the world. Every node then runs on
 sim_robot's ``/clock`` (``use_sim_time``, :func:`softsnap_gaits.graph.robot_graph`), and
 so does the observer: ``--seconds`` counts simulated seconds, and every rate, stamp and
@@ -35,7 +36,8 @@ distance per gait cycle of the summary is in simulated time, whatever the real-t
 factor (the wall time the run took is shown beside it).
 
 The runner observes the robot with its own rclpy node; it holds no science itself (tip
-positions come from :func:`softsnap_model.geometry.rib_centers`).
+positions come from :func:`softsnap_model.geometry.rib_centers`, predicted shapes for
+simulated ones from :func:`softsnap_model.forward.solve_forward`).
 """
 from __future__ import annotations
 
@@ -87,6 +89,12 @@ PHYSICS_PAYLOADS = {
 #: The gripper holds its payload through a grasp if the payload sinks less than this
 #: (mm) between the start and the end of the hold and stays clear of the ground.
 PAYLOAD_HOLD_TOL_MM = 10.0
+#: sim_robot's snapshot rate (Hz of simulated time; its default, which the demo keeps).
+SNAPSHOT_RATE_HZ = 30.0
+#: A simulated shape counts as settled when its winch's cable length has not changed for
+#: this many snapshots before it (0.5 s of simulated time): the shape error then holds
+#: no lag behind a moving winch (docs/sim_robot.md, "What the physics shows").
+SETTLED_SNAPSHOTS = 15
 
 
 @dataclasses.dataclass
@@ -121,9 +129,10 @@ class ModuleStats:
     # The driver's own counts, from every state message: (state stamp ns, commands
     # received, stamp ns of the latest command received); see commands_counted.
     driver_counts: list = dataclasses.field(default_factory=list)
-    # --physics: (simulated rib centres (12, 3) m, index into predicted_tips of the
-    # predicted shape in force when it came); errors computed after the run.
-    simulated_pairs: list = dataclasses.field(default_factory=list)
+    # --physics: (simulated rib centres (12, 3) m, the winch's cable length m at that
+    # snapshot) of every simulated shape; errors computed after the run against the shape
+    # predicted for that same length (simulated_shape_errors_mm).
+    simulated_shapes: list = dataclasses.field(default_factory=list)
 
 
 class Process:
@@ -236,9 +245,9 @@ class Observer:
     def _simulated(self, msg) -> None:
         for shape in msg.modules:
             s = self.stats.get(shape.module)
-            if s is not None and s.predicted_tips and len(shape.rib_centers):
+            if s is not None and len(shape.rib_centers):
                 centres = np.array([(p.x, p.y, p.z) for p in shape.rib_centers])
-                s.simulated_pairs.append((centres, len(s.predicted_tips) - 1))
+                s.simulated_shapes.append((centres, float(shape.cable_length)))
 
     def _phase(self, msg) -> None:
         if msg.running:
@@ -370,22 +379,40 @@ def _pose_sample(msg) -> tuple:
     return (_stamp_ns(msg), p.x, p.y, p.z)
 
 
-def simulated_shape_errors_mm(s: ModuleStats, spacing_mm: float) -> list:
+def simulated_shape_errors_mm(s: ModuleStats, skeleton, threading_mm) -> tuple[list, list]:
     """Simulated versus predicted shape, one value per simulated shape, mm: the root mean
     square over the rib centres of their distances (the paper's measure against its
-    experiments), the predicted shape being the one in force when the simulated came."""
-    errors = []
-    cache: dict[int, np.ndarray] = {}
-    for centres_m, p in s.simulated_pairs:
-        if p not in cache:
-            planar = rib_centers(s.predicted_tips[p][2], spacing_mm)
-            cache[p] = np.column_stack((planar, np.zeros(len(planar))))
-        predicted = cache[p]
+    experiments), the predicted shape being ``solve_forward``'s for the cable length of
+    that very snapshot, so what remains is gravity, contact and dynamics.
+
+    (Pairing a snapshot with the latest predicted shape received instead compared shapes
+    of different cable lengths while a winch moved: the measured length, its solve and
+    the snapshot reach the demo at different times.)
+
+    Returns the errors and, parallel to them, whether the snapshot's winch had been at
+    rest (the same cable length) for ``SETTLED_SNAPSHOTS`` snapshots before it.
+    """
+    from softsnap_model.forward import solve_forward
+    errors, settled = [], []
+    cache: dict[float, np.ndarray] = {}
+    run = 0
+    previous = None
+    for centres_m, length_m in s.simulated_shapes:
+        run = run + 1 if length_m == previous else 0
+        previous = length_m
+        if length_m not in cache:
+            try:
+                planar = np.asarray(solve_forward(skeleton, threading_mm, length_m * 1000.0).rib_centers)
+            except ValueError:   # a length the model refuses: no predicted shape to compare
+                planar = np.empty((0, 2))
+            cache[length_m] = np.column_stack((planar, np.zeros(len(planar))))
+        predicted = cache[length_m]
         if len(predicted) != len(centres_m):
             continue
         distance = np.linalg.norm(centres_m * 1000.0 - predicted, axis=1)
         errors.append(float(np.sqrt(np.mean(distance ** 2))))
-    return errors
+        settled.append(run >= SETTLED_SNAPSHOTS)
+    return errors, settled
 
 
 def travel(samples, window_ns) -> dict | None:
@@ -448,9 +475,13 @@ def physics_summary(scene, gait_name: str, observer: Observer, window_ns, sim_lo
                  else t['distance_mm'] * period / t['seconds'])
     shape_error = {}
     for name, s in observer.stats.items():
-        errors = simulated_shape_errors_mm(s, observer.spacing_mm)
+        module = scene.module(name)
+        errors, settled = simulated_shape_errors_mm(s, scene.skeleton, module.threading_mm)
+        at_rest = [e for e, ok in zip(errors, settled) if ok]
         shape_error[name] = ({'mean': float(np.mean(errors)), 'max': float(np.max(errors)),
-                              'n': len(errors)} if errors else None)
+                              'n': len(errors),
+                              'settled_mean': float(np.mean(at_rest)) if at_rest else None,
+                              'settled_n': len(at_rest)} if errors else None)
     factor = None
     for line in sim_log.splitlines():
         if 'real-time factor' in line:
@@ -488,9 +519,10 @@ def print_physics(p: dict) -> None:
         print(f"  payload {'HELD' if grasp['held'] else 'NOT held'} through the first grasp "
               f"(sank {grasp['drop_mm']:.1f} mm during the hold, centre {grasp['height_mm']:.0f} mm "
               'above the ground at its end)')
-    cells = ', '.join(f"{name} {e['mean']:.1f}/{e['max']:.1f}" if e else f'{name} -'
-                      for name, e in p['shape_error_mm'].items())
-    print(f'  simulated vs predicted shape, rib-centre RMS mean/max mm: {cells}')
+    cells = ', '.join(f"{name} {e['mean']:.1f}/{e['max']:.1f} ({_cell(e['settled_mean'], '.1f')})"
+                      if e else f'{name} -' for name, e in p['shape_error_mm'].items())
+    print('  simulated vs predicted shape at the same cable length, rib-centre RMS mean/max mm '
+          f'(mean with the winch at rest >= {SETTLED_SNAPSHOTS / SNAPSHOT_RATE_HZ:g} s): {cells}')
 
 
 def _in_window(stamps_ns, window_ns) -> list:
