@@ -58,6 +58,7 @@ from __future__ import annotations
 import json
 import math
 import random
+import re
 from collections import deque
 from dataclasses import dataclass
 
@@ -90,6 +91,10 @@ class ParsedRequest:
     power: int | None = None
 
 
+#: Everything that is not one of HEX_DIGITS.
+_NON_HEX = re.compile('[^0-9A-F]+')
+
+
 def _hex_value(digits: str) -> int:
     # Only HEX_DIGITS reach here (upper case); none: 0, as the firmware's loop gives.
     return int(digits, 16) if digits else 0
@@ -102,15 +107,13 @@ def parse_request(head: bytes) -> ParsedRequest:
     if command != 'set':
         return ParsedRequest(command)
     start = text.find('=') + 1
-    digits = []
-    for c in text[start:]:   # the first 10 hex digits after '='; the rest is ignored
-        if c in HEX_DIGITS:
-            digits.append(c)
-            if len(digits) == 10:
-                break
-    raw_target = _hex_value(''.join(digits[:8]))
+    # The first 10 hex digits after '=', skipping anything else (in C, not per char).
+    digits = _NON_HEX.sub('', text[start:start + 10])
+    if len(digits) < 10:
+        digits = _NON_HEX.sub('', text[start:])
+    raw_target = _hex_value(digits[:8])
     target = raw_target - (1 << 32) if raw_target & 0x80000000 else raw_target
-    power = _hex_value(''.join(digits[8:10]))
+    power = _hex_value(digits[8:10])
     return ParsedRequest('set', target, power)
 
 
