@@ -75,7 +75,7 @@ from softsnap_driver.sim_module import STOP_JOIN_S, SimServer
 #: cable length is handed to the physics this often. The firmware integrates its motion
 #: exactly within a period; the winch moves at most 0.75 mm of cable per 6 ms (123 mm/s
 #: unloaded at 6 V, PWM 200), which the physics' overdamped cable constraint takes
-#: smoothly. The Python work per period is ~30 % of the loop (docs/sim_robot.md).
+#: smoothly. The Python work per period is ~25 % of the loop (docs/sim_robot.md).
 CONTROL_PERIOD_S = 0.005
 #: Stall torque of the GA12-N20 1:100 at 6 V and full PWM, N m (estimate, see above).
 DEFAULT_STALL_TORQUE_NM = 0.15
