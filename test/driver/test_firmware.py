@@ -41,6 +41,8 @@ def test_keyword_search_order(text, expected):
     # Lower case skipped: 0 0 0 0 0 8 5 0, then the power from 'HTTP/1.1': 1 1.
     ('GET /?set=00000bb8ff50 HTTP/1.1', 0x0000_0850, 0x11),
     ('GET /?x=1&set=00000BB850 HTTP/1.1', 0x1000_00BB, 0x85),  # digits start after the FIRST '='
+    ('GET /?set=00000BB8501234 HTTP/1.1', 3000, 0x50),     # only the first 10 digits count
+    ('GET /?set=00000BB8 HTTP/1.1', 3000, 0x11),            # fewer than 10: read on
 ])
 def test_set_hex_parsing(text, target, power):
     assert parse_request(head(text)) == ParsedRequest('set', target, power)
@@ -257,3 +259,28 @@ def test_sim_module_process_serves_several_modules(start_node):
     # The simulator path never imports rclpy (usable without ROS).
     check = 'import sys, softsnap_driver.sim_module; assert "rclpy" not in sys.modules'
     assert subprocess.run([sys.executable, '-c', check], timeout=60).returncode == 0
+
+
+def test_idle_module_advanced_in_small_steps_matches_one_jump():
+    # sim_robot advances every module each 6 ms; an idle one takes a shortcut (clock and
+    # drain only) between samples. Its battery, power history and clock must come out as
+    # one long advance gives them, and its replies must carry the new samples.
+    stepped, jumped = SimModule(start_time=0.0), SimModule(start_time=0.0)
+    for module in (stepped, jumped):
+        module.handle_request(encode_set_request(400, 200), now=0.0)
+        module.advance_to(1.0)                       # moved to 400 and stopped
+        assert not module.moving()
+    first = parse_reply(stepped.reply())
+    for i in range(1, 501):
+        stepped.advance_to(1.0 + i * 0.006)
+    jumped.advance_to(4.0)
+    assert stepped.time == jumped.time == pytest.approx(4.0)
+    assert stepped.charge_used_mah == pytest.approx(jumped.charge_used_mah, rel=1e-12)
+    assert list(stepped.power_history) == list(jumped.power_history)
+    assert list(stepped.battery_samples) == pytest.approx(list(jumped.battery_samples), rel=1e-12)
+    assert stepped.charge_used_mah > 0
+    # Idle power replaced the motion's samples in the reply (no stale cached text).
+    later = parse_reply(stepped.reply())
+    assert later.power_history_w != first.power_history_w
+    assert later.power_history_w == parse_reply(jumped.reply()).power_history_w
+    assert stepped.encoder_count == jumped.encoder_count

@@ -162,6 +162,25 @@ def test_cable_tensions_in_one_pass_equal_each_modules_tension():
     assert all(tensions[n] == 0.0 for n in names[3:])
 
 
+
+def test_module_states_equal_the_per_module_reads():
+    # sim_robot's snapshots read every module in one vectorised pass: it must give what
+    # rib_centers, segment_angles and module_base_pose give module by module.
+    sim = RobotSimulation('brittle_star')
+    names = sim.module_names
+    sim.set_cable_length(names[1], sim.straight_cable_length(names[1]) - 0.02)
+    sim.step(0.2)
+    centers, angles, positions, orientations = sim.module_states()
+    assert centers.shape[:2] == (len(names), 12) and angles.shape[0] == len(names)
+    for i, name in enumerate(names):
+        np.testing.assert_allclose(centers[i], sim.rib_centers(name), rtol=0, atol=1e-12)
+        np.testing.assert_array_equal(angles[i], sim.segment_angles(name))
+        position, orientation = sim.module_base_pose(name)
+        np.testing.assert_array_equal(positions[i], position)
+        np.testing.assert_array_equal(orientations[i], orientation)
+    assert abs(angles[1]).max() > 0.05           # the hauled-in leg is bent
+
+
 # ------------------------------------------------------------------------- gravity
 
 def test_hanging_module_matches_loaded_model():

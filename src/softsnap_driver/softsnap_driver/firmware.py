@@ -58,6 +58,7 @@ from __future__ import annotations
 import json
 import math
 import random
+import re
 from collections import deque
 from dataclasses import dataclass
 
@@ -90,11 +91,13 @@ class ParsedRequest:
     power: int | None = None
 
 
+#: Everything that is not one of HEX_DIGITS.
+_NON_HEX = re.compile('[^0-9A-F]+')
+
+
 def _hex_value(digits: str) -> int:
-    value = 0
-    for digit in digits:
-        value = value * 16 + HEX_DIGITS.index(digit)
-    return value
+    # Only HEX_DIGITS reach here (upper case); none: 0, as the firmware's loop gives.
+    return int(digits, 16) if digits else 0
 
 
 def parse_request(head: bytes) -> ParsedRequest:
@@ -104,10 +107,13 @@ def parse_request(head: bytes) -> ParsedRequest:
     if command != 'set':
         return ParsedRequest(command)
     start = text.find('=') + 1
-    digits = [c for c in text[start:] if c in HEX_DIGITS]
-    raw_target = _hex_value(''.join(digits[:8]))
+    # The first 10 hex digits after '=', skipping anything else (in C, not per char).
+    digits = _NON_HEX.sub('', text[start:start + 10])
+    if len(digits) < 10:
+        digits = _NON_HEX.sub('', text[start:])
+    raw_target = _hex_value(digits[:8])
     target = raw_target - (1 << 32) if raw_target & 0x80000000 else raw_target
-    power = _hex_value(''.join(digits[8:10]))
+    power = _hex_value(digits[8:10])
     return ParsedRequest('set', target, power)
 
 
@@ -267,6 +273,7 @@ class SimModule:
         # The same samples as 4-digit hex, kept beside them: formatting all 257 for every
         # status reply was ~8 % of sim_robot's loop.
         self._power_hex = deque(['0000'] * POWER_HISTORY_SAMPLES, maxlen=POWER_HISTORY_SAMPLES)
+        self._power_text: str | None = None   # ''.join(_power_hex), None when stale
         self.battery_samples = deque([self.battery.open_circuit_v(self.charge_used_mah)],
                                      maxlen=BATTERY_MEAN_SAMPLES)
         self._next_battery_sample = now + BATTERY_SAMPLE_PERIOD_S
@@ -313,6 +320,16 @@ class SimModule:
     def _advance(self, now: float) -> None:
         if now <= self.time:
             return
+        if (now < self._next_power_sample and now < self._next_battery_sample
+                and now - self.time <= _MAX_SAMPLED_GAP_S and not self.moving()):
+            # An idle module between samples: only the clock and the idle drain move.
+            # The same float operations as the general path below (sim_robot advances
+            # five modules every 6 ms, mostly idle ones), so the result is bit-identical.
+            dt = now - self.time
+            self.current_a = self.battery.idle_current_a
+            self.charge_used_mah += self.current_a * dt / 3.6
+            self.time += dt
+            return
         if now - self.time > _MAX_SAMPLED_GAP_S:
             self._integrate(now - _MAX_SAMPLED_GAP_S - self.time)
             self._next_battery_sample = max(self._next_battery_sample, self.time)
@@ -328,6 +345,7 @@ class SimModule:
                 sample = min(int(round(watts / POWER_UNIT_W)), 0xFFFF)
                 self.power_history.append(sample)
                 self._power_hex.append(f'{sample:04X}')
+                self._power_text = None
                 self._next_power_sample += self.power_sample_period_s
             if step_end >= now:
                 break
@@ -400,7 +418,10 @@ class SimModule:
         return self.reply()
 
     def status_json(self) -> str:
-        power = ''.join(self._power_hex)
+        # The 257 samples change every 50 ms; a set reply comes every 20 ms per module.
+        if self._power_text is None:
+            self._power_text = ''.join(self._power_hex)
+        power = self._power_text
         return json.dumps({
             'status': 'ok', 'ip': self.ip, 'mac': self.mac,
             'm_current': self.encoder_count, 'm_power': self.motor_power,
