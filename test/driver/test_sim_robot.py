@@ -58,9 +58,12 @@ def test_winch_rejects_non_physical_constants():
 # --------------------------------------------------------------------------- options
 
 @pytest.mark.parametrize('changes, message', [
-    ({'payload': 'sphere'}, "payload must be one of none, ball, box, got 'sphere'"),
+    ({'payload': 'sphere'}, "payload must be one of none, ball, box, cylinder, got 'sphere'"),
     ({'payload': 'ball', 'payload_mass_kg': -0.1}, 'mass_kg'),
     ({'payload': 'ball', 'payload_size_m': 0.5}, 'size_m'),
+    ({'payload': 'cylinder', 'payload_height_m': 0.0},
+     r'payload_height_m must be in \(0, 0.4\] m, got 0.0'),
+    ({'payload': 'cylinder', 'payload_size_m': 0.3}, r'cylinder size_m.*0.3'),
     ({'time_factor': -1.0}, r'time_factor must be in \[0, 1000\], got -1.0'),
     ({'stall_torque_nm': math.inf}, 'stall_torque_nm must be in'),
     ({'port_base': 70000}, 'port_base must be in'),
