@@ -58,9 +58,12 @@ def test_winch_rejects_non_physical_constants():
 # --------------------------------------------------------------------------- options
 
 @pytest.mark.parametrize('changes, message', [
-    ({'payload': 'sphere'}, "payload must be one of none, ball, box, got 'sphere'"),
+    ({'payload': 'sphere'}, "payload must be one of none, ball, box, cylinder, got 'sphere'"),
     ({'payload': 'ball', 'payload_mass_kg': -0.1}, 'mass_kg'),
     ({'payload': 'ball', 'payload_size_m': 0.5}, 'size_m'),
+    ({'payload': 'cylinder', 'payload_height_m': 0.0},
+     r'payload_height_m must be in \(0, 0.4\] m, got 0.0'),
+    ({'payload': 'cylinder', 'payload_size_m': 0.3}, r'cylinder size_m.*0.3'),
     ({'time_factor': -1.0}, r'time_factor must be in \[0, 1000\], got -1.0'),
     ({'stall_torque_nm': math.inf}, 'stall_torque_nm must be in'),
     ({'port_base': 70000}, 'port_base must be in'),
@@ -96,6 +99,31 @@ def _robot(scene_name: str, **kwargs) -> SimRobot:
     from softsnap_model.scene import load_scene
     scene = load_scene(scene_name)
     return SimRobot(scene, build_simulation(scene, links_per_segment=1), **kwargs)
+
+
+def test_ring_transport_carries_its_demo_payload_with_it():
+    """The demo's ring payload (a puck at the centre) travels with the ring: its
+    displacement along the ring's, over 2 cycles of ``transport``, is more than 5 mm
+    (benchmarks/ring_transport.py measured 10 mm, the ring 15 mm)."""
+    from softsnap_gaits.demo import PHYSICS_PAYLOADS
+    from softsnap_gaits.gaits import make_gait
+    from softsnap_model.scene import load_scene
+    robot = build_robot(options(scene='ring', **PHYSICS_PAYLOADS['ring']))
+    assert robot.has_payload
+    sim = robot.simulation
+
+    def ring_centre():
+        return np.mean([sim.rib_centers_world(m) for m in sim.module_names], axis=(0, 1))
+
+    robot.run_until(0.3)
+    ring0, load0 = ring_centre(), np.asarray(sim.payload_pose()[0])
+    gait = make_gait('transport', load_scene('ring'))
+    robot.run_until(0.3 + 2 * gait.period_s, ScriptedCommands(gait.contraction_mm,
+                                                               start_s=robot.clock()))
+    ring = (ring_centre() - ring0)[:2]
+    load = (np.asarray(sim.payload_pose()[0]) - load0)[:2]
+    assert np.all(np.isfinite(ring)) and np.linalg.norm(ring) > 0.005
+    assert float(load @ ring) / float(np.linalg.norm(ring)) > 0.005
 
 
 def test_a_set_command_hauls_the_cable_in_and_bends_the_module():

@@ -205,11 +205,13 @@ def test_module_bends_down_under_gravity_when_horizontal():
 # ---------------------------------------------------------------------- validation
 
 @pytest.mark.parametrize('kwargs, match', [
-    (dict(shape='cone'), "shape must be 'ball' or 'box'"),
+    (dict(shape='cone'), "shape must be one of ball, box, cylinder, got 'cone'"),
     (dict(mass_kg=-0.1), 'mass_kg'),
     (dict(mass_kg=float('nan')), 'mass_kg'),
     (dict(size_m=0.5), 'size_m'),
     (dict(shape='box', size_m=0.02), '3 half extents'),
+    (dict(shape='cylinder', size_m=0.1), r'\(radius, half height\)'),
+    (dict(shape='cylinder', size_m=(0.1, 0.3)), r'cylinder size_m.*0.3'),
     (dict(position_m=(0, 0)), 'position_m'),
 ])
 def test_bad_payload_is_refused(kwargs, match):
@@ -369,6 +371,16 @@ def test_ring_cages_its_payload_on_the_ground():
     end, _ = sim.payload_pose()
     assert end[2] == pytest.approx(0.03, abs=2e-3)               # resting on the ground
     assert np.linalg.norm(end[:2] - sim.robot_base_pose()[0][:2]) < 0.1   # still inside
+
+
+def test_ring_cylinder_payload_stands_on_the_ground_inside_the_ribs():
+    # A puck of 100 mm radius and 30 mm height: its wall is at the flat ring's ribs.
+    sim = RobotSimulation('ring', payload=Payload('cylinder', 0.02, (0.1, 0.015)))
+    sim.step(0.5)
+    end, _ = sim.payload_pose()
+    assert end[2] == pytest.approx(0.015, abs=2e-3)              # on its end face
+    ribs = np.concatenate([sim.rib_centers_world(m) for m in sim.module_names])
+    assert np.min(np.linalg.norm(ribs[:, :2] - end[:2], axis=1)) > 0.1   # no rib inside
 
 
 def test_reset_restores_the_start_and_repeats_the_run():

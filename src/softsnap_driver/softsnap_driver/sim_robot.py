@@ -97,7 +97,7 @@ _MAX_SLEEP_S = 0.05
 _MAX_LAG_S = 0.25
 #: Payload option values: none, or a shape the physics model accepts
 #: (softsnap_model.physics.mjcf.Payload).
-PAYLOAD_SHAPES = ('none', 'ball', 'box')
+PAYLOAD_SHAPES = ('none', 'ball', 'box', 'cylinder')
 #: Default contraction (mm) every module must reach before a gripper's helper hold lets
 #: go of the payload (the grasp gait closes to 45 mm).
 DEFAULT_PAYLOAD_RELEASE_MM = 30.0
@@ -106,6 +106,9 @@ DEFAULT_PAYLOAD_RELEASE_MM = 30.0
 #: and hold up to 20 g at 45 mm with the estimated K; a 20 mm ball falls between them).
 DEFAULT_PAYLOAD_MASS_KG = 0.01
 DEFAULT_PAYLOAD_SIZE_M = 0.045
+#: Default height (m) of a cylinder payload (a puck standing on the ground, for the ring:
+#: its wall must reach above the flat ring's 9 mm ribs; docs/sim_robot.md).
+DEFAULT_PAYLOAD_HEIGHT_M = 0.03
 #: Links per segment of sim_robot's MuJoCo model. The physics model's fidelity check puts
 #: N = 2 within 0.5 mm of the exact constant-curvature shape at 20 mm contraction (its
 #: default, 4, leaves a margin for the static comparisons); N = 2 steps about twice as
@@ -624,10 +627,12 @@ OPTIONS = {
     'time_factor': (float, 1.0, 'simulated seconds per wall second (0: as fast as possible)'),
     'duration_s': (float, 0.0, 'stop after this much simulated time, s (0: run until stopped)'),
     'gravity': (bool, True, 'gravity on (false: the quasi-static setting, for comparisons)'),
-    'payload': (str, 'none', 'payload for the gripper or ring: none, ball or box'),
+    'payload': (str, 'none', 'payload for the gripper or ring: none, ball, box or cylinder'),
     'payload_mass_kg': (float, DEFAULT_PAYLOAD_MASS_KG, 'payload mass, kg'),
     'payload_size_m': (float, DEFAULT_PAYLOAD_SIZE_M,
-                       'payload radius (ball) or half edge (box), m'),
+                       'payload radius (ball, cylinder) or half edge (box), m'),
+    'payload_height_m': (float, DEFAULT_PAYLOAD_HEIGHT_M,
+                         'height of a cylinder payload (standing on its end face), m'),
     'payload_release_mm': (float, DEFAULT_PAYLOAD_RELEASE_MM,
                            "a gripper's helper hold lets go of the payload once every "
                            'module has hauled in this much cable, mm'),
@@ -703,9 +708,13 @@ def build_payload(opts: argparse.Namespace):
         return None
     from softsnap_model.physics.mjcf import Payload
     size = opts.payload_size_m
+    height = getattr(opts, 'payload_height_m', DEFAULT_PAYLOAD_HEIGHT_M)
+    if opts.payload == 'cylinder' and not (isinstance(height, (int, float))
+                                           and math.isfinite(height) and 0.0 < height <= 0.4):
+        raise SimRobotError(f'payload_height_m must be in (0, 0.4] m, got {height!r}')
+    sizes = {'ball': size, 'box': (size, size, size), 'cylinder': (size, 0.5 * height)}
     try:
-        return Payload(opts.payload, opts.payload_mass_kg,
-                       size if opts.payload == 'ball' else (size, size, size))
+        return Payload(opts.payload, opts.payload_mass_kg, sizes[opts.payload])
     except ValueError as exc:
         raise SimRobotError(str(exc)) from None
 

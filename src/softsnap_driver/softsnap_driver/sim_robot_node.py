@@ -65,6 +65,7 @@ RANGES = {
     'duration_s': (0.0, 1e7),
     'payload_mass_kg': (0.0, 1.0),
     'payload_size_m': (0.0, 0.2),
+    'payload_height_m': (0.0, 0.4),
     'payload_release_mm': (0.0, 200.0),
     'links_per_segment': (0, 64),
     'physics_timestep_s': PHYSICS_TIMESTEP_RANGE_S,

@@ -22,7 +22,7 @@ did not see of a module is shown as ``-`` (``null`` in JSON).
 
 With ``--physics`` the robot runs on ``sim_robot`` (the whole robot in MuJoCo, serving
 every module's firmware protocol) instead of one ``sim_module`` per module; the gripper
-gets a 10 g ball of 45 mm radius between its fingers and the ring a ball to cage (:data:`PHYSICS_PAYLOADS`).
+gets a 10 g ball of 45 mm radius between its fingers and the ring a puck to cage (:data:`PHYSICS_PAYLOADS`).
 The summary then adds, from ``sim/base_pose``, ``sim/payload_pose`` and
 ``model/shape/simulated``: the distance the robot travelled per gait cycle, where the
 payload went (the gripper: whether it held it through the first grasp), the simulated
@@ -80,11 +80,14 @@ SETTLED_HOLD_TOL_M = 1e-9
 #: ball of 45 mm radius: its closed fingers cage balls of 40-50 mm radius and hold up to
 #: 20 g at 45 mm with the estimated bending stiffness; a 20 g ball of 20 mm radius (the
 #: issue's question) falls between the fingertips (docs/sim_robot.md). The ring cages a
-#: ball on the ground; lying flat, 9 mm tall, its ribs never reach it (its travel, 0, is
-#: reported as measured; docs/sim_robot.md).
+#: 20 g puck standing on the ground, 85 mm radius and 30 mm tall: lying flat, 9 mm tall,
+#: its ribs reach the wall of a puck where they reach a ball only at its bottom (a 40 mm
+#: ball is never touched), and 85 mm is inside what the gripping pair's 60 mm contraction
+#: closes on (docs/sim_robot.md, benchmarks/ring_transport.py).
 PHYSICS_PAYLOADS = {
     'gripper': {'payload': 'ball', 'payload_mass_kg': 0.01, 'payload_size_m': 0.045},
-    'ring': {'payload': 'ball', 'payload_mass_kg': 0.02, 'payload_size_m': 0.04},
+    'ring': {'payload': 'cylinder', 'payload_mass_kg': 0.02, 'payload_size_m': 0.085,
+             'payload_height_m': 0.03},
 }
 #: The gripper holds its payload through a grasp if the payload sinks less than this
 #: (mm) between the start and the end of the hold and stays clear of the ground.

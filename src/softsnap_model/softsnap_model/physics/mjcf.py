@@ -71,6 +71,8 @@ SKELETON_THICKNESS_MM = 9.0
 #: Largest payload mass (kg) and size (m) accepted: a module pulls ~10 N at most.
 MAX_PAYLOAD_MASS_KG = 1.0
 MAX_PAYLOAD_SIZE_M = 0.2
+#: Payload shapes the model builds (:class:`Payload`).
+PAYLOAD_SHAPES = ('ball', 'box', 'cylinder')
 
 # Collision classes (MuJoCo: two geoms collide if contype1 & conaffinity2 or
 # contype2 & conaffinity1): robot parts touch the ground and the payload, not each
@@ -248,11 +250,14 @@ class Payload:
     Parameters
     ----------
     shape : str
-        ``'ball'`` or ``'box'``.
+        ``'ball'``, ``'box'`` or ``'cylinder'`` (a puck standing on its end face: the
+        flat ring's ribs, 9 mm tall, reach its wall, where they reach a ball only at
+        its bottom; docs/sim_robot.md).
     mass_kg : float
         Mass (kg), in (0, 1].
-    size_m : float or sequence of 3 float
-        Ball radius, or the box's half extents (m), each in (0, 0.2].
+    size_m : float or sequence of 2 or 3 float
+        Ball radius; the box's 3 half extents; or the cylinder's (radius, half height)
+        (m), each in (0, 0.2].
     position_m : sequence of 3 float, optional
         Centre in the robot frame (m). None: the scene's default place: the ring's centre
         on the ground; for the gripper, on the fingertips as the quasi-static model
@@ -266,8 +271,9 @@ class Payload:
     position_m: Any = None
 
     def __post_init__(self):
-        if self.shape not in ('ball', 'box'):
-            raise ValueError(f"payload shape must be 'ball' or 'box', got {self.shape!r}")
+        if self.shape not in PAYLOAD_SHAPES:
+            raise ValueError(f"payload shape must be one of {', '.join(PAYLOAD_SHAPES)}, "
+                             f"got {self.shape!r}")
         object.__setattr__(self, 'mass_kg', _check_real(
             'payload mass_kg', self.mass_kg, low=0.0, low_open=True, high=MAX_PAYLOAD_MASS_KG))
         if self.shape == 'ball':
@@ -276,10 +282,12 @@ class Payload:
                 high=MAX_PAYLOAD_SIZE_M))
         else:
             size = self.size_m
-            if isinstance(size, numbers.Real) or not hasattr(size, '__len__') or len(size) != 3:
-                raise ValueError(f'a box payload needs size_m = 3 half extents (m), got {size!r}')
+            n, what = (3, '3 half extents') if self.shape == 'box' else (2, '(radius, half height)')
+            if isinstance(size, numbers.Real) or not hasattr(size, '__len__') or len(size) != n:
+                raise ValueError(f'a {self.shape} payload needs size_m = {what} (m), '
+                                 f'got {size!r}')
             object.__setattr__(self, 'size_m', tuple(_check_real(
-                'payload half extent size_m', v, low=0.0, low_open=True,
+                f'payload {self.shape} size_m', v, low=0.0, low_open=True,
                 high=MAX_PAYLOAD_SIZE_M) for v in size))
         if self.position_m is not None:
             p = self.position_m
@@ -758,7 +766,8 @@ def _connector_geom(body, scene, params: PhysicsParameters, asset):
 
 def _default_payload_position(scene, payload: Payload) -> tuple:
     """Robot-frame payload centre (m) when the Payload gives none."""
-    r = payload.size_m if payload.shape == 'ball' else payload.size_m[2]
+    r = {'ball': lambda s: s, 'box': lambda s: s[2],
+         'cylinder': lambda s: s[1]}[payload.shape](payload.size_m)
     kind = scene.connector.get('type', '')
     if kind == 'ring':
         # On the ground at the ring's centre; the ground is at the modules' underside.
@@ -969,7 +978,9 @@ def robot_mjcf_layout(scene, *, links_per_segment: int = DEFAULT_LINKS_PER_SEGME
                           friction=_f(params.payload_friction, 0.005, 0.0001),
                           rgba='0.9 0.3 0.6 1')
         else:
-            ET.SubElement(pb, 'geom', name='payload', type='box', size=_f(*payload.size_m),
+            # MuJoCo's box size is the half extents, its cylinder's (radius, half height).
+            ET.SubElement(pb, 'geom', name='payload', type=payload.shape,
+                          size=_f(*payload.size_m),
                           mass=_f(payload.mass_kg), contype=str(_PAYLOAD_CLASS[0]),
                           conaffinity=str(_PAYLOAD_CLASS[1]),
                           friction=_f(params.payload_friction, 0.005, 0.0001),
