@@ -32,9 +32,14 @@ speed-up.
 ``--timestep-ms``: the physics step of this run (default sim_robot's,
 ``DEFAULT_PHYSICS_TIMESTEP_S``).
 
+``--stages``: after the table, one more run of each scene (this code) with MuJoCo's own
+stage timers (``data.timer``, wall clock, so only meaningful on a quiet core): µs per
+step and share of the step for the constraint solve, collision, constraint make,
+kinematics and inertia; where ``mj_step`` spends its time (docs/sim_robot.md).
+
 Usage: .venv/bin/python benchmarks/sim_robot_bench.py [--seconds 3] [--repeat 3]
        [--scenes brittle_star,snake] [--links-per-segment N] [--before REV]
-       [--timestep-ms 3]
+       [--timestep-ms 3] [--stages]
 """
 from __future__ import annotations
 
@@ -107,6 +112,30 @@ def run_once(name: str, seconds: float, links: int) -> tuple[float, float, float
     return built, time.perf_counter() - wall0, time.process_time() - cpu0
 
 
+#: MuJoCo stage timers printed by --stages: (label, mjtTimer name).
+STAGES = (('step', 'mjTIMER_STEP'), ('constraint solve', 'mjTIMER_CONSTRAINT'),
+          ('collision', 'mjTIMER_POS_COLLISION'), ('constraint make', 'mjTIMER_POS_MAKE'),
+          ('kinematics', 'mjTIMER_POS_KINEMATICS'), ('inertia', 'mjTIMER_POS_INERTIA'))
+
+
+def stages(name: str, seconds: float, links: int) -> str:
+    """One run of `name`; MuJoCo's stage timers as µs per step (share of the step)."""
+    import mujoco
+    robot = make_robot(name, links)
+    gait = make_gait(robot.scene.default_gait, robot.scene)
+    robot.run_until(seconds, ScriptedCommands(precomputed(gait.contraction_mm, robot, seconds)))
+    timer = robot.simulation.data.timer
+    step = timer[int(mujoco.mjtTimer.mjTIMER_STEP)]
+    per_step = step.duration / max(step.number, 1)
+    parts = []
+    for label, key in STAGES:
+        t = timer[int(getattr(mujoco.mjtTimer, key))]
+        us = t.duration / max(t.number, 1)
+        share = '' if key == 'mjTIMER_STEP' else f' ({us / per_step:.0%})'
+        parts.append(f'{label} {us * 1e6:.0f} us{share}')
+    return f'{name:13s} nv {robot.simulation.model.nv}: ' + ', '.join(parts)
+
+
 def checkout(rev: str) -> Path:
     """``src/`` of git revision `rev`, unpacked in a temporary directory."""
     blob = subprocess.run(['git', '-C', str(REPO), 'archive', rev, 'src'],
@@ -159,6 +188,8 @@ def main() -> None:
                         default=(DEFAULT_PHYSICS_TIMESTEP_S or 0.002) * 1e3,
                         help='physics timestep, ms (default sim_robot\'s, '
                              f'{DEFAULT_PHYSICS_TIMESTEP_S * 1e3:g})')
+    parser.add_argument('--stages', action='store_true',
+                        help="also print MuJoCo's stage timers per scene (one more run each)")
     args = parser.parse_args()
     global TIMESTEP_S
     TIMESTEP_S = args.timestep_ms * 1e-3
@@ -197,6 +228,10 @@ def main() -> None:
             olds = [args.seconds / c for _, _, c in before]
             print(f'{"":13s} CPU RTF range now {min(cpus):.2f}-{max(cpus):.2f}, '
                   f'before {min(olds):.2f}-{max(olds):.2f}', flush=True)
+    if args.stages:
+        print('\nmj_step by stage (MuJoCo timers, wall clock, mean per physics step):')
+        for name in args.scenes.split(','):
+            print(stages(name, args.seconds, args.links_per_segment), flush=True)
     seconds = min(args.seconds, 2.0)
     first, second = trajectory(seconds, args.links_per_segment), trajectory(seconds, args.links_per_segment)
     same = first.shape == second.shape and np.array_equal(first, second)
