@@ -37,8 +37,12 @@ def test_demo_with_physics_runs_the_gripper_on_sim_robot(tmp_path, read_rrd):
         # At most the gait's 50 Hz of simulated time; a gait node starved by this loaded
         # machine misses some /clock steps and ticks (rcl timers skip missed periods).
         assert 20.0 < m['command_rate_hz'] <= 50.5, (name, m)
-    assert physics['gait_cycles'] == pytest.approx(summary['seconds'] / physics['gait_period_s'],
-                                                   abs=0.05), physics
+    # The gait's cycles took its period each in simulated time (stamps of its phase
+    # messages). With both cores busy the observer may take only part of the window's
+    # phases (seen: 0.5 of 5.2 s under two CPU hogs), but the gait is never fast or slow.
+    assert physics['gait_seconds'] > 0.2, physics
+    assert physics['gait_cycles'] == pytest.approx(
+        physics['gait_seconds'] / physics['gait_period_s'], abs=0.02), physics
     # Simulated against predicted shapes, every module (rib-centre RMS, mm).
     for name in modules:
         error = physics['shape_error_mm'][name]

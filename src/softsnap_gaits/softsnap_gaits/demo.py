@@ -311,16 +311,19 @@ class Observer:
         return self.node.get_clock().now().nanoseconds
 
     def drain(self, end_ns: int) -> None:
-        """Spin until every module's commands stamped up to `end_ns` have been taken.
+        """Spin until every module's commands, and the gait's phases, stamped up to
+        `end_ns` have been taken.
 
         Messages of one topic arrive in order, so a command stamped after `end_ns` means
-        all earlier ones are in. Bounded: DRAIN_TIMEOUT_S in all, and it stops once no
+        all earlier ones are in (likewise a phase). On a starved machine the phases can
+        lag the commands by seconds. Bounded: DRAIN_TIMEOUT_S in all, and it stops once no
         command came for DRAIN_IDLE_S (a gait played once stops commanding).
         """
         deadline = time.monotonic() + DRAIN_TIMEOUT_S
         while time.monotonic() < deadline:
             stats = self.stats.values()
-            if all(s.command_stamps_ns and s.command_stamps_ns[-1] > end_ns for s in stats):
+            if (all(s.command_stamps_ns and s.command_stamps_ns[-1] > end_ns for s in stats)
+                    and (not self.phases or self.phases[-1][0] > end_ns)):
                 return
             arrivals = [s.last_command_arrival_s for s in stats if s.command_stamps_ns]
             if not arrivals or time.monotonic() - max(arrivals) > DRAIN_IDLE_S:
@@ -493,9 +496,13 @@ def physics_summary(scene, gait_name: str, observer: Observer, window_ns, sim_lo
             except (IndexError, ValueError):
                 pass
     # Gait cycles played inside the window, by the gait's own phase (simulated time).
-    played = [(c + ph) for t, c, ph in observer.phases if window_ns[0] <= t <= window_ns[1]]
-    cycles = float(played[-1] - played[0]) if len(played) > 1 else None
+    played = [(t, c + ph) for t, c, ph in observer.phases if window_ns[0] <= t <= window_ns[1]]
+    cycles = float(played[-1][1] - played[0][1]) if len(played) > 1 else None
+    # The simulated seconds those cycles took (a gait node started late on a loaded
+    # machine plays fewer cycles in the window, but each still takes its period).
+    gait_seconds = (played[-1][0] - played[0][0]) * 1e-9 if len(played) > 1 else None
     return {'gait': gait_name, 'gait_period_s': period, 'gait_cycles': cycles,
+            'gait_seconds': gait_seconds,
             'base_travel': base, 'base_mm_per_cycle': per_cycle(base),
             'payload_travel': payload, 'payload_mm_per_cycle': per_cycle(payload),
             'payload_first_grasp': first_grasp_hold(scene, gait_name, observer.phases,
