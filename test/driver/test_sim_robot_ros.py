@@ -151,7 +151,7 @@ def test_a_winch_stalled_by_the_cable_tension_is_reported_by_its_driver(
 @pytest.mark.parametrize('params, reason', [
     (['scene:=no_such_robot'], 'no_such_robot'),
     (['scene:=brittle_star', 'payload:=ball'], 'payload'),
-    (['scene:=gripper', 'payload:=sphere'], "payload must be one of none, ball, box, got 'sphere'"),
+    (['scene:=gripper', 'payload:=sphere'], "payload must be one of none, ball, box, cylinder, got 'sphere'"),
     (['scene:=gripper', 'time_factor:=-1.0'], 'time_factor'),
 ])
 def test_bad_scene_or_payload_parameters_end_the_node_with_the_reason(start_node, params, reason):
