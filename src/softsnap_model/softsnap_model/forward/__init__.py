@@ -45,14 +45,17 @@ Layout of this subpackage
 * :mod:`.results`: contracts (tolerances), errors and frozen result types;
 * :mod:`.branch`: per-segment branches, their profile tables and the profile cache;
 * :mod:`.path`: per-threading problem data, the path tables and their caches;
-* :mod:`.newton`: the Newton solve, certification and robust fallback;
+* :mod:`.newton`: the batch Newton solve, certification and robust fallback;
+* :mod:`.single`: one solve in plain Python floats (start, evaluation, second-order
+  check, Newton), the engine of :func:`solve_forward`;
 * :mod:`.api`: :func:`solve_forward`, :func:`reachable_range`;
 * :mod:`.batch`: :func:`solve_forward_batch`, :func:`sweep`.
 
 Caches (the only process-wide state; each is a pure function of its key, so it changes
 the cost, never an answer): per hole-pair profiles (``branch._PROFILE_CACHE``), and
 per threading the problem and path tables (``path._problem``, ``path._single``,
-``path._single_named``) and the hole offsets of a threading given by name
+``path._single_named``; the single solve keeps its per-threading lists in the
+``path._single`` entry) and the hole offsets of a threading given by name
 (``path._threading_cached``), least recently used out beyond
 ``path._THREADINGS_CACHED`` (2560) threadings, about 0.3 MB each.
 :func:`clear_caches` empties them all (benchmarks use it to time a first solve).
@@ -63,10 +66,10 @@ from .api import reachable_range, solve_forward
 from .batch import solve_forward_batch, sweep
 from .branch import (_PROFILE_CACHE, _PROFILE_LOCK, SegmentBranch, _branch_derivs, _branch_solve,
                      _pair_profile_array, segment_angle_at_tension, segment_branch)
-from .newton import WARM_START_RADIUS_RAD, _solve_single
 from .path import _problem, _single, _single_named, _threading_cached
 from .results import (CONSTRAINT_TOL_MM, MAX_ITER, STATIONARITY_TOL_RAD, BatchResult,
                       ForwardResult, InfeasibleLengthError, SnapThroughError, SweepResult)
+from .single import WARM_START_RADIUS_RAD, _solve_single
 
 __all__ = [
     'CONSTRAINT_TOL_MM', 'STATIONARITY_TOL_RAD', 'MAX_ITER', 'WARM_START_RADIUS_RAD',

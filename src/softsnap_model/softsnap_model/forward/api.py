@@ -13,9 +13,9 @@ import numbers
 import numpy as np
 
 from ..skeleton import Skeleton
-from .newton import _solve_single
 from .path import _check_length, _problem, _single_for
 from .results import MAX_ITER, ForwardResult, _forward_result
+from .single import _solve_single
 
 
 

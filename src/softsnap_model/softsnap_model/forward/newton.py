@@ -1,21 +1,18 @@
 """Newton solve and certification on the path tables.
 
-Owns the start from the path tables, the bordered Newton on the KKT system (vectorised
-over a batch, and a plain-float variant for one solve), the second-order check
-(:func:`_curvature`), the acceptance test against the public contracts and the robust
-fallback (exact per-segment solves, safeguarded Newton on the tension) for whatever
-Newton cannot certify.
+Owns the start from the path tables, the bordered Newton on the KKT system vectorised
+over a batch (:mod:`.single` has its plain-float variant for one solve), the
+second-order check (:func:`_curvature`), the acceptance test against the public
+contracts and the robust fallback (exact per-segment solves, safeguarded Newton on the
+tension) for whatever Newton cannot certify.
 """
 from __future__ import annotations
-
-import bisect
-import math
 
 import numpy as np
 
 from ..geometry import _g_series, segment_length_derivatives
 from .branch import _branch_solve
-from .path import _PER_ITEM, _Q_DEGREE, _START_DEGREE
+from .path import _PER_ITEM, _START_DEGREE
 from .results import CONSTRAINT_TOL_MM, MAX_ITER, STATIONARITY_TOL_RAD
 
 
@@ -24,13 +21,6 @@ from .results import CONSTRAINT_TOL_MM, MAX_ITER, STATIONARITY_TOL_RAD
 _INNER_TOL_MM = 1e-12
 _INNER_TOL_RAD = 1e-14
 
-#: A warm start (``initial``) is checked as the answer only when its branch magnitudes
-#: are within this distance (rad, max norm) of the table start, which is itself
-#: accurate to about 1e-12 rad (1e-5 in the few linear cells): a previous shape further
-#: away (any real length change: one encoder count moves the angles by ~1e-4 rad) is a
-#: worse start than the table and is left unused, at no cost.
-WARM_START_RADIUS_RAD = 1e-6
-
 _START_POWERS = np.arange(_START_DEGREE + 1, dtype=float)
 # The batch Newton iterates on the unconverged rows alone once they are at most this
 # fraction of the batch (slicing the per-row data costs about one iteration).
@@ -38,11 +28,6 @@ _SHRINK_FRACTION = 0.5
 #: Constraint target of the Newton loops in units in the last place of the cable length:
 #: the inner target is ``max(1e-12 mm, _CONSTRAINT_ULPS ulp(L))`` (1e-12 mm up to 512 mm).
 _CONSTRAINT_ULPS = 16
-# Reductions without the ndarray-method wrappers (a single solve is call overhead).
-_add_reduce = np.add.reduce
-_max_reduce = np.maximum.reduce
-_min_reduce = np.minimum.reduce
-_mul_accumulate = np.multiply.accumulate
 
 
 def _start_from_table(P, L_t):
@@ -194,30 +179,6 @@ def _newton(P, L_t, lam, b, lam_lo, lam_hi, max_iter, tol_mm, tol_rad, active=No
                 held=held, contact=contact, curv=curv, iters=iters)
 
 
-def _eval_single(b, S):
-    """``l, l', l''`` of one problem's segments: :func:`_branch_eval` in fewer numpy calls.
-
-    A single solve costs numpy's per-call overhead, not arithmetic (11-element arrays),
-    so this evaluates ``Q = l^2 = (d1 - d2)^2 + g(b) (s + e1 b)(s + e2 b)`` as one
-    polynomial in ``b`` per segment, whose coefficients for ``Q, Q', Q''``
-    (``S['q_coef']``, :func:`.path._q_coefficients`) are the same truncated series of ``g``
-    multiplied out: powers of ``b`` by one cumulative product (``pow`` costs more than
-    the rest on small arrays), the three polynomials by one batched matrix product.
-    Then ``l = sqrt(Q)``, ``l' = Q' / 2l``, ``l'' = (Q'' - 2 l'^2) / 2l``, the algebra
-    of :func:`_branch_eval`; the two agree to a few ulp.
-    """
-    powers = np.empty((b.shape[0], _Q_DEGREE + 1))
-    powers[:, 0] = 1.0
-    powers[:, 1:] = b[:, None]
-    _mul_accumulate(powers, axis=1, out=powers)
-    q = np.matmul(powers[:, None, :], S['q_coef'])
-    length = np.sqrt(q[:, 0, 0])
-    half_inv = 0.5 / length
-    lp = q[:, 0, 1] * half_inv
-    lpp = (q[:, 0, 2] - 2.0 * lp * lp) * half_inv
-    return length, lp, lpp
-
-
 def _newton_rest(P, L_t, lam, b, lam_lo, lam_hi, max_iter, tol_mm, tol_rad, active,
                  iters, state):
     """Finish :func:`_newton` on its still-active rows as a sub-batch; merge the rest."""
@@ -232,115 +193,6 @@ def _newton_rest(P, L_t, lam, b, lam_lo, lam_hi, max_iter, tol_mm, tol_rad, acti
     out['iters'][rows] += st['iters']
     out['curv'] = _curvature(P, out['lam'], out['b'], out['lp'], out['l_aa'], out['held'])
     return out
-
-
-def _newton_single(S, L_t, lam, b, lam_lo, lam_hi, max_iter, tol_mm, tol_rad,
-                   derive_lam=False):
-    """:func:`_newton` for one problem with plain-float control flow.
-
-    Same iteration and safeguards; 1-D arrays over segments and Python floats for the
-    tension (a single solve is numpy's per-call overhead: ~25 small calls a step).
-    The stationarity residual is computed only once the constraint is met, and the
-    second-order check (:func:`_curvature_single`) only on the evaluation returned.
-    A start taken without a Newton step (the path tables' quintic, or a warm start) is
-    accepted only if its stationarity residual is within ``tol_rad`` times the smallest
-    curvature: that bounds its angle error by about ``tol_rad`` even next to a buckling
-    or contact point (where a small residual alone allows a larger error); otherwise
-    Newton steps polish it to rounding. With ``derive_lam`` the tension is first
-    replaced by the least-squares multiplier of the angles ``b`` (``min ||2 k b +
-    lambda l'||`` over the segments neither straight nor at their branch end), from
-    the first evaluation. Divisions by zero occur only in masked entries, so the
-    caller enters ``np.errstate`` when segments can be held (:func:`_solve_single`).
-    """
-    lam_c, lam_end, b_end = S['lam_c'], S['lam_end'], S['b_end']
-    two_k, inv_two_k = S['two_k'], S['inv_two_k']
-    mirror, has_mirror = S['mirror'], S['has_mirror']
-    lam_end_min = S['lam_end_min']
-    held = contact = None
-    it = 0
-    first = None
-    if derive_lam:
-        first = _eval_single(b, S)
-        lp = np.where((b < b_end) & ((b > 0.0) | ~mirror), first[1], 0.0)
-        den = float(lp @ lp)
-        if den > 0:
-            lam = min(max(float(-(two_k * b) @ lp) / den, lam_lo), lam_hi)
-    while True:
-        # Mirror segments all bent (the usual case): none can be held or kicked.
-        if has_mirror and float(_min_reduce(b[S['mirror_idx']])) <= 0.0:
-            kick = mirror & (b <= 0.0) & (lam > lam_c)
-            if kick.any():
-                b = np.where(kick, _kick_b(S['P'], np.array([lam]))[0], b)
-                first = None
-            held = mirror & (b <= 0.0)
-        else:
-            held = None
-        contact = (b >= b_end) & (lam >= lam_end) if lam >= lam_end_min else None
-        fixed = held if contact is None else (contact if held is None else held | contact)
-        if fixed is not None and not fixed.any():
-            fixed = None
-        if first is None:
-            length, lp, l_aa = _eval_single(b, S)
-        else:
-            (length, lp, l_aa), first = first, None
-        g = float(_add_reduce(length)) - L_t
-        stat = math.inf
-        if abs(g) <= tol_mm or it == max_iter:
-            f = b + lam * inv_two_k * lp
-            if fixed is not None:
-                f[fixed] = 0.0
-            stat = float(_max_reduce(np.abs(f)))
-            if stat <= tol_rad or it == max_iter:
-                curv_min = _curvature_single(S, lam, b, lp, l_aa, held, contact)
-                if it > 0 or it == max_iter or stat <= tol_rad * min(curv_min, 1.0):
-                    break
-        it += 1
-        inv = 1.0 / lp
-        u = two_k * b * inv
-        ft = -lam - u                                 # k phi(b) - lambda
-        jac = (u * l_aa - two_k) * inv                # k phi'(b) > 0 on the branch
-        w = lp / jac
-        if fixed is not None:
-            ft[fixed] = 0.0
-            w[fixed] = 0.0
-        dlam = (float(w @ ft) - g) / float(_add_reduce(w))
-        db = (dlam - ft) / jac
-        if fixed is not None:
-            db[fixed] = 0.0
-        new_lam = lam + dlam
-        b = b + db
-        if not lam_lo < new_lam < lam_hi:
-            # Outside the exact bracket (or NaN): bisect, angles from the tables.
-            if g > 0:
-                lam_lo = max(lam_lo, lam)
-            elif g < 0:
-                lam_hi = min(lam_hi, lam)
-            new_lam = 0.5 * (lam_lo + lam_hi)
-            b = _guess_b(S['P'], np.array([new_lam]))[0]
-        lam = new_lam
-        b = np.fmin(np.fmax(b, 0.0), b_end)
-    if held is None:
-        held = np.zeros(b.shape, dtype=bool)
-    if contact is None:
-        contact = np.zeros(b.shape, dtype=bool)
-    return dict(lam=lam, b=b, length=length, lp=lp, l_aa=l_aa, g=g, stat=stat,
-                held=held, contact=contact, iters=it, curv_min=curv_min)
-
-
-def _curvature_single(S, lam, b, lp, l_aa, held, contact):
-    """Smallest ``1 + lambda l''/(2k)`` over the segments not at contact: the second-order
-    check of :func:`_curvature` for one problem (the equilibrium form ``(l' - b l'')/l'``
-    per free segment, its series next to a pitchfork, the plain form for mirror segments
-    held straight); ``inf`` when every segment is at contact."""
-    curv = (lp - b * l_aa) / lp
-    if S['has_mirror']:
-        near_pitchfork = S['mirror'] & (b < 1e-3)
-        curv = np.where(near_pitchfork, S['two_beta'] * b * b, curv)
-        if held is not None:
-            curv = np.where(held, 1.0 + lam * l_aa * S['inv_two_k'], curv)
-    if contact is None:
-        return float(_min_reduce(curv))
-    return float(np.min(curv, where=~contact, initial=np.inf))
 
 
 def _kick_b(P, lam, rows=None):
@@ -464,78 +316,3 @@ def _finish(P, L_t, st, slack):
                 converged=converged, constraint_residual=np.abs(g),
                 stationarity_residual=stat, residual=np.maximum(np.abs(g), stat),
                 is_minimum=is_min, min_curvature=min_curv, slack=slack, at_contact=contact)
-
-
-def _solve_single(S, L, lam0=None, a0=None, max_iter=MAX_ITER, fallback=True):
-    """One solve on the plain-float path; falls back to the batch engine (with its
-    robust fallback) when the result is not certified. Returns the result dict.
-
-    ``a0`` (angles) and ``lam0`` (tension or None) are a warm start. It is used only
-    when ``a0`` is within :data:`WARM_START_RADIUS_RAD` of the table start, and then
-    only if it already meets the inner tolerances (no Newton step); otherwise the solve
-    is exactly the cold one. So a warm start never costs Newton iterations or accuracy.
-    """
-    if S['has_mirror'] or L <= S['all_free_above_mm']:
-        # Segments can be held straight or at contact: divisions by zero then occur in
-        # their masked-out entries, never used. Above ``all_free_above_mm`` the tension
-        # stays below every branch end (Newton keeps it inside the path cell), so the
-        # common case skips the context (entering one costs a few numpy calls).
-        with np.errstate(all='ignore'):
-            return _solve_single_inner(S, L, lam0, a0, max_iter, fallback)
-    return _solve_single_inner(S, L, lam0, a0, max_iter, fallback)
-
-
-def _solve_single_inner(S, L, lam0, a0, max_iter, fallback):
-    tol_mm = max(_INNER_TOL_MM, _CONSTRAINT_ULPS * math.ulp(L))
-    # The path cell of L: path lengths decrease along the path (bisect on the negated
-    # Python list, cheaper than a numpy search for one value).
-    j = min(max(bisect.bisect_left(S['neg_path_len_list'], -L), 1), S['n_path'] - 1)
-    len_lo, len_hi = S['path_len_list'][j - 1], S['path_len_list'][j]
-    lam_lo, lam_hi = S['path_lam_list'][j - 1], S['path_lam_list'][j]
-    w = (len_lo - L) / (len_lo - len_hi) if len_lo > len_hi else 0.5
-    w2 = w * w
-    # The polynomials are stored once per distinct segment: gather them per segment.
-    start = (np.array([1.0, w, w2, w2 * w, w2 * w2, w2 * w2 * w])
-             @ S['path_poly'][j - 1])[S['path_columns']]
-    b, lam = start[:-1], float(start[-1])
-    st = None
-    if a0 is not None:
-        # Cheap screen first: the max-norm distance can be within the radius only if
-        # the sums are within n times it (a NaN or inf angle fails here and raises).
-        gap = float(S['direction'] @ a0) - float(b.sum())
-        if not math.isfinite(gap):
-            raise ValueError(f'initial: angles must be finite, got {a0.tolist()}')
-        if (abs(gap) <= b.size * WARM_START_RADIUS_RAD
-                and float(np.max(np.abs(S['direction'] * a0 - b))) <= WARM_START_RADIUS_RAD):
-            # Close enough to be the answer: check it (one evaluation, with its own
-            # tension, given or derived from it); keep it only if it already is.
-            b_w = np.fmin(np.fmax(S['direction'] * a0, 0.0), S['b_end'])
-            given = lam0 is not None and lam_lo <= lam0 <= lam_hi
-            st = _newton_single(S, L, lam0 if given else lam, b_w, lam_lo, lam_hi, 0,
-                                tol_mm, _INNER_TOL_RAD, not given)
-            if not (abs(st['g']) <= tol_mm and st['stat'] <= _INNER_TOL_RAD
-                    * min(st['curv_min'], 1.0)):
-                st = None
-    if st is None:
-        # Just past a mirror segment's buckling tension (its first table cell), start it
-        # from its own branch (see :func:`_solve_arrays_inner`).
-        if S['has_mirror'] and any(lo < lam < hi for lo, hi in S['mirror_first_cells']):
-            past = S['mirror'] & (lam > S['lam_c']) & (lam < S['lam_1'])
-            b = np.where(past, _kick_b(S['P'], np.array([lam]))[0], b)
-        st = _newton_single(S, L, lam, b, lam_lo, lam_hi, max_iter, tol_mm,
-                            _INNER_TOL_RAD)
-    curv_min = st['curv_min']
-    g = abs(st['g'])
-    ok = g <= CONSTRAINT_TOL_MM and st['stat'] <= STATIONARITY_TOL_RAD and curv_min > 0
-    if not ok and fallback:
-        with np.errstate(all='ignore'):
-            out = _solve_arrays_inner(S['P'], np.array([L]), max_iter, _INNER_TOL_MM,
-                                      _INNER_TOL_RAD)
-        return {key: val[0] for key, val in out.items()}
-    b = st['b']
-    angles = S['direction'] * b
-    return dict(angles=angles, tension=st['lam'], energy=float(S['k'] @ (b * b)),
-                iterations=st['iters'], converged=ok, constraint_residual=g,
-                stationarity_residual=st['stat'], residual=max(g, st['stat']),
-                is_minimum=curv_min > 0, min_curvature=curv_min if curv_min < math.inf else 1.0,
-                slack=False, at_contact=st['contact'])
