@@ -15,7 +15,7 @@ import numpy as np
 from ..skeleton import Skeleton
 from .path import _check_length, _problem, _single_for
 from .results import MAX_ITER, ForwardResult, _forward_result
-from .single import _solve_single
+from .single import _scalars, _solve_single
 
 
 
@@ -69,7 +69,8 @@ def _frames(angles, s, d):
 
 
 def _frames_single(angles, s, minus_i_d):
-    """:func:`_frames` of one shape as a scalar loop (a single solve is call overhead).
+    """:func:`_frames` of one shape (a list of angles) as a scalar loop (a single solve
+    is call overhead).
 
     For 11 segments a loop over Python complex numbers is half the time of the dozen
     numpy calls of the vectorised form (15 against 30-35 us) and bit-identical to it:
@@ -84,14 +85,14 @@ def _frames_single(angles, s, minus_i_d):
     centre = 0j
     centres = [centre]
     holes = [mid[0]]
-    for i, a in enumerate(angles.tolist(), 1):
+    for a, hole in zip(angles, mid[1:]):
         h = 0.5 * a
         phase += h
         chord = exp(1j * phase)
         phase += h
         centre += (s * (sin(h) / h if h != 0.0 else 1.0)) * chord
         centres.append(centre)
-        holes.append(centre + mid[i] * exp(1j * phase))
+        holes.append(centre + hole * exp(1j * phase))
     xy = np.array((centres, holes)).view(float).reshape(2, len(centres), 2)
     return xy[0], xy[1]
 
@@ -203,16 +204,17 @@ def solve_forward(skeleton: Skeleton, threading, cable_length_mm, initial=None, 
     else:
         out = _solve_single(S, L, lam0, a0, max_iter=int(max_iter))
     angles = out['angles']
+    values = angles.tolist()
     # Bent mirror segments, whose direction was the tie-break (before any flip).
-    tie_break = (tuple(i for i, a in zip(S['mirror_idx'].tolist(),
-                                         angles[S['mirror_idx']].tolist()) if a != 0.0)
+    tie_break = (tuple(i for i in _scalars(S).mirror_idx if values[i] != 0.0)
                  if S['has_mirror'] else ())
     if flip:
         # The mirror image of those segments: L(-a) = L(a) when d2 = -d1, so every
         # residual and the second-order check carry over unchanged.
         angles = angles.copy()
         angles[list(flip)] *= -1.0
-    centers, holes = _frames_single(angles, prob.s, S['minus_i_d'])
+        values = angles.tolist()
+    centers, holes = _frames_single(values, prob.s, S['minus_i_d'])
     slack = bool(out['slack'])
     converged = bool(out['converged'])
     if slack:
