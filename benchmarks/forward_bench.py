@@ -19,7 +19,10 @@ Compares, on the same problems and in the same run:
   (f) a plain reference solver (benchmarks/accuracy_check.py: bracketing on the tension
       and on every segment's angle, no tables), the second baseline;
   (g) 192-rib batches (iterations per row, rows at the iteration cap) and a loop over
-      2187 threadings (3^7: the path-table caches must not rebuild per solve).
+      2187 threadings (3^7: the path-table caches must not rebuild per solve);
+  (h) a plain loop of cold solves over the paper's nine threadings at six contractions
+      each (the issue-17 target, <= 100 us per solve), and with --before the same loop
+      on the old solver, interleaved round by round.
 Error = largest rib-centre distance (mm) to an mpmath reference (40 digits, KKT Newton
 refined from our answer; see test/model/mp_reference.py).
 
@@ -174,6 +177,38 @@ def threading_loop(n_lengths=2):
         passes.append((time.perf_counter() - t0) / (len(ts) * n_lengths))
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     return passes[0], passes[1], rss, len(ts)
+
+
+#: Contractions of the paper loop, as fractions of each threading's reachable range.
+PAPER_LOOP_FRACTIONS = (0.05, 0.2, 0.4, 0.6, 0.8, 0.95)
+
+
+def paper_loop(mods, rounds):
+    """(h): cold ``solve_forward`` over the nine paper threadings at
+    :data:`PAPER_LOOP_FRACTIONS`, a plain loop, for each solver module in ``mods``.
+
+    The modules take turns every round (the order alternating), so a change of the
+    machine's load hits both alike. Returns ``{name: (wall s per solve, CPU s per
+    solve) per round}``.
+    """
+    cases = []
+    for t in PAPER_THREADINGS.values():
+        t = list(t)
+        lo, hi = reachable_range(SK, t)
+        cases += [(t, hi - frac * (hi - lo)) for frac in PAPER_LOOP_FRACTIONS]
+    for mod in mods.values():         # tables built, code paths warm
+        for t, length in cases:
+            mod.solve_forward(SK, t, length)
+    out = {name: [] for name in mods}
+    for r in range(rounds):
+        for name in (list(mods) if r % 2 == 0 else list(mods)[::-1]):
+            solve = mods[name].solve_forward
+            w0, c0 = time.perf_counter(), time.thread_time()
+            for t, length in cases:
+                solve(SK, t, length)
+            c1, w1 = time.thread_time(), time.perf_counter()
+            out[name].append(((w1 - w0) / len(cases), (c1 - c0) / len(cases)))
+    return out
 
 
 def load_before(rev):
@@ -420,6 +455,25 @@ def main():
             print(f'  {key}: ratio before/now {fmt_spread(ratio, 1, 2)}x; before '
                   f'{fmt_spread([b for b, _ in pairs], scale, 1)} {unit}, now '
                   f'{fmt_spread([n for _, n in pairs], scale, 1)} {unit}')
+    # (h) the paper loop, last: with --before, the old solver takes turns with this one.
+    mods = {'now': fwd}
+    if args.before:
+        mods = {'before': before, 'now': fwd}
+    loop_rounds = 15 if args.quick else 40
+    paper = paper_loop(mods, loop_rounds)
+    n_cases = len(PAPER_THREADINGS) * len(PAPER_LOOP_FRACTIONS)
+    wall = [w for w, _ in paper['now']]
+    cpu = [c for _, c in paper['now']]
+    print(f'paper loop: cold solve_forward over the {len(PAPER_THREADINGS)} paper threadings at '
+          f'{len(PAPER_LOOP_FRACTIONS)} contractions ({n_cases} solves a round, '
+          f'{loop_rounds} rounds; median (range) per solve):')
+    print(f'  now: {fmt_spread(wall, 1e6)} us wall, {fmt_spread(cpu, 1e6)} us CPU  '
+          '(target <= 100 us on a quiet machine)')
+    if args.before:
+        ratio = [b[1] / n[1] for b, n in zip(paper['before'], paper['now'])]
+        print(f'  {args.before}: {fmt_spread([w for w, _ in paper["before"]], 1e6)} us wall, '
+              f'{fmt_spread([c for _, c in paper["before"]], 1e6)} us CPU; ratio before/now '
+              f'(CPU, round by round) {fmt_spread(ratio, 1, 2)}x')
     print(load_line('end'))
 
     import matplotlib
