@@ -41,7 +41,7 @@ class _Scalars:
 
     __slots__ = ('n', 'segments', 'b_cols', 'lam_col', 'q_coef', 'direction', 'k',
                  'two_k', 'inv_two_k', 'b_end', 'lam_end', 'lam_end_min', 'has_mirror',
-                 'mirror', 'mirror_idx', 'mirror_cells', 'two_beta')
+                 'mirror', 'mirror_idx', 'mirror_cells', 'kick_range', 'two_beta')
 
     def __init__(self, S):
         columns = S['path_columns'].tolist()
@@ -59,6 +59,9 @@ class _Scalars:
         # segment: past buckling, its first cell is started from its own branch.
         self.mirror_cells = [(i, lo, hi) for i, (lo, hi)
                              in zip(self.mirror_idx, S['mirror_first_cells'])]
+        # The tensions of those cells together, for a one-comparison test.
+        self.kick_range = (min([lo for _, lo, _ in self.mirror_cells], default=math.inf),
+                           max([hi for _, _, hi in self.mirror_cells], default=-math.inf))
 
 
 def _scalars(S) -> _Scalars:
@@ -193,7 +196,7 @@ def _newton_single(S, sc, L_t, lam, b, lam_lo, lam_hi, max_iter, tol_mm, tol_rad
     while True:
         held = None
         # Mirror segments all bent (the usual case): none can be held or kicked.
-        if sc.has_mirror and min(b[i] for i in mirror_idx) <= 0.0:
+        if sc.has_mirror and min([b[i] for i in mirror_idx]) <= 0.0:
             lam_c = S['lam_c']
             kick = [i for i in mirror_idx if b[i] <= 0.0 and lam > lam_c[i]]
             if kick:
@@ -291,7 +294,8 @@ def _solve_single(S, L, lam0=None, a0=None, max_iter=MAX_ITER, fallback=True):
         if st is None:
             # Just past a mirror segment's buckling tension (its first table cell),
             # start it from its own branch (see :func:`.newton._solve_arrays_inner`).
-            if sc.has_mirror and any(lo < lam < hi for _, lo, hi in sc.mirror_cells):
+            if (sc.kick_range[0] < lam < sc.kick_range[1]
+                    and any(lo < lam < hi for _, lo, hi in sc.mirror_cells)):
                 kicked = _kick_b(S['P'], np.array([lam]))[0].tolist()
                 for i, lo, hi in sc.mirror_cells:
                     if lo < lam < hi:
