@@ -41,7 +41,7 @@ class _Scalars:
 
     __slots__ = ('n', 'segments', 'b_cols', 'lam_col', 'q_coef', 'direction', 'k',
                  'two_k', 'inv_two_k', 'b_end', 'lam_end', 'lam_end_min', 'has_mirror',
-                 'mirror', 'mirror_idx', 'mirror_cells', 'kick_range', 'two_beta')
+                 'mirror', 'mirror_idx', 'mirror_cells', 'kick_range', 'two_beta', 'none')
 
     def __init__(self, S):
         columns = S['path_columns'].tolist()
@@ -52,6 +52,7 @@ class _Scalars:
         for name in ('direction', 'k', 'two_k', 'inv_two_k', 'b_end', 'lam_end', 'mirror',
                      'two_beta'):
             setattr(self, name, S[name].tolist())
+        self.none = [False] * self.n      # no segment held, none at contact
         self.lam_end_min = S['lam_end_min']
         self.has_mirror = S['has_mirror']
         self.mirror_idx = S['mirror_idx'].tolist()
@@ -122,43 +123,33 @@ def _evaluate(b, sc):
     return length, lp, lpp
 
 
-def _stationarity(sc, lam, b, lp, fixed):
-    """``max |b + lambda l' / (2k)|`` over the free segments (NaN if any is NaN)."""
-    worst = 0.0
-    inv_two_k = sc.inv_two_k
-    for i in sc.segments:
-        if fixed is None or not fixed[i]:
-            f = abs(b[i] + lam * inv_two_k[i] * lp[i])
-            if f > worst:
-                worst = f
-            elif f != f:
-                return f
-    return worst
+def _certify(sc, lam, b, lp, lpp, held, contact):
+    """(stationarity residual, smallest curvature) of one evaluation, in one pass.
 
-
-def _curvature_min(sc, lam, b, lp, lpp, held, contact):
-    """Smallest ``1 + lambda l''/(2k)`` over the segments not at contact, ``inf`` when
-    every segment is at contact: :func:`.newton._curvature` for one problem (the
-    equilibrium form ``(l' - b l'')/l'`` of a free segment, its series ``2 beta b^2``
-    within 1e-3 rad of a pitchfork, the plain form for a mirror segment held straight).
+    The residual is ``max |b + lambda l'/(2k)|`` over the free segments (neither held
+    nor at contact); the curvature the smallest ``1 + lambda l''/(2k)`` over the
+    segments not at contact (``inf`` if none): :func:`.newton._curvature` for one
+    problem, i.e. the equilibrium form ``(l' - b l'')/l'`` of a free segment, its series
+    ``2 beta b^2`` within 1e-3 rad of a pitchfork, the plain form for a mirror segment
+    held straight. A NaN in either stays NaN (and fails every test).
     """
-    lowest = math.inf
-    mirror, two_beta, inv_two_k = sc.mirror, sc.two_beta, sc.inv_two_k
-    for i in sc.segments:
-        if contact is not None and contact[i]:
+    worst, lowest = 0.0, math.inf
+    none = sc.none
+    for bi, p, pp, ik, mirror, two_beta, is_held, at_contact in zip(
+            b, lp, lpp, sc.inv_two_k, sc.mirror, sc.two_beta, held or none,
+            contact or none):
+        if at_contact:
             continue
-        bi = b[i]
-        if held is not None and held[i]:
-            c = 1.0 + lam * lpp[i] * inv_two_k[i]
-        elif mirror[i] and bi < 1e-3:
-            c = two_beta[i] * bi * bi
+        if is_held:
+            c = 1.0 + lam * pp * ik
         else:
-            c = (lp[i] - bi * lpp[i]) / lp[i]
-        if c < lowest:
+            f = abs(bi + lam * ik * p)
+            if f > worst or f != f:
+                worst = f
+            c = two_beta * bi * bi if mirror and bi < 1e-3 else (p - bi * pp) / p
+        if c < lowest or c != c:
             lowest = c
-        elif c != c:
-            return c
-    return lowest
+    return worst, lowest
 
 
 def _newton_single(S, sc, L_t, lam, b, lam_lo, lam_hi, max_iter, tol_mm, tol_rad,
@@ -166,8 +157,8 @@ def _newton_single(S, sc, L_t, lam, b, lam_lo, lam_hi, max_iter, tol_mm, tol_rad
     """:func:`.newton._newton` for one problem, the angles ``b`` a list of floats.
 
     Same iteration and safeguards, one loop over the segments per step. The
-    stationarity residual is computed only once the constraint is met, and the
-    second-order check only on the evaluation returned. A start taken without a Newton
+    stationarity residual and the second-order check (:func:`_certify`) are computed
+    only once the constraint is met. A start taken without a Newton
     step (the path tables' quintic, or a warm start) is accepted only if its
     stationarity residual is within ``tol_rad`` times the smallest curvature: that
     bounds its angle error by about ``tol_rad`` even next to a buckling or contact
@@ -224,9 +215,9 @@ def _newton_single(S, sc, L_t, lam, b, lam_lo, lam_hi, max_iter, tol_mm, tol_rad
         g = _sum(length) - L_t
         stat = math.inf
         if abs(g) <= tol_mm or it == max_iter:
-            stat = _stationarity(sc, lam, b, lp, fixed)
+            stat, curv = _certify(sc, lam, b, lp, lpp, held, contact)
             if stat <= tol_rad or it == max_iter:
-                curv_min = _curvature_min(sc, lam, b, lp, lpp, held, contact)
+                curv_min = curv
                 if it > 0 or it == max_iter or stat <= tol_rad * min(curv_min, 1.0):
                     break
         it += 1
