@@ -406,7 +406,12 @@ def _single_named(skeleton: Skeleton, key: tuple):
 
 
 def _single_for(skeleton: Skeleton, threading):
-    """``(problem, P, S)`` of any accepted threading form (memoised for hashable input)."""
+    """``(problem, P, S)`` of any accepted threading form (memoised for hashable input,
+    and for a string of names or a 1-D array of offsets, by their items)."""
+    if isinstance(threading, str):
+        threading = threading.split()
+    elif isinstance(threading, np.ndarray) and threading.ndim == 1:
+        threading = threading.tolist()
     if isinstance(threading, (list, tuple)):
         try:
             return _single_named(skeleton, tuple(threading))
