@@ -6,9 +6,10 @@ so here the angles are Python lists, and the only numpy calls are the start poly
 of the path cell (one product) and the series of the segment lengths (one product of
 the powers of ``b`` with their coefficients). Everything else (lengths and their
 derivatives from ``Q = l^2``, the constraint, the stationarity residual, the curvature
-check, the Newton step) is a loop over the segments with the same operations, in the
-same order, as the vectorised :func:`.newton._newton` of the batch, so the two agree to
-rounding. Owns :data:`WARM_START_RADIUS_RAD` and :func:`_solve_single`; whatever this
+check, the Newton step) is a loop over the segments: the iteration of the batch's
+:func:`.newton._newton`, with which it agrees to rounding, and the operations, in the
+same order, of the numpy single solve it replaced (cf2cb37), whose results it repeats
+bit for bit. Owns :data:`WARM_START_RADIUS_RAD` and :func:`_solve_single`; whatever this
 path cannot certify (or a division by zero in a degenerate skeleton) goes to the batch
 engine and its robust fallback.
 """
