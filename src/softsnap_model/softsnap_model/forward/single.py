@@ -194,7 +194,8 @@ def _newton_single(S, sc, L_t, lam, b, lam_lo, lam_hi, max_iter, tol_mm, tol_rad
             if kick:
                 # Past its buckling tension a straight mirror segment sits on the
                 # unstable trivial root: restart it on its branch.
-                kicked = _kick_b(S['P'], np.array([lam]))[0].tolist()
+                with np.errstate(all='ignore'):    # table lookups, 0/0 in unused cells
+                    kicked = _kick_b(S['P'], np.array([lam]))[0].tolist()
                 b = list(b)
                 for i in kick:
                     b[i] = kicked[i]
@@ -288,7 +289,8 @@ def _solve_single(S, L, lam0=None, a0=None, max_iter=MAX_ITER, fallback=True):
             # start it from its own branch (see :func:`.newton._solve_arrays_inner`).
             if (sc.kick_range[0] < lam < sc.kick_range[1]
                     and any(lo < lam < hi for _, lo, hi in sc.mirror_cells)):
-                kicked = _kick_b(S['P'], np.array([lam]))[0].tolist()
+                with np.errstate(all='ignore'):
+                    kicked = _kick_b(S['P'], np.array([lam]))[0].tolist()
                 for i, lo, hi in sc.mirror_cells:
                     if lo < lam < hi:
                         b[i] = kicked[i]
