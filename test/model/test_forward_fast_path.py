@@ -67,7 +67,7 @@ def test_public_face_of_the_subpackage():
                  'CONSTRAINT_TOL_MM', 'STATIONARITY_TOL_RAD', 'MAX_ITER',
                  'WARM_START_RADIUS_RAD', 'clear_caches'):
         assert name in fwd.__all__ and hasattr(fwd, name), name
-    for module in ('results', 'branch', 'path', 'newton', 'api', 'batch'):
+    for module in ('results', 'branch', 'path', 'newton', 'single', 'api', 'batch'):
         doc = getattr(fwd, module).__doc__
         assert doc and len(doc.split()) > 20, module
 
