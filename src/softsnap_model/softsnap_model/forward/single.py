@@ -78,6 +78,12 @@ def _sum(values, start=0, count=None):
     array: pairwise, eight running sums per block of up to 128), so that the constraint
     of a single solve is bit-identical to the batch engine's."""
     count = len(values) - start if count is None else count
+    if 8 <= count < 16 and start == 0:       # 9 to 16 ribs: one block and a tail
+        v = values
+        total = ((v[0] + v[1]) + (v[2] + v[3])) + ((v[4] + v[5]) + (v[6] + v[7]))
+        for x in v[8:]:
+            total += x
+        return total
     if count < 8:
         total = 0.0
         for x in values[start:start + count]:
@@ -107,12 +113,12 @@ def _evaluate(b, sc):
     ``l' = Q' / 2l``, ``l'' = (Q'' - 2 l'^2) / 2l``: the algebra of
     :func:`.newton._branch_eval`, with which it agrees to a few ulp.
     """
-    powers = np.empty((sc.n, _Q_DEGREE + 1))
-    powers[:, 0] = 1.0
+    powers = np.empty((sc.n, 1, _Q_DEGREE + 1))     # (n, 1, m): rows for the product
+    powers[:, 0, 0] = 1.0
     powers.T[1:] = b
-    _mul_accumulate(powers, axis=1, out=powers)
+    _mul_accumulate(powers, axis=2, out=powers)
     length, lp, lpp = [], [], []
-    for ((q, q_b, q_bb),) in np.matmul(powers[:, None, :], sc.q_coef).tolist():
+    for ((q, q_b, q_bb),) in np.matmul(powers, sc.q_coef).tolist():
         if not q > 0.0:     # coinciding holes (a degenerate skeleton), or NaN
             raise ZeroDivisionError(f'segment length^2 {q!r} mm^2 is not positive')
         root = _sqrt(q)
