@@ -173,8 +173,12 @@ def sweep(skeleton: Skeleton, threading, contractions_mm, *,
 #: job).
 PREPARED_THREADINGS = 256
 
+#: Row patterns (the threadings of a call's rows, in order) whose gathered rows a
+#: :class:`PreparedBatch` keeps; beyond it the memo starts again.
+PATTERNS_CACHED = 64
+
 # Per-row fields of the stacked tables that are float (U, n) arrays: gathered for a
-# call's rows in one indexing operation (see PreparedBatch._problem_rows).
+# call's rows in one indexing operation (see PreparedBatch._rows_of).
 _ROW_FLOATS = tuple(name for name in _PER_ITEM if name not in ('uid', 'd', 'mirror', 'straight'))
 
 
@@ -217,6 +221,7 @@ class PreparedBatch:
         self._offsets: list[tuple] = []      # the stacked threadings (hole offsets, mm)
         self._by_offsets: dict[tuple, int] = {}
         self._by_key: dict = {}              # a threading as given -> its stacked index
+        self._patterns: dict = {}            # row pattern -> its rows (see _rows_of)
         items = list(threadings)
         if items:
             _, reasons = self._rows(items)
@@ -302,31 +307,45 @@ class PreparedBatch:
         self._columns = columns
         # Per threading: first path sample, sample count, first cell.
         self._path_at = np.stack([first, sizes, first - np.arange(n_threadings)], axis=1)
+        self._patterns = {}
         self.restacks += 1
 
-    def _problem_rows(self, uid):
-        """The batch dictionary of ``newton`` for rows of stacked threadings ``uid``."""
-        rows = self._table[uid]
-        P = {name: rows[:, f] for f, name in enumerate(_ROW_FLOATS)}
-        P.update(self._shared, uid=uid, d=self._d[uid], mirror=self._mirror[uid],
-                 straight=self._straight[uid])
-        return P
+    def _rows_of(self, uid):
+        """Everything about a call's rows that depends only on their threadings
+        ``uid``: the batch dictionary of ``newton`` and the row data of the start.
 
-    def _start(self, uid, L):
+        Memoised per row pattern (a robot's ticks repeat a few patterns), so a tick of
+        a known pattern gathers nothing.
+        """
+        key = uid.tobytes()
+        rows = self._patterns.get(key)
+        if rows is None:
+            if len(self._patterns) >= PATTERNS_CACHED:
+                self._patterns.clear()
+            table = self._table[uid]
+            P = {name: table[:, f] for f, name in enumerate(_ROW_FLOATS)}
+            P.update(self._shared, uid=uid, d=self._d[uid], mirror=self._mirror[uid],
+                     straight=self._straight[uid])
+            first, size, cell0 = self._path_at[uid].T
+            rows = self._patterns[key] = (P, self._min_mm[uid], uid.astype(float), first,
+                                          size - 1, (cell0 - 1)[:, None], self._columns[uid])
+        return rows
+
+    def _start(self, rows, L):
         """:func:`.newton._start_from_table` for every row at once (same cells, weights
         and polynomials)."""
+        _, _, real, first, last, cell0, columns = rows
         query = np.empty(L.shape[0], dtype=complex)
-        query.real = uid
+        query.real = real
         query.imag = -L
-        first, size, cell0 = self._path_at[uid].T
         j = np.searchsorted(self._path_keys, query, side='left') - first
-        j = np.maximum(np.minimum(j, size - 1), 1)
+        j = np.maximum(np.minimum(j, last), 1)
         at = first + j
         len_lo, len_hi = self._path_len[at - 1], self._path_len[at]
         span = len_lo - len_hi
         w = np.where(span > 0, (len_lo - L) / np.where(span > 0, span, 1.0), 0.5)
         # Each row's cell, its polynomials gathered per segment: (B, n + 1, degree + 1).
-        cells = self._cells[(cell0 + j - 1)[:, None], :, self._columns[uid]]
+        cells = self._cells[cell0 + j[:, None], :, columns]
         start = np.einsum('bp,bcp->bc', w[:, None] ** _START_POWERS, cells)
         n = start.shape[1] - 1
         return start[:, n], start[:, :n], self._path_lam[at - 1], self._path_lam[at]
@@ -371,28 +390,29 @@ class PreparedBatch:
         if reasons and len(reasons) == nb:
             good = np.zeros(nb, dtype=bool)        # no good threading: nothing stacked
         else:
-            with np.errstate(invalid='ignore'):    # NaN compares False: refused below
-                good = (uid >= 0) & (lengths > self._min_mm[uid])
-        if not good.all():
+            rows = self._rows_of(uid)
+            good = lengths > rows[1]               # False for NaN (refused below)
+        if reasons or not good.all():
+            good[list(reasons)] = False
             for i in np.flatnonzero(~good).tolist():
                 if i not in reasons:
                     reasons[i] = self._reason(int(uid[i]), float(lengths[i]))
-            rows = np.flatnonzero(good)
-            uid, solved_lengths = uid[rows], lengths[rows]
-        else:
-            rows, solved_lengths = None, lengths
-        refused = tuple(reasons.get(i, '') for i in range(nb)) if reasons else ('',) * nb
-        if rows is not None and rows.size == 0:
-            return _refused_rows(_empty(BatchResult, self.skeleton.n_segments), rows, lengths,
-                                 refused)
-        P = self._problem_rows(uid)
-        with np.errstate(all='ignore'):
-            start = self._start(uid, solved_lengths)
-        out = _solve_arrays(P, solved_lengths, max_iter=int(max_iter), start=start)
-        result = _batch_result(BatchResult, P, out, solved_lengths)
-        if rows is None:
-            return PreparedBatchResult(**result.__dict__, refused=refused)
-        return _refused_rows(result, rows, lengths, refused)
+            solved = np.flatnonzero(good)
+            refused = tuple(reasons.get(i, '') for i in range(nb))
+            if solved.size == 0:
+                return _refused_rows(_empty(BatchResult, self.skeleton.n_segments), solved,
+                                     lengths, refused)
+            uid = uid[solved]
+            rows = self._rows_of(uid)
+            result = self._solve(rows, lengths[solved], max_iter, BatchResult)
+            return _refused_rows(result, solved, lengths, refused)
+        return self._solve(rows, lengths, max_iter, PreparedBatchResult, refused=('',) * nb)
+
+    def _solve(self, rows, lengths, max_iter, cls, **extra):
+        P = rows[0]
+        out = _solve_arrays(P, lengths, max_iter=int(max_iter),
+                            start=self._start(rows, lengths))
+        return _batch_result(cls, P, out, lengths, **extra)
 
     def _reason(self, u: int, length: float) -> str:
         """Why a length is refused for stacked threading u: the message of the error
