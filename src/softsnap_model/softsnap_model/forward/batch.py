@@ -391,7 +391,8 @@ class PreparedBatch:
             good = np.zeros(nb, dtype=bool)        # no good threading: nothing stacked
         else:
             rows = self._rows_of(uid)
-            good = lengths > rows[1]               # False for NaN (refused below)
+            # False for NaN, and inf is refused like solve_forward refuses it.
+            good = (lengths > rows[1]) & (lengths < np.inf)
         if reasons or not good.all():
             good[list(reasons)] = False
             for i in np.flatnonzero(~good).tolist():
