@@ -175,7 +175,7 @@ PREPARED_THREADINGS = 256
 
 #: Row patterns (the threadings of a call's rows, in order) whose gathered rows a
 #: :class:`PreparedBatch` keeps; beyond it the memo starts again.
-PATTERNS_CACHED = 64
+PATTERNS_CACHED = 16
 
 # Per-row fields of the stacked tables that are float (U, n) arrays: gathered for a
 # call's rows in one indexing operation (see PreparedBatch._rows_of).
