@@ -269,18 +269,23 @@ class RobotPredictor:
             # dictionary look-up per row.
             threadings = [key[0] for key in keys]
             start = time.perf_counter()
-            batch = self._batch_solver.solve(threadings, lengths)
-            each = (time.perf_counter() - start) / len(keys)
-            # One conversion per array, not per item: Python floats and bools.
-            tension, energy = batch.tension.tolist(), batch.energy.tolist()
-            converged, residual = batch.converged.tolist(), batch.residual.tolist()
-            for i, key in enumerate(keys):
-                if batch.refused[i]:
-                    yield key, groups[key], None, batch.refused[i]
-                else:
-                    yield key, groups[key], (batch.angles[i], batch.rib_centers[i], tension[i],
-                                             energy[i], converged[i], residual[i]), each
-            return
+            try:
+                batch = self._batch_solver.solve(threadings, lengths)
+            except ValueError:   # a malformed call only (bad rows are refused in it):
+                batch = None     # the one-by-one path below still answers every group
+            if batch is not None:
+                each = (time.perf_counter() - start) / len(keys)
+                # One conversion per array, not per item: Python floats and bools.
+                tension, energy = batch.tension.tolist(), batch.energy.tolist()
+                converged, residual = batch.converged.tolist(), batch.residual.tolist()
+                for i, key in enumerate(keys):
+                    if batch.refused[i]:
+                        yield key, groups[key], None, batch.refused[i]
+                    else:
+                        yield key, groups[key], (batch.angles[i], batch.rib_centers[i],
+                                                 tension[i], energy[i], converged[i],
+                                                 residual[i]), each
+                return
         for key, members in groups.items():
             first = self._slots[members[0]]
             initial = first.shape.angles if first.shape is not None else None
