@@ -132,6 +132,11 @@ def test_more_threadings_than_kept_restack_from_the_call_alone(monkeypatch):
     assert_rows_match_single_solves(result, threadings, [170.0, 172.0, 174.0])
     result = prepared.solve([PAPER['yellow']], [176.0])
     assert_rows_match_single_solves(result, [PAPER['yellow']], [176.0])
+    # Regression: one call with more distinct threadings than kept recursed forever.
+    many = [PAPER['yellow'], PAPER['red'], PAPER['s'], PAPER['w']]
+    result = prepared.solve(many, [175.0, 172.0, 170.0, 168.0])
+    assert len(prepared.threadings) == 4
+    assert_rows_match_single_solves(result, many, [175.0, 172.0, 170.0, 168.0])
 
 
 def test_predictor_refuses_a_bad_group_at_tick_time_and_solves_the_others():

@@ -234,11 +234,13 @@ class PreparedBatch:
         return tuple(self._offsets)
 
     # ------------------------------------------------------------------ tables
-    def _rows(self, items: list):
+    def _rows(self, items: list, fresh: bool = False):
         """Stacked index of each item ((B,) int, -1 where refused) and {row: reason}.
 
         Restacks if some item is new; items are looked up as given (hashable forms),
-        so a tick of known threadings costs one dictionary look-up per row.
+        so a tick of known threadings costs one dictionary look-up per row. ``fresh``:
+        the stack was just emptied for this call, which then keeps all its threadings
+        (even more than :data:`PREPARED_THREADINGS`).
         """
         index = np.empty(len(items), dtype=int)
         reasons: dict[int, str] = {}
@@ -255,10 +257,10 @@ class PreparedBatch:
                     continue
                 j = self._by_offsets.get(offsets)
                 if j is None:
-                    if len(self._offsets) >= PREPARED_THREADINGS:
+                    if len(self._offsets) >= PREPARED_THREADINGS and not fresh:
                         # Full: start again from this call's threadings alone.
                         self._offsets, self._by_offsets, self._by_key = [], {}, {}
-                        return self._rows(items)
+                        return self._rows(items, fresh=True)
                     j = self._by_offsets[offsets] = len(self._offsets)
                     self._offsets.append(offsets)
                     grown = True
