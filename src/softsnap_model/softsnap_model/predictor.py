@@ -10,11 +10,12 @@ not need, and counts what it skipped:
 - modules with the same threading, stiffness and length in one tick share one solve (a
   snake of five identical modules given the same command costs one solve), across both
   sources;
-- all problems of one tick are solved together in one vectorised
-  :func:`~softsnap_model.forward.solve_forward_batch` call (the batch's per-item cost is
-  a small fraction of a single solve's; a warm start changes only the cost, never the
-  answer, so the batch gives the same shapes); a lone problem is solved on its own,
-  warm-started from that module's previous shape;
+- all problems of one tick are solved together in one vectorised call of a
+  :class:`~softsnap_model.forward.PreparedBatch` holding the tables of the scene's
+  threadings, stacked once (the batch's per-item cost is a small fraction of a single
+  solve's; a warm start changes only the cost, never the answer, so the batch gives the
+  same shapes); a lone problem is solved on its own, warm-started from that module's
+  previous shape;
 - a tick with nothing pending costs a dictionary look-up: only slots with a new length
   are visited;
 - rib centres are handed on only when the caller asks for them (someone subscribes), so
@@ -32,7 +33,7 @@ from typing import Callable, Mapping
 import numpy as np
 
 from . import geometry
-from .forward import reachable_range, solve_forward, solve_forward_batch
+from .forward import PreparedBatch, reachable_range, solve_forward
 from .scene import Scene, compose_base_pose, quaternion_to_matrix
 
 __all__ = ['SOURCES', 'ModulePrediction', 'PredictorCounters', 'RobotPredictor']
@@ -124,8 +125,9 @@ class RobotPredictor:
         centres). False solves every length received, separately, with rib centres: the
         reference the benchmark compares against.
     batch : bool
-        Solve the problems of one tick in one :func:`solve_forward_batch` call (only with
-        the default solver and ``skip``); False solves them one by one (the reference).
+        Solve the problems of one tick in one batch call (:class:`PreparedBatch`; only
+        with the default solver and ``skip``); False solves them one by one (the
+        reference).
     """
 
     def __init__(self, scene: Scene, length_tol_mm: float = DEFAULT_LENGTH_TOL_MM,
@@ -154,6 +156,9 @@ class RobotPredictor:
         for key in set(self._threading_key.values()):
             ranges[key] = reachable_range(self.skeleton, np.asarray(key))
         self.reachable_mm = {name: ranges[self._threading_key[name]] for name in self._index}
+        # The scene's threadings stacked once for the batch solves of every tick.
+        self._batch_solver = (PreparedBatch(self.skeleton, list(ranges)) if self.batch
+                              else None)
         self._slots = {(name, source): _Slot() for name in self._index for source in SOURCES}
         # Slots holding a length not solved yet, in arrival order (a dict as ordered set):
         # an idle tick visits none.
@@ -253,29 +258,33 @@ class RobotPredictor:
         """Yield (key, members, fields or None, solve time s or the refusal) per group.
 
         fields = (angles, rib centres, tension, energy, converged, residual). Several
-        groups go through one batch solve, whose time is shared out evenly; a batch the
-        solver refuses (one bad length refuses all) is solved again one by one, so only
-        the bad group is refused.
+        groups go through one batch solve, whose time is shared out evenly; the batch
+        refuses bad groups one by one (with the single solve's reason), so a bad length
+        never holds up the others.
         """
         if self.batch and len(groups) > 1:
             keys = list(groups)
             lengths = np.fromiter((key[1] for key in keys), dtype=float, count=len(keys))
-            # Offsets as (interned) tuples: the batch memoises their conversion, where
-            # arrays would be grouped again by np.unique on every call.
+            # Offsets as the (interned) tuples the solver was prepared with: one
+            # dictionary look-up per row.
             threadings = [key[0] for key in keys]
             start = time.perf_counter()
             try:
-                batch = solve_forward_batch(self.skeleton, threadings, lengths)
-            except ValueError:
-                batch = None
+                batch = self._batch_solver.solve(threadings, lengths)
+            except ValueError:   # a malformed call only (bad rows are refused in it):
+                batch = None     # the one-by-one path below still answers every group
             if batch is not None:
                 each = (time.perf_counter() - start) / len(keys)
                 # One conversion per array, not per item: Python floats and bools.
                 tension, energy = batch.tension.tolist(), batch.energy.tolist()
                 converged, residual = batch.converged.tolist(), batch.residual.tolist()
                 for i, key in enumerate(keys):
-                    yield key, groups[key], (batch.angles[i], batch.rib_centers[i], tension[i],
-                                             energy[i], converged[i], residual[i]), each
+                    if batch.refused[i]:
+                        yield key, groups[key], None, batch.refused[i]
+                    else:
+                        yield key, groups[key], (batch.angles[i], batch.rib_centers[i],
+                                                 tension[i], energy[i], converged[i],
+                                                 residual[i]), each
                 return
         for key, members in groups.items():
             first = self._slots[members[0]]

@@ -49,7 +49,8 @@ Layout of this subpackage
 * :mod:`.single`: one solve in plain Python floats (start, evaluation, second-order
   check, Newton), the engine of :func:`solve_forward`;
 * :mod:`.api`: :func:`solve_forward`, :func:`reachable_range`;
-* :mod:`.batch`: :func:`solve_forward_batch`, :func:`sweep`.
+* :mod:`.batch`: :func:`solve_forward_batch`, :func:`sweep` and :class:`PreparedBatch`
+  (tables of a robot's threadings stacked once, for repeated small batches).
 
 Caches (the only process-wide state; each is a pure function of its key, so it changes
 the cost, never an answer): per hole-pair profiles (``branch._PROFILE_CACHE``), and
@@ -63,20 +64,22 @@ per threading the problem and path tables (``path._problem``, ``path._single``,
 from __future__ import annotations
 
 from .api import reachable_range, solve_forward
-from .batch import solve_forward_batch, sweep
+from .batch import PreparedBatch, solve_forward_batch, sweep
 from .branch import (_PROFILE_CACHE, _PROFILE_LOCK, SegmentBranch, _branch_derivs, _branch_solve,
                      _pair_profile_array, segment_angle_at_tension, segment_branch)
 from .path import _problem, _single, _single_named, _threading_cached
 from .results import (CONSTRAINT_TOL_MM, MAX_ITER, STATIONARITY_TOL_RAD, BatchResult,
-                      ForwardResult, InfeasibleLengthError, SnapThroughError, SweepResult)
+                      ForwardResult, InfeasibleLengthError, PreparedBatchResult,
+                      SnapThroughError, SweepResult)
 from .single import WARM_START_RADIUS_RAD, _solve_single
 
 __all__ = [
     'CONSTRAINT_TOL_MM', 'STATIONARITY_TOL_RAD', 'MAX_ITER', 'WARM_START_RADIUS_RAD',
     'InfeasibleLengthError', 'SnapThroughError',
     'SegmentBranch', 'segment_branch', 'segment_angle_at_tension',
-    'ForwardResult', 'BatchResult', 'SweepResult',
-    'reachable_range', 'solve_forward', 'solve_forward_batch', 'sweep', 'clear_caches',
+    'ForwardResult', 'BatchResult', 'SweepResult', 'PreparedBatchResult',
+    'reachable_range', 'solve_forward', 'solve_forward_batch', 'sweep', 'PreparedBatch',
+    'clear_caches',
 ]
 
 

@@ -255,17 +255,22 @@ def _robust(P, L_t, lam_lo, lam_hi, max_iter=200):
     return lam, b, lam_lo, lam_hi
 
 
-def _solve_arrays(P, L_t, max_iter=MAX_ITER, tol_mm=_INNER_TOL_MM, tol_rad=_INNER_TOL_RAD):
-    """Solve a batch; returns a dict of result arrays (angles, tension, residuals...)."""
+def _solve_arrays(P, L_t, max_iter=MAX_ITER, tol_mm=_INNER_TOL_MM, tol_rad=_INNER_TOL_RAD,
+                  start=None):
+    """Solve a batch; returns a dict of result arrays (angles, tension, residuals...).
+
+    ``start`` is ``(lambda, b, lam_lo, lam_hi)`` as :func:`_start_from_table` gives it,
+    when the caller computed it another way (``batch.PreparedBatch``).
+    """
     # One floating-point context for the whole solve: divisions by zero only occur in
     # masked-out entries (held or contact segments) and are never used.
     with np.errstate(all='ignore'):
-        return _solve_arrays_inner(P, L_t, max_iter, tol_mm, tol_rad)
+        return _solve_arrays_inner(P, L_t, max_iter, tol_mm, tol_rad, start)
 
 
-def _solve_arrays_inner(P, L_t, max_iter, tol_mm, tol_rad):
+def _solve_arrays_inner(P, L_t, max_iter, tol_mm, tol_rad, start=None):
     slack = L_t >= P['straight']
-    lam, b, lam_lo, lam_hi = _start_from_table(P, L_t)
+    lam, b, lam_lo, lam_hi = _start_from_table(P, L_t) if start is None else start
     lam = np.where(slack, 0.0, lam)
     if P['has_mirror']:
         # Linear interpolation in lambda badly underestimates b ~ sqrt(lambda - lam_c)

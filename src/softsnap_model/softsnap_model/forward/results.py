@@ -3,7 +3,8 @@
 Owns the public tolerances (:data:`CONSTRAINT_TOL_MM`, :data:`STATIONARITY_TOL_RAD`,
 :data:`MAX_ITER`), the documented errors (:class:`InfeasibleLengthError`,
 :class:`SnapThroughError`) and the frozen results (:class:`ForwardResult`,
-:class:`BatchResult`, :class:`SweepResult`). No solving happens here.
+:class:`BatchResult`, :class:`SweepResult`, :class:`PreparedBatchResult`). No solving
+happens here.
 """
 from __future__ import annotations
 
@@ -179,3 +180,18 @@ class SweepResult(BatchResult):
     """Result of :func:`sweep`; ``contractions_mm`` (B,) is the swept input."""
 
     contractions_mm: np.ndarray = field(default=None)
+
+
+@dataclass(frozen=True)
+class PreparedBatchResult(BatchResult):
+    """Result of :meth:`PreparedBatch.solve`: a :class:`BatchResult` whose bad rows are
+    refused one by one instead of failing the whole batch.
+
+    ``refused`` (a tuple of B strings) is ``''`` for a row that was solved, else why it
+    was not: the message of the error :func:`solve_forward` raises for that row (bad
+    threading, NaN, a length at or below the reachable minimum...). A refused row has
+    NaN angles, rib centres, cable path and real-valued fields, zero iterations and
+    False flags; every other row is exactly as if solved alone.
+    """
+
+    refused: tuple = ()

@@ -1,0 +1,162 @@
+"""PreparedBatch: the model node's per-tick batch solve, tables stacked once (issue 17).
+
+Every row must be what solve_forward gives for it alone, whatever else is stacked or
+solved in the same call, and a bad row is refused with solve_forward's reason while the
+other rows are solved.
+"""
+import numpy as np
+import pytest
+
+from softsnap_model import Skeleton, InfeasibleLengthError, solve_forward, solve_forward_batch
+from softsnap_model.forward import PreparedBatch, PreparedBatchResult, reachable_range
+from softsnap_model.forward import batch as batch_module
+from softsnap_model.predictor import RobotPredictor
+from softsnap_model.reference import PAPER_THREADINGS
+from softsnap_model.scene import load_scene
+
+SK = Skeleton()
+PAPER = {name: list(PAPER_THREADINGS[name]) for name in ('yellow', 'blue', 'red', 's', 'w')}
+ALTERNATING = ['R3', 'L3'] * 6      # mirror segments: straight until they buckle
+
+
+def assert_rows_match_single_solves(result, threadings, lengths):
+    assert isinstance(result, PreparedBatchResult)
+    for i, (t, length) in enumerate(zip(threadings, lengths)):
+        single = solve_forward(SK, t, length)
+        np.testing.assert_allclose(result.angles[i], single.angles, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(result.rib_centers[i], single.rib_centers, rtol=0,
+                                   atol=1e-9)
+        np.testing.assert_allclose(result.cable_path[i], single.cable_path, rtol=0, atol=1e-9)
+        assert result.tension[i] == pytest.approx(single.tension, rel=1e-9, abs=1e-15)
+        assert result.converged[i] == single.converged
+        assert result.slack[i] == single.slack
+        assert result.is_minimum[i] == single.is_minimum
+        assert np.array_equal(result.at_contact[i], single.at_contact)
+        assert result.cable_length_mm[i] == length
+        assert result.refused[i] == ''
+
+
+def test_rows_equal_single_solves_over_many_random_ticks():
+    names = list(PAPER) + ['alternating']
+    table = {**PAPER, 'alternating': ALTERNATING}
+    prepared = PreparedBatch(SK, [tuple(t) for t in table.values()])
+    assert prepared.restacks == 1 and len(prepared.threadings) == 6
+    rng = np.random.default_rng(17)
+    for _ in range(15):
+        picked = [table[names[k]] for k in rng.integers(0, len(names), 10)]
+        low = np.array([reachable_range(SK, t)[0] for t in picked])
+        straight = np.array([SK.straight_length_mm(t) for t in picked])
+        # From slack (above straight) down to 0.5 mm above the reachable minimum.
+        lengths = low + 0.5 + rng.uniform(0.0, 1.02) * (straight - low)
+        result = prepared.solve([tuple(t) for t in picked], lengths)
+        assert_rows_match_single_solves(result, picked, lengths)
+        batch = solve_forward_batch(SK, picked, lengths)
+        np.testing.assert_allclose(result.angles, batch.angles, rtol=0, atol=1e-12)
+        np.testing.assert_array_equal(result.tie_break, batch.tie_break)
+    assert prepared.restacks == 1    # nothing new was seen: never restacked
+
+
+def test_a_threading_change_between_ticks_restacks_once_and_keeps_answers():
+    prepared = PreparedBatch(SK, [tuple(PAPER['yellow']), tuple(PAPER['red'])])
+    tick = [tuple(PAPER['yellow']), tuple(PAPER['red'])]
+    first = prepared.solve(tick, [180.0, 175.0])
+    assert_rows_match_single_solves(first, tick, [180.0, 175.0])
+    # A module re-threaded: a new threading in the next tick (given by names, as a
+    # list), the old ones still there.
+    changed = [tuple(PAPER['yellow']), PAPER['s'], tuple(PAPER['red'])]
+    result = prepared.solve(changed, [181.0, 170.0, 176.0])
+    assert prepared.restacks == 2
+    assert_rows_match_single_solves(result, changed, [181.0, 170.0, 176.0])
+    # The same threading as offsets is the same stacked entry: no restack.
+    offsets = SK.threading_mm(PAPER['s'])
+    again = prepared.solve([offsets, tuple(offsets.tolist())], [171.0, 172.0])
+    assert prepared.restacks == 2 and len(prepared.threadings) == 3
+    assert_rows_match_single_solves(again, [PAPER['s']] * 2, [171.0, 172.0])
+    # Back to the first tick: the first answers exactly.
+    back = prepared.solve(tick, [180.0, 175.0])
+    np.testing.assert_array_equal(back.angles, first.angles)
+
+
+def test_bad_rows_are_refused_with_the_single_solve_reason_and_do_not_poison_others():
+    low, straight = reachable_range(SK, PAPER['red'])
+    threadings = [PAPER['yellow'], PAPER['red'], PAPER['red'], ['R9'] * 12, PAPER['blue'],
+                  PAPER['blue'], PAPER['w'], PAPER['red'], ALTERNATING]
+    lengths = [175.0, low, low - 5.0, 170.0, np.nan, np.inf, 178.0, -1.0, 280.0]
+    prepared = PreparedBatch(SK)
+    result = prepared.solve(threadings, lengths)
+    refused = [i for i, reason in enumerate(result.refused) if reason]
+    assert refused == [1, 2, 3, 4, 5, 7]
+    for i in refused:
+        with pytest.raises(ValueError) as error:
+            solve_forward(SK, threadings[i], lengths[i])
+        assert result.refused[i].endswith(str(error.value)), (i, result.refused[i])
+        assert np.isnan(result.angles[i]).all() and np.isnan(result.rib_centers[i]).all()
+        assert not result.converged[i] and np.isnan(result.tension[i])
+    with pytest.raises(InfeasibleLengthError):
+        solve_forward(SK, PAPER['red'], low)
+    assert 'reachable range' in result.refused[1] and 'unknown hole' in result.refused[3]
+    good = [0, 6, 8]
+    sub = PreparedBatch(SK).solve([threadings[i] for i in good], [lengths[i] for i in good])
+    for i, j in zip(good, range(3)):
+        assert result.refused[i] == ''
+        np.testing.assert_array_equal(result.angles[i], sub.angles[j])
+        single = solve_forward(SK, threadings[i], lengths[i])
+        np.testing.assert_allclose(result.angles[i], single.angles, rtol=0, atol=1e-12)
+        assert result.converged[i]
+    # Every row bad, or nothing known at all: still an answer, never an exception.
+    none = PreparedBatch(SK).solve([['R9'] * 12, ['X'] * 12], [170.0, 170.0])
+    assert all(none.refused) and not none.converged.any() and none.angles.shape == (2, 11)
+    assert len(PreparedBatch(SK).solve([], [])) == 0
+
+
+def test_malformed_calls_raise_value_error_quoting_the_value():
+    prepared = PreparedBatch(SK, [PAPER['red']])
+    with pytest.raises(ValueError, match='expected 2 threadings'):
+        prepared.solve([PAPER['red']], [170.0, 171.0])
+    with pytest.raises(ValueError, match='must be 1-D'):
+        prepared.solve([PAPER['red']], [[170.0]])
+    with pytest.raises(ValueError, match='max_iter must be an integer >= 0, got -1'):
+        prepared.solve([PAPER['red']], [170.0], max_iter=-1)
+    with pytest.raises(ValueError, match='unknown hole'):
+        PreparedBatch(SK, [['R9'] * 12])
+    with pytest.raises(ValueError, match='skeleton must be a Skeleton'):
+        PreparedBatch('not a skeleton')
+
+
+def test_more_threadings_than_kept_restack_from_the_call_alone(monkeypatch):
+    monkeypatch.setattr(batch_module, 'PREPARED_THREADINGS', 2)
+    prepared = PreparedBatch(SK, [PAPER['yellow'], PAPER['red']])
+    threadings = [PAPER['s'], PAPER['w'], PAPER['s']]
+    result = prepared.solve(threadings, [170.0, 172.0, 174.0])
+    assert len(prepared.threadings) == 2 and prepared.restacks == 2
+    assert_rows_match_single_solves(result, threadings, [170.0, 172.0, 174.0])
+    result = prepared.solve([PAPER['yellow']], [176.0])
+    assert_rows_match_single_solves(result, [PAPER['yellow']], [176.0])
+    # Regression: one call with more distinct threadings than kept recursed forever.
+    many = [PAPER['yellow'], PAPER['red'], PAPER['s'], PAPER['w']]
+    result = prepared.solve(many, [175.0, 172.0, 170.0, 168.0])
+    assert len(prepared.threadings) == 4
+    assert_rows_match_single_solves(result, many, [175.0, 172.0, 170.0, 168.0])
+
+
+def test_predictor_refuses_a_bad_group_at_tick_time_and_solves_the_others():
+    # Regression: the batched predictor used to re-solve a whole tick one by one when one
+    # length was refused. A length exactly at the reachable minimum passes submit (it
+    # refuses only lengths below it) but the solver refuses it: that group alone fails.
+    scene = load_scene('brittle_star')
+    predictor = RobotPredictor(scene)
+    blue_low = predictor.reachable_mm['blue'][0]
+    for m in scene.modules:
+        predictor.submit('commanded', m.name, m.straight_length_mm - 20.0)
+        predictor.submit('predicted', m.name, blue_low if m.name == 'blue'
+                         else m.straight_length_mm - 25.0)
+    updated = predictor.tick(rib_centers=True)
+    assert len(updated['commanded']) == 5 and len(updated['predicted']) == 4
+    assert [(module, source) for module, source, _ in predictor.errors] == [('blue', 'predicted')]
+    assert 'reachable range' in predictor.errors[0][2]
+    assert predictor.counters.refused == 1
+    for shape in updated['predicted']:
+        single = solve_forward(scene.skeleton, scene.module(shape.module).threading_mm,
+                               shape.cable_length_mm)
+        np.testing.assert_allclose(shape.angles, single.angles, rtol=0, atol=1e-12)
+    assert predictor.shapes('predicted')[scene.module_names.index('blue')] is None
