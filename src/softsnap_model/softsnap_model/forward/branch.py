@@ -228,7 +228,7 @@ def _branch_solve(mu, table_mu, table_b, direction, d1, d2, s, iters=30):
     return _branch_refine(mu, cell, direction, d1, d2, s, iters)
 
 
-def _branch_solve_segments(mu, table_mu, table_b, table_dmu, direction, d1, d2, s,
+def _branch_solve_segments(mu, table_mu, table_b, table_dmu, direction, d1, d2, s, derivs,
                            iters=30):
     """:func:`_branch_solve` for tensions ``mu`` (P, n) on per-segment tables (n, M).
 
@@ -237,6 +237,8 @@ def _branch_solve_segments(mu, table_mu, table_b, table_dmu, direction, d1, d2, 
     a new threading, P ~ 500), and started from the cubic Hermite interpolant of
     ``b(mu)`` in the cell (slopes ``1 / table_dmu``; about 1e-10 rad off, against 1e-4
     for the linear one), so the refinement takes two evaluations instead of four.
+    ``derivs(b, direction, d1, d2, s) -> (l, l', l'')`` evaluates the branch (the path
+    tables pass one whose rounding does not depend on the array size).
     """
     n, m = table_mu.shape
     idx = np.empty(mu.shape, dtype=np.intp)
@@ -256,7 +258,31 @@ def _branch_solve_segments(mu, table_mu, table_b, table_dmu, direction, d1, d2, 
         start = ((2.0 * t3 - 3.0 * t2 + 1.0) * b_lo + (t3 - 2.0 * t2 + t) * span
                  / table_dmu[cols, idx - 1] + (3.0 * t2 - 2.0 * t3) * b_hi
                  + (t3 - t2) * span / table_dmu[cols, idx])
-    return _branch_refine(mu, cell, direction, d1, d2, s, iters, start)
+        # Two plain Newton steps kept in the cell: from the cubic start the first lands
+        # at rounding level and the second confirms it. Entries where it does not (near
+        # a pitchfork, a start outside the cell), or outside the table, take the
+        # safeguarded refinement. Both are per entry.
+        b = np.fmin(np.fmax(start, b_lo), b_hi)
+        for _ in range(2):
+            _, lp, lpp = derivs(b, direction, d1, d2, s)
+            prev = b
+            b = np.fmin(np.fmax(b - (2.0 * b + mu * lp) / (2.0 + mu * lpp), b_lo), b_hi)
+        # Outside the table: its end values (as in _branch_refine).
+        below, above = mu <= table_mu[:, 0], mu >= table_mu[:, -1]
+        b = np.where(below, table_b[:, 0], np.where(above, table_b[:, -1], b))
+        # The root is inside the cell (mu_lo < mu), never at b_lo: this also turns away
+        # the straight root b = 0 of a mirror segment just past its pitchfork.
+        ok = (((np.abs(b - prev) <= 1e-15 * (1.0 + np.abs(prev))) & (b > b_lo)) | below
+              | above)
+    if ok.all():
+        return b
+    rest = ~ok
+    shape = mu.shape
+    cell = tuple(np.broadcast_to(c, shape)[rest] for c in cell)
+    b[rest] = _branch_refine(mu[rest], cell, *(np.broadcast_to(c, shape)[rest]
+                                               for c in (direction, d1, d2)),
+                             s, iters, start[rest], derivs)
+    return b
 
 
 def _branch_solve_pairs(mu, pair, prof, s, iters=30):
@@ -282,13 +308,19 @@ def _branch_solve_pairs(mu, pair, prof, s, iters=30):
                           prof['d2'][pair], s, iters)
 
 
-def _branch_refine(mu, cell, direction, d1, d2, s, iters, start=None):
+def _branch_refine(mu, cell, direction, d1, d2, s, iters, start=None, derivs=_branch_derivs):
     """Safeguarded Newton for ``2 b + mu l'(b) = 0`` inside the table cell ``cell`` =
     ``(b_lo, b_hi, mu_lo, mu_hi, mu_first, mu_last, b_first, b_last)``, from the linear
-    interpolant in the cell, or from ``start`` where that is finite and in the cell."""
+    interpolant in the cell, or from ``start`` where that is finite and in the cell.
+
+    Strictly per entry: an entry stops changing in the iteration it settles, so its
+    answer is the one it would get alone, whatever else is solved with it (a lazily
+    built path table equals a full one, bit for bit).
+    """
     lo, hi, mu_lo, mu_hi, mu_first, mu_last, b_first, b_last = cell
     below = mu <= mu_first
     above = mu >= mu_last
+    active = ~(below | above)      # entries outside the table take its end values
     with np.errstate(invalid='ignore', divide='ignore'):
         w = np.where(np.isfinite(mu_hi), (mu - mu_lo) / (mu_hi - mu_lo), 0.5)
     w = np.clip(np.nan_to_num(w, nan=0.5), 0.0, 1.0)
@@ -297,7 +329,7 @@ def _branch_refine(mu, cell, direction, d1, d2, s, iters, start=None):
         b = np.where((start >= lo) & (start <= hi), start, b)    # False for NaN
     for _ in range(iters):
         with np.errstate(invalid='ignore'):
-            _, lp, lpp = _branch_derivs(b, direction, d1, d2, s)
+            _, lp, lpp = derivs(b, direction, d1, d2, s)
             r = 2.0 * b + mu * lp
             dr = 2.0 + mu * lpp
         lo = np.where(r < 0.0, b, lo)
@@ -315,9 +347,10 @@ def _branch_refine(mu, cell, direction, d1, d2, s, iters, start=None):
         # Entries outside the table (returned as its end values) never hold the loop.
         settled = np.abs(r) <= 1e-15 * (2.0 * np.abs(b) + np.abs(mu * lp))
         new = np.where(settled, b, new)
-        done = settled | (np.abs(new - b) <= tol) | below | above
-        b = new
-        if done.all():
+        done = settled | (np.abs(new - b) <= tol)
+        b = np.where(active, new, b)
+        active &= ~done
+        if not active.any():
             break
     b = np.where(below, b_first, np.where(above, b_last, b))
     return b

@@ -10,7 +10,9 @@ Every cache here is a pure function of its key.
 """
 from __future__ import annotations
 
+import bisect
 import functools
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -26,6 +28,171 @@ from .results import InfeasibleLengthError, SnapThroughError
 #: loop over every threading of 7 ribs with 3 holes (3^7 = 2187) or a robot's modules
 #: never rebuilds a table per solve (a rebuild costs a few ms).
 _THREADINGS_CACHED = 2560
+
+
+#: Path samples per block of a lazily built path table (:class:`_PathTable`): a first
+#: solve builds the block boundaries and the block around its length, about a tenth of
+#: the table's entries.
+_BLOCK = 16
+
+
+class _PathTable:
+    """Exact samples of the quasi-static path of one threading and their start
+    polynomials, built block by block on demand.
+
+    The tensions ``lam`` (P,) of every sample are known from the branch profiles; a
+    sample's branch magnitudes ``b`` (per distinct segment) and total length cost a
+    refinement, and a cell's quintic start polynomial needs its two end samples. A new
+    threading's first solve builds only the samples at block boundaries (every
+    :data:`_BLOCK`-th and the last, plus the few :meth:`length_at_tension` asks for),
+    then the blocks whose boundary lengths bracket its length (:meth:`ensure`); a batch
+    builds the rest (:meth:`complete`). Every entry is computed on its own (the
+    refinement, the derivatives and the polynomials are element-wise, the length sums
+    in a fixed order), so a partly built table agrees bit for bit with a full one
+    wherever it is built.
+
+    ``len`` (P,) and its Python-list copies ``len_list``, ``neg_len_list`` are exact at
+    built samples; inside a block not built yet they hold the length at the block's
+    start. They stay non-increasing, so a binary search for a length inside a built
+    block finds the same cell as on the full table (each other block's lengths lie
+    between its boundary lengths, so they compare with it the same way). ``poly``
+    (P-1, 6, U+1) rows of cells not built yet are NaN. Lengths along the path are taken
+    as computed (non-increasing in every table checked); should a built part ever rise,
+    the whole table is built and made monotone (cumulative minimum).
+    """
+
+    def __init__(self, lam, straight, s, seg, extra=()):
+        self.lam = lam
+        self.straight = straight
+        self.s = s
+        # Per distinct segment: holes, stiffness, direction, profile tables, the
+        # tensions where it starts bending and reaches its end, and how many share it.
+        self.seg = seg
+        n_samples, n_cols = lam.size, seg['k'].size
+        self.n_blocks = max(1, -(-(n_samples - 1) // _BLOCK))
+        self._exact = np.zeros(n_samples)                    # exact lengths where built
+        self.b = np.zeros((n_samples, n_cols))
+        self._derivs = np.zeros((3, n_samples, n_cols))      # l', l'', l''' at the samples
+        self.poly = np.full((n_samples - 1, _START_DEGREE + 1, n_cols + 1), np.nan)
+        self._sample_built = np.zeros(n_samples, dtype=bool)
+        self._block_built = np.zeros(self.n_blocks, dtype=bool)
+        self.complete_ = False
+        self._lock = threading.Lock()
+        self._bounds = np.minimum(np.arange(self.n_blocks + 1) * _BLOCK, n_samples - 1)
+        self._build_samples(np.union1d(self._bounds, extra).astype(np.intp))
+        # Each block not built holds its start length (non-increasing, see above).
+        at_bounds = self._exact[self._bounds]
+        self.len = np.empty(n_samples)
+        self.len[:-1] = np.repeat(at_bounds[:-1], np.diff(self._bounds))
+        self.len[-1] = at_bounds[-1]
+        self._neg_bounds = (-at_bounds).tolist()
+        self.len_list = self.len.tolist()
+        self.neg_len_list = (-self.len).tolist()
+        if np.any(np.diff(at_bounds) > 0):
+            self.complete()
+
+    def _build_samples(self, idx):
+        """Refine the samples ``idx`` (sorted indices) not built yet."""
+        idx = idx[~self._sample_built[idx]]
+        if not idx.size:
+            return
+        seg = self.seg
+        mu = self.lam[idx, None] / seg['k']
+        b = _branch_solve_segments(mu, seg['table_mu'], seg['table_b'], seg['dmu'],
+                                   seg['direction'], seg['d1'], seg['d2'], self.s,
+                                   _branch_eval)
+        lengths, lp, lpp, l3 = _path_derivatives(b, seg['direction'], seg['d1'], seg['d2'],
+                                                 self.s)
+        total = _weighted_sum(lengths, seg['count'])
+        # Every segment straight (the start of the path, before a mirror segment
+        # buckles): the straight length, exactly.
+        total[(b == 0.0).all(axis=1)] = self.straight
+        self._exact[idx] = total
+        self.b[idx] = b
+        self._derivs[:, idx] = (lp, lpp, l3)
+        self._sample_built[idx] = True
+
+    def _build_cells(self, first, last):
+        """Start polynomials of cells ``first .. last - 1`` (their samples built)."""
+        seg = self.seg
+        at = slice(first, last + 1)
+        lp, lpp, l3 = self._derivs[:, at]
+        self.poly[first:last] = _path_polynomials(
+            self.lam[at], self._exact[at], self.b[at], lp, lpp, l3, seg['k'], seg['lam_c'],
+            seg['lam_end'], seg['count'])
+
+    def ensure(self, length):
+        """Build the blocks whose boundary lengths bracket ``length`` (mm), so that a
+        search for ``length`` in ``len_list`` finds its cell of the full table."""
+        if self.complete_:
+            return
+        neg = self._neg_bounds
+        # Blocks k with len(bound k + 1) <= length <= len(bound k).
+        first = max(bisect.bisect_left(neg, -length) - 1, 0)
+        last = max(min(bisect.bisect_right(neg, -length), self.n_blocks), first + 1)
+        for k in range(first, last):
+            if not self._block_built[k]:
+                self._build_block(k)
+
+    def _build_block(self, k):
+        with self._lock:
+            if self._block_built[k]:
+                return
+            lo, hi = int(self._bounds[k]), int(self._bounds[k + 1])
+            self._build_samples(np.arange(lo, hi + 1))
+            self._build_cells(lo, hi)
+            part = self._exact[lo:hi + 1]
+            self._block_built[k] = True
+            if np.any(np.diff(part) > 0):
+                self._complete()
+                return
+            # In place: the single-solve layout holds this very array and these lists.
+            self.len[lo:hi + 1] = part
+            self.len_list[lo:hi + 1] = part.tolist()
+            self.neg_len_list[lo:hi + 1] = (-part).tolist()
+
+    def complete(self):
+        """Build every sample and cell (the batch solver and the full views use them)."""
+        if not self.complete_:
+            with self._lock:
+                self._complete()
+        return self
+
+    def _complete(self):
+        if self.complete_:
+            return
+        self._build_samples(np.arange(self.lam.size))
+        if not self._block_built.any():
+            self._build_cells(0, self.lam.size - 1)
+        else:
+            for k in np.flatnonzero(~self._block_built).tolist():
+                self._build_cells(int(self._bounds[k]), int(self._bounds[k + 1]))
+        if np.any(np.diff(self._exact) > 0):
+            # Never seen: rounding making a length rise along the path. Keep it monotone.
+            self._exact[:] = np.minimum.accumulate(self._exact)
+            self._build_cells(0, self.lam.size - 1)
+        self.len[:] = self._exact
+        self._block_built[:] = True
+        self.len_list[:] = self.len.tolist()
+        self.neg_len_list[:] = (-self.len).tolist()
+        self.complete_ = True
+
+    def length_at_tension(self, lam):
+        """Path length (mm) at tension ``lam``: ``np.interp`` on the full table (only the
+        samples next to ``lam`` are read, so only those are built)."""
+        j = int(np.searchsorted(self.lam, lam))
+        near = np.arange(max(j - 1, 0), min(j + 2, self.lam.size))
+        self._build_samples(near)
+        return float(np.interp(lam, self.lam[near], self._exact[near]))
+
+
+def _weighted_sum(values, weights):
+    """``values @ weights`` for (P, U) values, summed column by column in a fixed order
+    (a BLAS product may round differently with the number of rows)."""
+    out = values[:, 0] * weights[0]
+    for j in range(1, weights.size):
+        out += values[:, j] * weights[j]
+    return out
 
 
 @dataclass(frozen=True)
@@ -50,11 +217,24 @@ class _Problem:
     min_mm: float            # infimum of reachable lengths (or length at the fold)
     snap: bool               # the path ends at a fold (snap-through), not at contact
     path_lam: np.ndarray     # (P,) increasing tensions along the whole path
-    path_len: np.ndarray     # (P,) non-increasing total length there
-    path_b: np.ndarray       # (P, n) exact branch magnitudes there
-    path_poly: np.ndarray    # (P-1, 6, U+1) start polynomials per cell of the U distinct
-    #                          segments and lambda, see _path_polynomials
+    path: '_PathTable'       # samples there and start polynomials, built on demand
     path_columns: np.ndarray  # (n+1,) column of path_poly for each segment, then lambda
+
+    @property
+    def path_len(self) -> np.ndarray:
+        """(P,) non-increasing total length at the path samples (full table)."""
+        return self.path.complete().len
+
+    @property
+    def path_b(self) -> np.ndarray:
+        """(P, n) exact branch magnitudes at the path samples (full table)."""
+        return self.path.complete().b[:, self.path_columns[:-1]]
+
+    @property
+    def path_poly(self) -> np.ndarray:
+        """(P-1, 6, U+1) start polynomials per cell of the U distinct segments and
+        lambda (full table), see :func:`_path_polynomials`."""
+        return self.path.complete().poly
 
 
 @functools.lru_cache(maxsize=_THREADINGS_CACHED)
@@ -97,21 +277,17 @@ def _problem(skeleton: Skeleton, d: tuple) -> _Problem:
     inverse = np.array([position.setdefault(key, len(position)) for key in
                         zip(d1.tolist(), d2.tolist(), k.tolist())])
     first = np.unique(inverse, return_index=True)[1]
-    count = np.bincount(inverse)
-    u1, u2, uk, udir = d1[first], d2[first], k[first], direction[first]
-    mu = lam_path[:, None] / uk[None, :]
-    bu = _branch_solve_segments(mu, table_mu[first], table_b[first], prof['dmu'][first],
-                                udir, u1, u2, s)
-    lengths, lp, lpp, l3 = _path_derivatives(bu, udir, u1, u2, s)
-    count = count.astype(float)
-    path_len = np.minimum.accumulate(lengths @ count)
-    path_len[0] = straight
-    poly = _path_polynomials(lam_path, path_len, bu, lp, lpp, l3, uk, lam_c[first],
-                             lam_end[first], count)
+    seg = dict(d1=d1[first], d2=d2[first], k=k[first], direction=direction[first],
+               table_mu=table_mu[first], table_b=table_b[first], dmu=prof['dmu'][first],
+               lam_c=lam_c[first], lam_end=lam_end[first],
+               count=np.bincount(inverse).astype(float))
+    # The samples around the first branch end too (_single asks for the length there).
+    at = int(np.searchsorted(lam_path, lam_end.min()))
+    table = _PathTable(lam_path, straight, s, seg, range(max(at - 1, 0),
+                                                         min(at + 2, lam_path.size)))
     columns = np.append(inverse, first.size)     # [b of each segment..., lambda]
-    bb = bu[:, inverse]
     if snap:
-        min_mm = float(path_len[-1])
+        min_mm = float(table.len[-1])
     else:
         end_len, _, _ = _branch_derivs(b_end, direction, d1, d2, s)
         min_mm = float(end_len.sum())
@@ -119,8 +295,7 @@ def _problem(skeleton: Skeleton, d: tuple) -> _Problem:
                     mu_c=mu_c, beta=beta,
                     lam_end=lam_end, b_end=b_end, kind=kind, table_mu=table_mu,
                     table_b=table_b, straight_mm=straight, min_mm=min_mm, snap=snap,
-                    path_lam=lam_path, path_len=path_len, path_b=bb, path_poly=poly,
-                    path_columns=columns)
+                    path_lam=lam_path, path=table, path_columns=columns)
 
 
 #: Degree of the start polynomials of the path cells (quintic Hermite, :func:`_path_polynomials`).
@@ -140,9 +315,33 @@ def _g_series_coefficients():
 
 
 _G_COEF4 = _g_series_coefficients()
+_G_COEF3 = np.ascontiguousarray(_G_COEF4[:, :3])
 
 
-def _path_derivatives(b, direction, d1, d2, s):
+def _series(x, coef):
+    """Columns ``sum_j coef[j, c] x^j`` (C, N) for flat ``x`` (N,) by Estrin's scheme.
+
+    Pairs of terms, then pairs of pairs with ``x^2``, ``x^4``, ...: about 11 numpy calls
+    for 16 terms (Horner takes 30), each element-wise, so an entry's rounding does not
+    depend on how many are evaluated together (``geometry._power_series`` picks its
+    algorithm by size). ``coef`` has a power-of-two number of rows.
+    """
+    p = coef[0::2, :, None] + coef[1::2, :, None] * x
+    power = x
+    while p.shape[0] > 1:
+        power = power * power
+        p = p[0::2] + p[1::2] * power
+    return p[0]
+
+
+def _branch_eval(b, direction, d1, d2, s):
+    """``l, l', l''`` along the branches for the path-table refinement: the series of
+    :func:`_path_derivatives`, whose rounding (unlike ``segment_length_derivatives``,
+    which picks its algorithm by array size) is the same for any number of entries."""
+    return _path_derivatives(b, direction, d1, d2, s, third=False)
+
+
+def _path_derivatives(b, direction, d1, d2, s, third=True):
     """``l, l', l'', l'''`` along the branches (in the magnitude ``b``), one series pass.
 
     Product form of :func:`.newton._branch_eval`: ``Q = l^2 = (d1 - d2)^2 + g(b) p(b)``
@@ -150,15 +349,12 @@ def _path_derivatives(b, direction, d1, d2, s):
     ``Q' = g' p + g p'``, ``Q'' = g'' p + 2 g' p' + g p''``, ``Q''' = g''' p + 3 g'' p' +
     3 g' p''`` (``p'' = 2 e1 e2``), and ``l' = Q'/2l``, ``l'' = (Q'' - 2 l'^2)/2l``,
     ``l''' = (Q''' - 6 l' l'')/2l``. Agrees with ``segment_length_derivatives`` to a few ulp.
+    Element-wise, whatever the size (:func:`_series`). Without ``third``: ``l, l', l''`` only.
     """
     x = (b * b).ravel()
-    series = np.empty((4, x.size))             # Horner on the four columns at once
-    series[...] = _G_COEF4[-1][:, None]
-    for row in _G_COEF4[-2::-1]:
-        series *= x
-        series += row[:, None]
-    g, g1_over_b, g2, g3_over_b = (col.reshape(b.shape) for col in series)
-    g1, g3 = b * g1_over_b, b * g3_over_b
+    series = _series(x, _G_COEF4 if third else _G_COEF3)
+    g, g1_over_b, g2 = (col.reshape(b.shape) for col in series[:3])
+    g1 = b * g1_over_b
     e1, e2 = d1 * direction, d2 * direction
     p1, p2 = s + e1 * b, s + e2 * b
     p = p1 * p2
@@ -168,6 +364,9 @@ def _path_derivatives(b, direction, d1, d2, s):
     half_inv = 0.5 / length
     lp = (g1 * p + g * p_b) * half_inv
     lpp = (g2 * p + 2.0 * g1 * p_b + g * p_bb - 2.0 * lp * lp) * half_inv
+    if not third:
+        return length, lp, lpp
+    g3 = b * series[3].reshape(b.shape)
     l3 = (g3 * p + 3.0 * g2 * p_b + 3.0 * g1 * p_bb - 6.0 * lp * lpp) * half_inv
     return length, lp, lpp, l3
 
@@ -209,8 +408,8 @@ def _path_polynomials(lam, length, b, lp, lpp, l3, k, lam_c, lam_end, count):
         for at in (slice(None, -1), slice(1, None)):     # cell start, cell end
             u = np.where(free, u_all[at], 0.0)
             v = np.where(free, v_all[at], 0.0)
-            t1 = ((u * lp[at]) @ count)[:, None]                              # T'
-            t2 = ((u * u * lpp[at] + v * lp[at]) @ count)[:, None]            # T''
+            t1 = _weighted_sum(u * lp[at], count)[:, None]                    # T'
+            t2 = _weighted_sum(u * u * lpp[at] + v * lp[at], count)[:, None]  # T''
             du = np.concatenate([u, np.ones_like(t1)], axis=1)   # d/dlambda of [b, lambda]
             dv = np.concatenate([v, np.zeros_like(t1)], axis=1)  # d2/dlambda2
             # In t: d/dt = h d/dL and d/dL = (d/dlambda) / T'.
@@ -292,13 +491,15 @@ _PER_ITEM = ('uid', 'k', 'd', 'd1', 'd2', 'direction', 'lam_c', 'lam_end', 'mu_c
              'two_e1e2', 'dd2', 'two_k', 'inv_two_k', 'straight')
 
 
-def _stack(probs, index):
+def _stack(probs, index, complete=True):
     """Batch arrays: per-item (B, n) arrays, tables once per distinct threading.
 
     ``index`` (B,) maps batch rows to ``probs``; keys in :data:`_PER_ITEM` have the
     batch as leading axis (and are what a sub-batch slices). The per-segment fields are
     computed once per threading and gathered for the rows in one indexing operation
     (read-only views of it); with one threading they are broadcast views, no copy.
+    The path tables are built in full unless ``complete`` is false (the single-solve
+    layout, whose lengths are made ready one by one, :meth:`_PathTable.ensure`).
     """
     index = np.asarray(index)
     nb = index.shape[0]
@@ -334,7 +535,8 @@ def _stack(probs, index):
     out.update({name: rows[:, f] for f, name in enumerate(names)})
     out.update(uid=index, s=probs[0].s, has_mirror=bool(mirror.any()),
                tables_mu=tables_mu, tables_b=tables_b,
-               paths=[(p.path_len, p.path_lam, p.path_poly, p.path_columns) for p in probs])
+               paths=[((p.path.complete() if complete else p.path).len, p.path_lam,
+                       p.path.poly, p.path_columns) for p in probs])
     return out
 
 
@@ -368,23 +570,26 @@ def _q_coefficients(dd2, s, e1, e2):
 @functools.lru_cache(maxsize=_THREADINGS_CACHED)
 def _single(skeleton: Skeleton, d: tuple):
     """Problem data stacked as a batch of one, plus 1-D views for the single-solve path
-    (memoised with the problem)."""
+    (memoised with the problem). Its path table is built lazily: call
+    ``S['path'].ensure(L)`` before searching the cell of a length ``L``."""
     prob = _problem(skeleton, d)
-    P = _stack([prob], np.zeros(1, dtype=int))
+    table = prob.path
+    P = _stack([prob], np.zeros(1, dtype=int), complete=False)
     S = {key: (val[0] if isinstance(val, np.ndarray) and val.ndim >= 1 else val)
          for key, val in P.items()}
     finite_end = prob.lam_end[np.isfinite(prob.lam_end)]
-    S.update(P=P, lam_end_min=float(prob.lam_end.min()),
-             neg_path_len=-prob.path_len, path_lam=prob.path_lam, path_poly=prob.path_poly,
+    S.update(P=P, lam_end_min=float(prob.lam_end.min()), path=table,
+             path_lam=prob.path_lam, path_poly=table.poly,
              path_columns=prob.path_columns,
-             straight=prob.straight_mm, n_path=prob.path_len.size,
+             straight=prob.straight_mm, n_path=prob.path_lam.size,
              ones=np.ones(prob.k.shape), has_finite_end=bool(finite_end.size),
              # For the single-solve evaluation (newton._eval_single): l^2 as polynomials
-             # in b; the cell search reads Python floats (cheaper than array items).
+             # in b; the cell search reads Python floats (cheaper than array items), the
+             # table's own lists, filled in as its blocks are built.
              q_coef=_q_coefficients(S['dd2'], prob.s, S['e1'], S['e2']),
-             two_beta=2.0 * prob.beta, path_len_list=prob.path_len.tolist(),
+             two_beta=2.0 * prob.beta, path_len_list=table.len_list,
              path_lam_list=prob.path_lam.tolist(),
-             neg_path_len_list=(-prob.path_len).tolist(),
+             neg_path_len_list=table.neg_len_list,
              minus_i_d=-1j * prob.d,
              # Mirror segments (index array) and their first table cells in tension,
              # for the cheap tests of the single-solve path.
@@ -393,8 +598,7 @@ def _single(skeleton: Skeleton, d: tuple):
                                  for i in np.flatnonzero(S['mirror'])],
              # Longer cables than this keep every segment free (no branch end reached):
              # the path length at the first branch-end tension (a path sample).
-             all_free_above_mm=float(np.interp(prob.lam_end.min(), prob.path_lam,
-                                               prob.path_len)))
+             all_free_above_mm=table.length_at_tension(prob.lam_end.min()))
     return prob, P, S
 
 
