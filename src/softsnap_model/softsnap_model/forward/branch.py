@@ -124,7 +124,7 @@ def _pair_profile_array(d1, d2, s, b_max, n_samples=_BRANCH_SAMPLES):
     length, lp, lpp = _branch_derivs(bt, dcol, d1c, d2c, s)
     with np.errstate(divide='ignore', invalid='ignore'):
         mu = 2.0 * bt / -lp
-        # d(mu)/db = phi'(b): the slopes for the cubic starts of _branch_solve_segments
+        # d(mu)/db = phi'(b): the slopes for the cubic starts of _segment_cells
         # (inf or 0 where mu is not smooth in b, at a pitchfork; those cells start linear).
         dmu = 2.0 * (bt * lpp - lp) / (lp * lp)
     mu[:, 0] = mu_c
@@ -228,17 +228,14 @@ def _branch_solve(mu, table_mu, table_b, direction, d1, d2, s, iters=30):
     return _branch_refine(mu, cell, direction, d1, d2, s, iters)
 
 
-def _branch_solve_segments(mu, table_mu, table_b, table_dmu, direction, d1, d2, s, derivs,
-                           iters=30):
-    """:func:`_branch_solve` for tensions ``mu`` (P, n) on per-segment tables (n, M).
+def _segment_cells(mu, table_mu, table_b, table_dmu):
+    """Table cells and cubic starts for tensions ``mu`` (P, n) on per-segment tables (n, M).
 
-    The same cells and refinement, found by one binary search per segment column
-    instead of comparing every tension with every table entry (the path-table build of
-    a new threading, P ~ 500), and started from the cubic Hermite interpolant of
-    ``b(mu)`` in the cell (slopes ``1 / table_dmu``; about 1e-10 rad off, against 1e-4
-    for the linear one), so the refinement takes two evaluations instead of four.
-    ``derivs(b, direction, d1, d2, s) -> (l, l', l'')`` evaluates the branch (the path
-    tables pass one whose rounding does not depend on the array size).
+    The cells of :func:`_branch_solve` (the cell tuple of :func:`_branch_refine`), found by
+    one binary search per segment column instead of comparing every tension with every
+    table entry (the path-table build of a new threading), and the cubic Hermite
+    interpolant of ``b(mu)`` in the cell (slopes ``1 / table_dmu``; about 1e-10 rad off,
+    against 1e-4 for the linear one). Returns ``(start, cell)``, element-wise.
     """
     n, m = table_mu.shape
     idx = np.empty(mu.shape, dtype=np.intp)
@@ -258,31 +255,7 @@ def _branch_solve_segments(mu, table_mu, table_b, table_dmu, direction, d1, d2, 
         start = ((2.0 * t3 - 3.0 * t2 + 1.0) * b_lo + (t3 - 2.0 * t2 + t) * span
                  / table_dmu[cols, idx - 1] + (3.0 * t2 - 2.0 * t3) * b_hi
                  + (t3 - t2) * span / table_dmu[cols, idx])
-        # Two plain Newton steps kept in the cell: from the cubic start the first lands
-        # at rounding level and the second confirms it. Entries where it does not (near
-        # a pitchfork, a start outside the cell), or outside the table, take the
-        # safeguarded refinement. Both are per entry.
-        b = np.fmin(np.fmax(start, b_lo), b_hi)
-        for _ in range(2):
-            _, lp, lpp = derivs(b, direction, d1, d2, s)
-            prev = b
-            b = np.fmin(np.fmax(b - (2.0 * b + mu * lp) / (2.0 + mu * lpp), b_lo), b_hi)
-        # Outside the table: its end values (as in _branch_refine).
-        below, above = mu <= table_mu[:, 0], mu >= table_mu[:, -1]
-        b = np.where(below, table_b[:, 0], np.where(above, table_b[:, -1], b))
-        # The root is inside the cell (mu_lo < mu), never at b_lo: this also turns away
-        # the straight root b = 0 of a mirror segment just past its pitchfork.
-        ok = (((np.abs(b - prev) <= 1e-15 * (1.0 + np.abs(prev))) & (b > b_lo)) | below
-              | above)
-    if ok.all():
-        return b
-    rest = ~ok
-    shape = mu.shape
-    cell = tuple(np.broadcast_to(c, shape)[rest] for c in cell)
-    b[rest] = _branch_refine(mu[rest], cell, *(np.broadcast_to(c, shape)[rest]
-                                               for c in (direction, d1, d2)),
-                             s, iters, start[rest], derivs)
-    return b
+    return start, cell
 
 
 def _branch_solve_pairs(mu, pair, prof, s, iters=30):

@@ -19,7 +19,8 @@ import numpy as np
 
 from ..geometry import _G_COEF, _G_TERMS
 from ..skeleton import Skeleton
-from .branch import _BRANCH_SAMPLES, _branch_derivs, _branch_solve_segments, _pair_profiles
+from .branch import (_BRANCH_SAMPLES, _branch_derivs, _branch_refine, _pair_profiles,
+                     _segment_cells)
 from .results import InfeasibleLengthError, SnapThroughError
 
 
@@ -97,12 +98,8 @@ class _PathTable:
         if not idx.size:
             return
         seg = self.seg
-        mu = self.lam[idx, None] / seg['k']
-        b = _branch_solve_segments(mu, seg['table_mu'], seg['table_b'], seg['dmu'],
-                                   seg['direction'], seg['d1'], seg['d2'], self.s,
-                                   _branch_eval)
-        lengths, lp, lpp, l3 = _path_derivatives(b, seg['direction'], seg['d1'], seg['d2'],
-                                                 self.s)
+        b, (lengths, lp, lpp, l3) = _path_samples(self.lam[idx, None] / seg['k'], seg,
+                                                  self.s)
         total = _weighted_sum(lengths, seg['count'])
         # Every segment straight (the start of the path, before a mirror segment
         # buckles): the straight length, exactly.
@@ -186,6 +183,45 @@ class _PathTable:
         return float(np.interp(lam, self.lam[near], self._exact[near]))
 
 
+def _path_samples(mu, seg, s):
+    """Exact branch magnitudes ``b`` (P, U) of the distinct segments at tensions ``mu``
+    per unit stiffness, and ``l, l', l'', l'''`` there (:func:`_path_derivatives`).
+
+    One Newton step from the cubic start of the cell (:func:`.branch._segment_cells`,
+    about 1e-10 rad off) lands at rounding level; the evaluation at that point, which the
+    table needs anyway, gives the next step, and the entry is kept where that step is at
+    rounding level too. The rest (near a pitchfork, a start outside its cell; a few per
+    table) take the safeguarded refinement. Entries outside a segment's table (straight
+    before buckling, at contact) take its end values. Everything is per entry.
+    """
+    direction, d1, d2 = seg['direction'], seg['d1'], seg['d2']
+    start, cell = _segment_cells(mu, seg['table_mu'], seg['table_b'], seg['dmu'])
+    b_lo, b_hi = cell[:2]
+    out = mu <= seg['table_mu'][:, 0]
+    above = mu >= seg['table_mu'][:, -1]
+    ends = np.where(out, seg['table_b'][:, 0], seg['table_b'][:, -1])
+    out |= above
+    with np.errstate(all='ignore'):
+        b = np.fmin(np.fmax(start, b_lo), b_hi)
+        _, lp, lpp = _branch_eval(b, direction, d1, d2, s)
+        b = np.where(out, ends, np.fmin(np.fmax(b - (2.0 * b + mu * lp) / (2.0 + mu * lpp),
+                                                b_lo), b_hi))
+        ev = _path_derivatives(b, direction, d1, d2, s)
+        step = (2.0 * b + mu * ev[1]) / (2.0 + mu * ev[2])
+        # The root is inside the cell (mu_lo < mu), never at b_lo: this also turns away
+        # the straight root b = 0 of a mirror segment just past its pitchfork.
+        ok = out | ((np.abs(step) <= 1e-15 * (1.0 + np.abs(b))) & (b > b_lo))
+    if not ok.all():
+        rest = ~ok
+        shape = mu.shape
+        sub = tuple(np.broadcast_to(c, shape)[rest] for c in cell)
+        dd = [np.broadcast_to(c, shape)[rest] for c in (direction, d1, d2)]
+        b[rest] = _branch_refine(mu[rest], sub, *dd, s, 30, start[rest], _branch_eval)
+        for full, part in zip(ev, _path_derivatives(b[rest], *dd, s)):
+            full[rest] = part
+    return b, ev
+
+
 def _weighted_sum(values, weights):
     """``values @ weights`` for (P, U) values, summed column by column in a fixed order
     (a BLAS product may round differently with the number of rows)."""
@@ -237,6 +273,12 @@ class _Problem:
         return self.path.complete().poly
 
 
+def _sorted_unique(values):
+    """``np.unique`` of finite floats (a sort and one comparison: cheaper for ~1000)."""
+    values = np.sort(values)
+    return values[np.concatenate(([True], values[1:] != values[:-1]))]
+
+
 @functools.lru_cache(maxsize=_THREADINGS_CACHED)
 def _problem(skeleton: Skeleton, d: tuple) -> _Problem:
     s = skeleton.spacing_mm
@@ -262,12 +304,12 @@ def _problem(skeleton: Skeleton, d: tuple) -> _Problem:
     else:
         finite = lam_end[np.isfinite(lam_end)]
         lam_top = float(finite.max()) if finite.size else float(lam_all.max())
-    lam_path = np.unique(np.concatenate([[0.0], lam_all[lam_all <= lam_top], [lam_top]]))
+    lam_path = _sorted_unique(np.concatenate([[0.0], lam_all[lam_all <= lam_top], [lam_top]]))
     if lam_path.size > 4 * _BRANCH_SAMPLES:
-        # Thin to a bounded table; keep the ends and every buckling tension.
-        keep = np.unique(np.concatenate([np.linspace(0, lam_path.size - 1,
-                                                     4 * _BRANCH_SAMPLES).astype(int)]))
-        lam_path = np.unique(np.concatenate([lam_path[keep], lam_c, lam_end, [lam_top]]))
+        # Thin to a bounded table; keep the ends and every buckling tension (the kept
+        # indices are strictly increasing: their step is above 1).
+        keep = np.linspace(0, lam_path.size - 1, 4 * _BRANCH_SAMPLES).astype(int)
+        lam_path = _sorted_unique(np.concatenate([lam_path[keep], lam_c, lam_end, [lam_top]]))
         lam_path = lam_path[lam_path <= lam_top]
     # Segments with the same holes and stiffness have the same angle at every tension:
     # the path is solved once per distinct segment (5 to 7 of 11 for the paper's
@@ -491,6 +533,13 @@ _PER_ITEM = ('uid', 'k', 'd', 'd1', 'd2', 'direction', 'lam_c', 'lam_end', 'mu_c
              'two_e1e2', 'dd2', 'two_k', 'inv_two_k', 'straight')
 
 
+def _one(arrays):
+    """``np.stack`` of a one-element list (a read-only view with a leading axis)."""
+    out = arrays[0][None]
+    out.flags.writeable = False
+    return out
+
+
 def _stack(probs, index, complete=True):
     """Batch arrays: per-item (B, n) arrays, tables once per distinct threading.
 
@@ -503,26 +552,28 @@ def _stack(probs, index, complete=True):
     """
     index = np.asarray(index)
     nb = index.shape[0]
-    tables_mu = np.stack([p.table_mu for p in probs])
-    tables_b = np.stack([p.table_b for p in probs])
-    k = np.stack([p.k for p in probs])
-    mu_c = np.stack([p.mu_c for p in probs])
-    beta = np.stack([p.beta for p in probs])
-    d1 = np.stack([p.d1 for p in probs])
-    d2 = np.stack([p.d2 for p in probs])
-    direction = np.stack([p.direction for p in probs])
+    # One threading (a new threading's first solve builds this): no copies to stack.
+    stack = _one if len(probs) == 1 else np.stack
+    tables_mu = stack([p.table_mu for p in probs])
+    tables_b = stack([p.table_b for p in probs])
+    k = stack([p.k for p in probs])
+    mu_c = stack([p.mu_c for p in probs])
+    beta = stack([p.beta for p in probs])
+    d1 = stack([p.d1 for p in probs])
+    d2 = stack([p.d2 for p in probs])
+    direction = stack([p.direction for p in probs])
     mirror = mu_c > 0
     fields = dict(
-        k=k, d1=d1, d2=d2, direction=direction, lam_c=np.stack([p.lam_c for p in probs]),
-        lam_end=np.stack([p.lam_end for p in probs]), mu_c=mu_c, beta=beta,
-        b_end=np.stack([p.b_end for p in probs]),
+        k=k, d1=d1, d2=d2, direction=direction, lam_c=stack([p.lam_c for p in probs]),
+        lam_end=stack([p.lam_end for p in probs]), mu_c=mu_c, beta=beta,
+        b_end=stack([p.b_end for p in probs]),
         mu_c_safe=np.where(mirror, mu_c, 1.0), beta_safe=np.where(mirror, beta, 1.0),
         mu_1=tables_mu[:, :, 1], lam_1=k * tables_mu[:, :, 1], b_1=tables_b[:, :, 1],
         e1=d1 * direction, e2=d2 * direction, two_e1e2=2.0 * d1 * d2, dd2=(d1 - d2) ** 2,
         two_k=2.0 * k, inv_two_k=0.5 / k)
     names = list(fields)
     table = np.stack([fields[name] for name in names], axis=1)        # (U, F, n)
-    d = np.stack([p.d for p in probs])
+    d = stack([p.d for p in probs])
     straight = np.array([p.straight_mm for p in probs])
     if len(probs) == 1:
         rows = np.broadcast_to(table[0], (nb,) + table.shape[1:])
