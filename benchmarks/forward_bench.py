@@ -226,6 +226,19 @@ def first_solve_cpu(mod):
     return statistics.median(out)
 
 
+def certified_starts(mod, n_lengths):
+    """(cold solves that took no Newton step, solves): the path table's start certified
+    as it is, over the paper's nine threadings with and without rib thickness."""
+    zero = total = 0
+    for sk in (SK, Skeleton()):
+        for t in PAPER_THREADINGS.values():
+            lo, hi = mod.reachable_range(sk, list(t))
+            for length in np.linspace(lo + 1e-6, hi - 1e-6, n_lengths):
+                zero += mod.solve_forward(sk, list(t), length).iterations == 0
+                total += 1
+    return zero, total
+
+
 def side_by_side(before, probs, reps, rounds):
     """CPU times of the solver of ``before`` and of this one, interleaved round by round:
     single cold solve (median over problems), batch of one threading and of mixed
@@ -244,8 +257,9 @@ def side_by_side(before, probs, reps, rounds):
         times = {}
         for label, mod in (('before', before), ('now', fwd)):
             first = first_solve_cpu(mod)
-            for text in THREADINGS.values():      # tables back for the timed solves
-                mod.reachable_range(SK, text.split())
+            # Tables back for the timed solves (built in full by a batch: since issue
+            # 17 a single solve or reachable_range builds only what it reads).
+            mod.solve_forward_batch(SK, [p[1] for p in probs], [p[2] for p in probs])
             times[label] = (
                 statistics.median(timed(lambda: mod.solve_forward(SK, t, length), reps,
                                         time.thread_time)[0] for _, t, length in probs),
@@ -403,6 +417,10 @@ def main():
     print(f'  192-rib batch: {long_dt * 1e6:.1f} us per solve, max {long_max_it} Newton '
           f'iterations, {long_capped} rows at the {fwd.MAX_ITER}-iteration cap, '
           f'all converged: {long_ok}')
+    n_cert = 100 if args.quick else 300
+    zero, total = certified_starts(fwd, n_cert)
+    print(f'  cold solves with a certified start (no Newton step), nine paper threadings, '
+          f'with and without rib thickness: {zero} of {total} ({100.0 * zero / total:.1f} %)')
     if loop is not None:
         print(f'  loop over {loop[3]} threadings, length-major: {loop[0] * 1e6:.0f} us per '
               f'solve (first pass), {loop[1] * 1e6:.0f} us (second pass; no table rebuilt); '
@@ -418,8 +436,12 @@ def main():
             ratio = [b / n for b, n in pairs]
             scale, unit = (1e3, 'ms') if 'first' in key else (1e6, 'us')
             print(f'  {key}: ratio before/now {fmt_spread(ratio, 1, 2)}x; before '
-                  f'{fmt_spread([b for b, _ in pairs], scale, 1)} {unit}, now '
-                  f'{fmt_spread([n for _, n in pairs], scale, 1)} {unit}')
+                  f'{fmt_spread([b for b, _ in pairs], scale, 1 + ("first" in key))} {unit}, '
+                  f'now {fmt_spread([n for _, n in pairs], scale, 1 + ("first" in key))} {unit}')
+        zero_b, total_b = certified_starts(before, n_cert)
+        print(f'  cold solves with a certified start (no Newton step): before {zero_b} of '
+              f'{total_b} ({100.0 * zero_b / total_b:.1f} %), now {zero} of {total} '
+              f'({100.0 * zero / total:.1f} %)')
     print(load_line('end'))
 
     import matplotlib

@@ -94,10 +94,10 @@ def test_first_solve_builds_only_a_small_part_of_the_table():
         table = fwd._problem(sk, key(sk, t)).path
         n = table.lam.size
         assert n > 200, name                           # a table worth building lazily
-        assert table._sample_built.sum() <= 0.2 * n, (name, table._sample_built.sum(), n)
+        assert table._sample_built.sum() <= 0.1 * n, (name, table._sample_built.sum(), n)
         assert np.isfinite(table.poly).all(axis=(1, 2)).sum() <= 2 * fpath._BLOCK
         # The searchable lengths stay non-increasing, built or not.
-        assert np.all(np.diff(table.len) <= 0)
+        assert np.all(table.len[1:] <= table.len[:-1])
         assert table.len_list == table.len.tolist()
         assert table.neg_len_list == (-table.len).tolist()
 

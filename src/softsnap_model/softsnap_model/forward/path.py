@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import bisect
 import functools
+import math
 import threading
 from dataclasses import dataclass
 
@@ -32,8 +33,7 @@ _THREADINGS_CACHED = 2560
 
 
 #: Path samples per block of a lazily built path table (:class:`_PathTable`): a first
-#: solve builds the block boundaries and the block around its length, about a tenth of
-#: the table's entries.
+#: solve builds one or two blocks, a few percent of the table's entries.
 _BLOCK = 16
 
 
@@ -43,23 +43,24 @@ class _PathTable:
 
     The tensions ``lam`` (P,) of every sample are known from the branch profiles; a
     sample's branch magnitudes ``b`` (per distinct segment) and total length cost a
-    refinement, and a cell's quintic start polynomial needs its two end samples. A new
-    threading's first solve builds only the samples at block boundaries (every
-    :data:`_BLOCK`-th and the last, plus the few :meth:`length_at_tension` asks for),
-    then the blocks whose boundary lengths bracket its length (:meth:`ensure`); a batch
-    builds the rest (:meth:`complete`). Every entry is computed on its own (the
+    refinement, and a cell's quintic start polynomial needs its two end samples. A
+    solve asks for its length (:meth:`ensure`), which builds the block of
+    :data:`_BLOCK` cells holding its cell, found from approximate lengths at the block
+    boundaries (the cubic starts, no refinement) and confirmed on the exact ones; a
+    batch builds the rest (:meth:`complete`). Every entry is computed on its own (the
     refinement, the derivatives and the polynomials are element-wise, the length sums
     in a fixed order), so a partly built table agrees bit for bit with a full one
     wherever it is built.
 
-    ``len`` (P,) and its Python-list copies ``len_list``, ``neg_len_list`` are exact at
-    built samples; inside a block not built yet they hold the length at the block's
-    start. They stay non-increasing, so a binary search for a length inside a built
-    block finds the same cell as on the full table (each other block's lengths lie
-    between its boundary lengths, so they compare with it the same way). ``poly``
-    (P-1, 6, U+1) rows of cells not built yet are NaN. Lengths along the path are taken
-    as computed (non-increasing in every table checked); should a built part ever rise,
-    the whole table is built and made monotone (cumulative minimum).
+    ``len`` (P,) and its Python-list copies ``len_list``, ``neg_len_list`` (what the
+    solves search) are exact at built samples; a sample not built holds the length of
+    the last built sample before it (``inf`` before the first). So they stay
+    non-increasing and never below the exact lengths, and where a search for ``L``
+    lands on a built cell (both ends exact, ``len[j-1] > L >= len[j]``), that is the
+    cell a search of the full table finds. ``poly`` (P-1, 6, U+1) rows of cells not
+    built yet are NaN. Lengths along the path are taken as computed (non-increasing in
+    every table checked); should built ones ever rise, the whole table is built and made
+    monotone (cumulative minimum).
     """
 
     def __init__(self, lam, straight, s, seg, extra=()):
@@ -70,27 +71,91 @@ class _PathTable:
         # tensions where it starts bending and reaches its end, and how many share it.
         self.seg = seg
         n_samples, n_cols = lam.size, seg['k'].size
-        self.n_blocks = max(1, -(-(n_samples - 1) // _BLOCK))
+        self.n_cells = n_samples - 1
         self._exact = np.zeros(n_samples)                    # exact lengths where built
         self.b = np.zeros((n_samples, n_cols))
         self._derivs = np.zeros((3, n_samples, n_cols))      # l', l'', l''' at the samples
         self.poly = np.full((n_samples - 1, _START_DEGREE + 1, n_cols + 1), np.nan)
         self._sample_built = np.zeros(n_samples, dtype=bool)
-        self._block_built = np.zeros(self.n_blocks, dtype=bool)
-        self.complete_ = False
-        self._lock = threading.Lock()
-        self._bounds = np.minimum(np.arange(self.n_blocks + 1) * _BLOCK, n_samples - 1)
-        self._build_samples(np.union1d(self._bounds, extra).astype(np.intp))
-        # Each block not built holds its start length (non-increasing, see above).
-        at_bounds = self._exact[self._bounds]
-        self.len = np.empty(n_samples)
-        self.len[:-1] = np.repeat(at_bounds[:-1], np.diff(self._bounds))
-        self.len[-1] = at_bounds[-1]
-        self._neg_bounds = (-at_bounds).tolist()
+        self._cell_built = [False] * self.n_cells            # a list: one cheap lookup
+        self.len = np.full(n_samples, np.inf)
         self.len_list = self.len.tolist()
         self.neg_len_list = (-self.len).tolist()
-        if np.any(np.diff(at_bounds) > 0):
-            self.complete()
+        # Samples built with the first block (lengths asked for by length_at_tension).
+        self._extra = np.asarray(extra, dtype=np.intp)
+        self._watchers = []         # (tension, layout) waiting for a length, see watch_length
+        self.complete_ = False
+        self._lock = threading.RLock()
+
+    def ensure(self, length):
+        """Build what a search for ``length`` (mm) in ``len_list`` needs to find the
+        full table's cell: the cell and its block."""
+        if self.complete_:
+            return
+        j = min(max(bisect.bisect_left(self.neg_len_list, -length), 1), self.n_cells)
+        if self._cell_built[j - 1]:
+            return
+        with self._lock:
+            for _ in range(4):
+                j = min(max(bisect.bisect_left(self.neg_len_list, -length), 1), self.n_cells)
+                if self._cell_built[j - 1]:
+                    return
+                # Sample j is built (or this is the first build); the exact cell is
+                # after the last built sample before it: cells p .. j - 1.
+                before = np.flatnonzero(self._sample_built[:j])
+                p = int(before[-1]) if before.size else 0
+                blocks = range(p // _BLOCK, (j - 1) // _BLOCK + 1)
+                if len(blocks) > 2:
+                    blocks = self._guess(length, blocks)
+                self._build_blocks(blocks)
+            self._complete()    # not reached: a guess is off by one block at most
+
+    def _guess(self, length, blocks):
+        """The blocks whose approximate boundary lengths (cubic starts, ~1e-10 rad off,
+        no refinement) bracket ``length``, with a margin; all of them if none does."""
+        seg = self.seg
+        at = np.minimum(np.arange(blocks[0], blocks[-1] + 2) * _BLOCK, self.n_cells)
+        start, cell = _segment_cells(self.lam[at, None] / seg['k'], seg['table_mu'],
+                                     seg['table_b'], seg['dmu'])
+        with np.errstate(all='ignore'):
+            b = np.fmin(np.fmax(start, cell[0]), cell[1])
+            x = (b * b).ravel()
+            g = _series(x, _G_COEF1)[0].reshape(b.shape)
+            e1, e2 = seg['d1'] * seg['direction'], seg['d2'] * seg['direction']
+            approx = _weighted_sum(np.sqrt((seg['d1'] - seg['d2']) ** 2
+                                           + g * (self.s + e1 * b) * (self.s + e2 * b)),
+                                   seg['count'])
+        margin = 1e-6 * (1.0 + abs(length))
+        hit = np.flatnonzero((approx[1:] <= length + margin) & (approx[:-1] >= length - margin))
+        if not hit.size:
+            return blocks
+        return range(blocks[0] + int(hit[0]), blocks[0] + int(hit[-1]) + 1)
+
+    def _build_blocks(self, blocks):
+        """Samples and cells of ``blocks`` (consecutive), in one pass."""
+        first = blocks[0] * _BLOCK
+        last = min((blocks[-1] + 1) * _BLOCK, self.n_cells)
+        idx = np.arange(first, last + 1)
+        if self._extra.size:
+            idx = np.union1d(idx, self._extra)
+            self._extra = self._extra[:0]
+        self._build_samples(idx)
+        if np.any(np.diff(self._exact[self._sample_built]) > 0):
+            self._complete()
+            return
+        self._build_cells(first, last)
+        self._cell_built[first:last] = [True] * (last - first)
+        self._publish()
+        self._notify()
+
+    def _publish(self):
+        """Searchable lengths from the built samples (in place: the single-solve layout
+        holds this very array and these lists)."""
+        built = self._sample_built
+        last = np.maximum.accumulate(np.where(built, np.arange(built.size), -1))
+        self.len[:] = np.where(last >= 0, self._exact[last], np.inf)
+        self.len_list[:] = self.len.tolist()
+        self.neg_len_list[:] = (-self.len).tolist()
 
     def _build_samples(self, idx):
         """Refine the samples ``idx`` (sorted indices) not built yet."""
@@ -118,36 +183,6 @@ class _PathTable:
             self.lam[at], self._exact[at], self.b[at], lp, lpp, l3, seg['k'], seg['lam_c'],
             seg['lam_end'], seg['count'])
 
-    def ensure(self, length):
-        """Build the blocks whose boundary lengths bracket ``length`` (mm), so that a
-        search for ``length`` in ``len_list`` finds its cell of the full table."""
-        if self.complete_:
-            return
-        neg = self._neg_bounds
-        # Blocks k with len(bound k + 1) <= length <= len(bound k).
-        first = max(bisect.bisect_left(neg, -length) - 1, 0)
-        last = max(min(bisect.bisect_right(neg, -length), self.n_blocks), first + 1)
-        for k in range(first, last):
-            if not self._block_built[k]:
-                self._build_block(k)
-
-    def _build_block(self, k):
-        with self._lock:
-            if self._block_built[k]:
-                return
-            lo, hi = int(self._bounds[k]), int(self._bounds[k + 1])
-            self._build_samples(np.arange(lo, hi + 1))
-            self._build_cells(lo, hi)
-            part = self._exact[lo:hi + 1]
-            self._block_built[k] = True
-            if np.any(np.diff(part) > 0):
-                self._complete()
-                return
-            # In place: the single-solve layout holds this very array and these lists.
-            self.len[lo:hi + 1] = part
-            self.len_list[lo:hi + 1] = part.tolist()
-            self.neg_len_list[lo:hi + 1] = (-part).tolist()
-
     def complete(self):
         """Build every sample and cell (the batch solver and the full views use them)."""
         if not self.complete_:
@@ -159,27 +194,45 @@ class _PathTable:
         if self.complete_:
             return
         self._build_samples(np.arange(self.lam.size))
-        if not self._block_built.any():
-            self._build_cells(0, self.lam.size - 1)
-        else:
-            for k in np.flatnonzero(~self._block_built).tolist():
-                self._build_cells(int(self._bounds[k]), int(self._bounds[k + 1]))
         if np.any(np.diff(self._exact) > 0):
             # Never seen: rounding making a length rise along the path. Keep it monotone.
             self._exact[:] = np.minimum.accumulate(self._exact)
-            self._build_cells(0, self.lam.size - 1)
-        self.len[:] = self._exact
-        self._block_built[:] = True
-        self.len_list[:] = self.len.tolist()
-        self.neg_len_list[:] = (-self.len).tolist()
+            self._build_cells(0, self.n_cells)
+        elif not any(self._cell_built):
+            self._build_cells(0, self.n_cells)
+        else:
+            for c in range(0, self.n_cells, _BLOCK):
+                if not all(self._cell_built[c:c + _BLOCK]):
+                    self._build_cells(c, min(c + _BLOCK, self.n_cells))
+        self._cell_built[:] = [True] * self.n_cells
+        self._publish()
+        self._notify()
         self.complete_ = True
+
+    def watch_length(self, lam, layout, name):
+        """``layout[name] =`` the path length at tension ``lam`` (one of the extra
+        samples given to the constructor): now if they are built, else ``inf`` until
+        they are, with the first block (a bound that never claims too much)."""
+        with self._lock:
+            j = int(np.searchsorted(self.lam, lam))
+            if self._sample_built[max(j - 1, 0):j + 2].all():
+                layout[name] = self.length_at_tension(lam)
+            else:
+                layout[name] = math.inf
+                self._watchers.append((lam, layout, name))
+
+    def _notify(self):
+        for lam, layout, name in self._watchers:
+            layout[name] = self.length_at_tension(lam)
+        self._watchers.clear()
 
     def length_at_tension(self, lam):
         """Path length (mm) at tension ``lam``: ``np.interp`` on the full table (only the
         samples next to ``lam`` are read, so only those are built)."""
         j = int(np.searchsorted(self.lam, lam))
         near = np.arange(max(j - 1, 0), min(j + 2, self.lam.size))
-        self._build_samples(near)
+        with self._lock:
+            self._build_samples(near)
         return float(np.interp(lam, self.lam[near], self._exact[near]))
 
 
@@ -329,7 +382,7 @@ def _problem(skeleton: Skeleton, d: tuple) -> _Problem:
                                                          min(at + 2, lam_path.size)))
     columns = np.append(inverse, first.size)     # [b of each segment..., lambda]
     if snap:
-        min_mm = float(table.len[-1])
+        min_mm = table.length_at_tension(lam_path[-1])
     else:
         end_len, _, _ = _branch_derivs(b_end, direction, d1, d2, s)
         min_mm = float(end_len.sum())
@@ -358,6 +411,7 @@ def _g_series_coefficients():
 
 _G_COEF4 = _g_series_coefficients()
 _G_COEF3 = np.ascontiguousarray(_G_COEF4[:, :3])
+_G_COEF1 = np.ascontiguousarray(_G_COEF4[:, :1])
 
 
 def _series(x, coef):
@@ -647,9 +701,11 @@ def _single(skeleton: Skeleton, d: tuple):
              mirror_idx=np.flatnonzero(S['mirror']),
              mirror_first_cells=[(float(S['lam_c'][i]), float(S['lam_1'][i]))
                                  for i in np.flatnonzero(S['mirror'])],
-             # Longer cables than this keep every segment free (no branch end reached):
-             # the path length at the first branch-end tension (a path sample).
-             all_free_above_mm=table.length_at_tension(prob.lam_end.min()))
+             )
+    # Longer cables than this keep every segment free (no branch end reached): the
+    # path length at the first branch-end tension (a path sample), known once the
+    # table's first block is built (inf until then: segments may be held).
+    table.watch_length(prob.lam_end.min(), S, 'all_free_above_mm')
     return prob, P, S
 
 
