@@ -111,21 +111,21 @@ class _PathTable:
             self._complete()    # not reached: a guess is off by one block at most
 
     def _guess(self, length, blocks):
-        """The blocks whose approximate boundary lengths (cubic starts, ~1e-10 rad off,
-        no refinement) bracket ``length``, with a margin; all of them if none does."""
+        """The blocks whose approximate boundary lengths bracket ``length``, with a
+        margin (all of them if none does). Approximate: each segment's magnitude
+        interpolated linearly in its profile table (off by up to ~1e-4 rad, some
+        1e-3 mm in the length), no refinement."""
         seg = self.seg
         at = np.minimum(np.arange(blocks[0], blocks[-1] + 2) * _BLOCK, self.n_cells)
-        start, cell = _segment_cells(self.lam[at, None] / seg['k'], seg['table_mu'],
-                                     seg['table_b'], seg['dmu'])
-        with np.errstate(all='ignore'):
-            b = np.fmin(np.fmax(start, cell[0]), cell[1])
-            x = (b * b).ravel()
-            g = _series(x, _G_COEF1)[0].reshape(b.shape)
-            e1, e2 = seg['d1'] * seg['direction'], seg['d2'] * seg['direction']
-            approx = _weighted_sum(np.sqrt((seg['d1'] - seg['d2']) ** 2
-                                           + g * (self.s + e1 * b) * (self.s + e2 * b)),
-                                   seg['count'])
-        margin = 1e-6 * (1.0 + abs(length))
+        mu = self.lam[at, None] / seg['k']
+        b = np.empty(mu.shape)
+        for i in range(b.shape[1]):
+            b[:, i] = np.interp(mu[:, i], seg['table_mu'][i], seg['table_b'][i])
+        x = (b * b).ravel()
+        g = _series(x, _G_COEF1)[0].reshape(b.shape)
+        approx = _weighted_sum(np.sqrt(seg['dd2'] + g * (self.s + seg['e1'] * b)
+                                       * (self.s + seg['e2'] * b)), seg['count'])
+        margin = 0.05 + 1e-6 * abs(length)
         hit = np.flatnonzero((approx[1:] <= length + margin) & (approx[:-1] >= length - margin))
         if not hit.size:
             return blocks
@@ -276,11 +276,11 @@ def _path_samples(mu, seg, s):
 
 
 def _weighted_sum(values, weights):
-    """``values @ weights`` for (P, U) values, summed column by column in a fixed order
+    """``values @ weights`` for (..., U) values, summed column by column in a fixed order
     (a BLAS product may round differently with the number of rows)."""
-    out = values[:, 0] * weights[0]
+    out = values[..., 0] * weights[0]
     for j in range(1, weights.size):
-        out += values[:, j] * weights[j]
+        out += values[..., j] * weights[j]
     return out
 
 
@@ -376,6 +376,8 @@ def _problem(skeleton: Skeleton, d: tuple) -> _Problem:
                table_mu=table_mu[first], table_b=table_b[first], dmu=prof['dmu'][first],
                lam_c=lam_c[first], lam_end=lam_end[first],
                count=np.bincount(inverse).astype(float))
+    seg.update(e1=seg['d1'] * seg['direction'], e2=seg['d2'] * seg['direction'],
+               dd2=(seg['d1'] - seg['d2']) ** 2)
     # The samples around the first branch end too (_single asks for the length there).
     at = int(np.searchsorted(lam_path, lam_end.min()))
     table = _PathTable(lam_path, straight, s, seg, range(max(at - 1, 0),
@@ -500,17 +502,18 @@ def _path_polynomials(lam, length, b, lp, lpp, l3, k, lam_c, lam_end, count):
         v_all = -k * phi2 * u_all ** 3
         # Segments moving across the whole cell (bent, not yet at their branch end).
         free = (lam[:-1, None] >= lam_c) & (lam[1:, None] <= lam_end)
-        ends = []
-        for at in (slice(None, -1), slice(1, None)):     # cell start, cell end
-            u = np.where(free, u_all[at], 0.0)
-            v = np.where(free, v_all[at], 0.0)
-            t1 = _weighted_sum(u * lp[at], count)[:, None]                    # T'
-            t2 = _weighted_sum(u * u * lpp[at] + v * lp[at], count)[:, None]  # T''
-            du = np.concatenate([u, np.ones_like(t1)], axis=1)   # d/dlambda of [b, lambda]
-            dv = np.concatenate([v, np.zeros_like(t1)], axis=1)  # d2/dlambda2
-            # In t: d/dt = h d/dL and d/dL = (d/dlambda) / T'.
-            ends.append((h * du / t1, h * h * (dv / (t1 * t1) - du * t2 / t1 ** 3)))
-        (d0, s0), (d1, s1) = ends
+        # Both cell ends at once (leading axis: cell start, cell end).
+        ends = np.arange(lam.size - 1) + np.array([[0], [1]])
+        lp_e = lp[ends]
+        u = np.where(free, u_all[ends], 0.0)
+        v = np.where(free, v_all[ends], 0.0)
+        t1 = _weighted_sum(u * lp_e, count)[..., None]                        # T'
+        t2 = _weighted_sum(u * u * lpp[ends] + v * lp_e, count)[..., None]    # T''
+        du = np.concatenate([u, np.ones_like(t1)], axis=2)   # d/dlambda of [b, lambda]
+        dv = np.concatenate([v, np.zeros_like(t1)], axis=2)  # d2/dlambda2
+        # In t: d/dt = h d/dL and d/dL = (d/dlambda) / T'.
+        d0, d1 = h * du / t1
+        s0, s1 = h * h * (dv / (t1 * t1) - du * t2 / t1 ** 3)
         # Quintic with the values, slopes d and second derivatives s (in t) at both ends.
         e_val = p1 - p0 - d0 - 0.5 * s0
         e_slope = d1 - d0 - s0
