@@ -137,7 +137,7 @@ class _PathTable:
         last = min((blocks[-1] + 1) * _BLOCK, self.n_cells)
         idx = np.arange(first, last + 1)
         if self._extra.size:
-            idx = np.union1d(idx, self._extra)
+            idx = _sorted_unique(np.concatenate([idx, self._extra]))
             self._extra = self._extra[:0]
         self._build_samples(idx)
         if np.any(np.diff(self._exact[self._sample_built]) > 0):
@@ -327,7 +327,8 @@ class _Problem:
 
 
 def _sorted_unique(values):
-    """``np.unique`` of finite floats (a sort and one comparison: cheaper for ~1000)."""
+    """``np.unique`` of finite numbers: a sort and one comparison (cheaper for ~1000, and
+    numpy 2.4's ``unique`` imports ``numpy.ma`` on first use, 70 ms)."""
     values = np.sort(values)
     return values[np.concatenate(([True], values[1:] != values[:-1]))]
 
@@ -368,10 +369,13 @@ def _problem(skeleton: Skeleton, d: tuple) -> _Problem:
     # the path is solved once per distinct segment (5 to 7 of 11 for the paper's
     # threadings; the table build is arithmetic on (samples, segments) arrays) and
     # gathered back, the totals weighted by how many segments share each column.
-    position = {}
-    inverse = np.array([position.setdefault(key, len(position)) for key in
-                        zip(d1.tolist(), d2.tolist(), k.tolist())])
-    first = np.unique(inverse, return_index=True)[1]
+    position, first = {}, []
+    for i, key in enumerate(zip(d1.tolist(), d2.tolist(), k.tolist())):
+        if key not in position:
+            position[key] = len(position)
+            first.append(i)
+    inverse = np.array([position[key] for key in zip(d1.tolist(), d2.tolist(), k.tolist())])
+    first = np.array(first)
     seg = dict(d1=d1[first], d2=d2[first], k=k[first], direction=direction[first],
                table_mu=table_mu[first], table_b=table_b[first], dmu=prof['dmu'][first],
                lam_c=lam_c[first], lam_end=lam_end[first],
