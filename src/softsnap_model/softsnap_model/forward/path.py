@@ -1,12 +1,14 @@
 """Per-threading problem data: the path tables and their caches.
 
 Owns :class:`_Problem` (everything about one skeleton and threading that does not depend
-on the length: per-segment tensions where branches start and end, the exact samples of
-the whole quasi-static path and its quintic start polynomials), the memoised builders
+on the length: per-segment tensions where branches start and end, and the path table
+:class:`_PathTable`, the exact samples of the whole quasi-static path and its quintic
+start polynomials, built block by block as lengths ask for them), the memoised builders
 (:func:`_problem`, :func:`_single`, :func:`_single_named`,
 :func:`_threading_cached`), the batch layout of
 problem data (:func:`_stack`) and the length checks that raise the documented errors.
-Every cache here is a pure function of its key.
+Every cache here is a pure function of its key: a lazily built table gives the answers
+of a full one, bit for bit.
 """
 from __future__ import annotations
 
@@ -58,7 +60,8 @@ class _PathTable:
     non-increasing and never below the exact lengths, and where a search for ``L``
     lands on a built cell (both ends exact, ``len[j-1] > L >= len[j]``), that is the
     cell a search of the full table finds. ``poly`` (P-1, 6, U+1) rows of cells not
-    built yet are NaN. Lengths along the path are taken as computed (non-increasing in
+    built yet are undefined (never read: a solve searches after :meth:`ensure`, a batch
+    after :meth:`complete`). Lengths along the path are taken as computed (non-increasing in
     every table checked); should built ones ever rise, the whole table is built and made
     monotone (cumulative minimum).
     """
@@ -72,10 +75,13 @@ class _PathTable:
         self.seg = seg
         n_samples, n_cols = lam.size, seg['k'].size
         self.n_cells = n_samples - 1
-        self._exact = np.zeros(n_samples)                    # exact lengths where built
-        self.b = np.zeros((n_samples, n_cols))
-        self._derivs = np.zeros((3, n_samples, n_cols))      # l', l'', l''' at the samples
-        self.poly = np.full((n_samples - 1, _START_DEGREE + 1, n_cols + 1), np.nan)
+        # Allocated, not filled: a row is written when its sample or cell is built (and
+        # the ~0.2 MB of polynomials, above malloc's mmap threshold, cost no page
+        # faults for the blocks never built).
+        self._exact = np.empty(n_samples)                    # exact lengths where built
+        self.b = np.empty((n_samples, n_cols))
+        self._derivs = np.empty((3, n_samples, n_cols))      # l', l'', l''' at the samples
+        self.poly = np.empty((n_samples - 1, _START_DEGREE + 1, n_cols + 1))
         self._sample_built = np.zeros(n_samples, dtype=bool)
         self._cell_built = [False] * self.n_cells            # a list: one cheap lookup
         self.len = np.full(n_samples, np.inf)
