@@ -48,7 +48,7 @@ class _PathTable:
     refinement, and a cell's quintic start polynomial needs its two end samples. A
     solve asks for its length (:meth:`ensure`), which builds the block of
     :data:`_BLOCK` cells holding its cell, found from approximate lengths at the block
-    boundaries (the cubic starts, no refinement) and confirmed on the exact ones; a
+    boundaries (:meth:`_guess`, no refinement) and confirmed on the exact ones; a
     batch builds the rest (:meth:`complete`). Every entry is computed on its own (the
     refinement, the derivatives and the polynomials are element-wise, the length sums
     in a fixed order), so a partly built table agrees bit for bit with a full one
@@ -89,7 +89,7 @@ class _PathTable:
         self.neg_len_list = (-self.len).tolist()
         # Samples built with the first block (lengths asked for by length_at_tension).
         self._extra = np.asarray(extra, dtype=np.intp)
-        self._watchers = []         # (tension, layout) waiting for a length, see watch_length
+        self._watchers = []         # (tension, layout, key) waiting, see watch_length
         self.complete_ = False
         self._lock = threading.RLock()
 
