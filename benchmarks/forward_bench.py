@@ -261,6 +261,19 @@ def first_solve_cpu(mod):
     return statistics.median(out)
 
 
+def certified_starts(mod, n_lengths):
+    """(cold solves that took no Newton step, solves): the path table's start certified
+    as it is, over the paper's nine threadings with and without rib thickness."""
+    zero = total = 0
+    for sk in (SK, Skeleton()):
+        for t in PAPER_THREADINGS.values():
+            lo, hi = mod.reachable_range(sk, list(t))
+            for length in np.linspace(lo + 1e-6, hi - 1e-6, n_lengths):
+                zero += mod.solve_forward(sk, list(t), length).iterations == 0
+                total += 1
+    return zero, total
+
+
 def side_by_side(before, probs, reps, rounds):
     """CPU times of the solver of ``before`` and of this one, interleaved round by round:
     single cold solve (median over problems), batch of one threading and of mixed
@@ -279,8 +292,9 @@ def side_by_side(before, probs, reps, rounds):
         times = {}
         for label, mod in (('before', before), ('now', fwd)):
             first = first_solve_cpu(mod)
-            for text in THREADINGS.values():      # tables back for the timed solves
-                mod.reachable_range(SK, text.split())
+            # Tables back for the timed solves (built in full by a batch: since issue
+            # 17 a single solve or reachable_range builds only what it reads).
+            mod.solve_forward_batch(SK, [p[1] for p in probs], [p[2] for p in probs])
             times[label] = (
                 statistics.median(timed(lambda: mod.solve_forward(SK, t, length), reps,
                                         time.thread_time)[0] for _, t, length in probs),
@@ -317,14 +331,17 @@ def main():
 
     # First call per threading (path tables built, then memoised): with the per-pair
     # profiles already built by earlier threadings, and with every cache empty.
-    first, first_empty = [], []
+    first, first_empty, first_cpu = [], [], []
     for _ in range(2 if args.quick else 3):
         for name, text in THREADINGS.items():
             for out, profiles in ((first_empty, True), (first, False)):
                 clear_caches(profiles)
-                t0 = time.perf_counter()
-                solve_forward(SK, text.split(), SK.straight_length_mm(text.split()) - 30.0)
+                length = SK.straight_length_mm(text.split()) - 30.0
+                t0, c0 = time.perf_counter(), time.thread_time()
+                solve_forward(SK, text.split(), length)
                 out.append(time.perf_counter() - t0)
+                if not profiles:
+                    first_cpu.append(time.thread_time() - c0)
                 if profiles:    # rebuild the profiles shared by the other threadings
                     for other in THREADINGS.values():
                         reachable_range(SK, other.split())
@@ -428,9 +445,9 @@ def main():
           f'{fmt_spread(one_cpu, 1, 0)} CPU  (target >= 150,000/s)')
     print(f'  batch, mixed threadings: {fmt_spread(mixed, 1, 0)} solves/s wall, '
           f'{fmt_spread(mixed_cpu, 1, 0)} CPU  (target >= 100,000/s)')
-    print(f'  first solve of a new threading: {fmt_spread(first, 1e3, 2)} ms with shared pair '
-          f'profiles (target <= 1 ms), {fmt_spread(first_empty, 1e3, 2)} ms with every cache '
-          'empty')
+    print(f'  first solve of a new threading: {fmt_spread(first, 1e3, 2)} ms wall, '
+          f'{fmt_spread(first_cpu, 1e3, 2)} ms CPU with shared pair profiles (target <= 1 ms), '
+          f'{fmt_spread(first_empty, 1e3, 2)} ms wall with every cache empty')
     print(f'  80-step workspace sweep: {sweep_time * 1e3:.2f} ms  (target < 10 ms)')
     print(f'  brittle star modules, 0.26 mm steps ({n_warm} solves): cold {cold_t * 1e6:.1f} us '
           f'({it_cold:.2f} Newton iterations), warm from the previous shape '
@@ -438,6 +455,10 @@ def main():
     print(f'  192-rib batch: {long_dt * 1e6:.1f} us per solve, max {long_max_it} Newton '
           f'iterations, {long_capped} rows at the {fwd.MAX_ITER}-iteration cap, '
           f'all converged: {long_ok}')
+    n_cert = 100 if args.quick else 300
+    zero, total = certified_starts(fwd, n_cert)
+    print(f'  cold solves with a certified start (no Newton step), nine paper threadings, '
+          f'with and without rib thickness: {zero} of {total} ({100.0 * zero / total:.1f} %)')
     if loop is not None:
         print(f'  loop over {loop[3]} threadings, length-major: {loop[0] * 1e6:.0f} us per '
               f'solve (first pass), {loop[1] * 1e6:.0f} us (second pass; no table rebuilt); '
@@ -453,8 +474,12 @@ def main():
             ratio = [b / n for b, n in pairs]
             scale, unit = (1e3, 'ms') if 'first' in key else (1e6, 'us')
             print(f'  {key}: ratio before/now {fmt_spread(ratio, 1, 2)}x; before '
-                  f'{fmt_spread([b for b, _ in pairs], scale, 1)} {unit}, now '
-                  f'{fmt_spread([n for _, n in pairs], scale, 1)} {unit}')
+                  f'{fmt_spread([b for b, _ in pairs], scale, 1 + ("first" in key))} {unit}, '
+                  f'now {fmt_spread([n for _, n in pairs], scale, 1 + ("first" in key))} {unit}')
+        zero_b, total_b = certified_starts(before, n_cert)
+        print(f'  cold solves with a certified start (no Newton step): before {zero_b} of '
+              f'{total_b} ({100.0 * zero_b / total_b:.1f} %), now {zero} of {total} '
+              f'({100.0 * zero / total:.1f} %)')
     # (h) the paper loop, last: with --before, the old solver takes turns with this one.
     mods = {'now': fwd}
     if args.before:

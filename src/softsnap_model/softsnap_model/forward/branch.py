@@ -124,7 +124,7 @@ def _pair_profile_array(d1, d2, s, b_max, n_samples=_BRANCH_SAMPLES):
     length, lp, lpp = _branch_derivs(bt, dcol, d1c, d2c, s)
     with np.errstate(divide='ignore', invalid='ignore'):
         mu = 2.0 * bt / -lp
-        # d(mu)/db = phi'(b): the slopes for the cubic starts of _branch_solve_segments
+        # d(mu)/db = phi'(b): the slopes for the cubic starts of _segment_cells
         # (inf or 0 where mu is not smooth in b, at a pitchfork; those cells start linear).
         dmu = 2.0 * (bt * lpp - lp) / (lp * lp)
     mu[:, 0] = mu_c
@@ -228,15 +228,14 @@ def _branch_solve(mu, table_mu, table_b, direction, d1, d2, s, iters=30):
     return _branch_refine(mu, cell, direction, d1, d2, s, iters)
 
 
-def _branch_solve_segments(mu, table_mu, table_b, table_dmu, direction, d1, d2, s,
-                           iters=30):
-    """:func:`_branch_solve` for tensions ``mu`` (P, n) on per-segment tables (n, M).
+def _segment_cells(mu, table_mu, table_b, table_dmu):
+    """Table cells and cubic starts for tensions ``mu`` (P, n) on per-segment tables (n, M).
 
-    The same cells and refinement, found by one binary search per segment column
-    instead of comparing every tension with every table entry (the path-table build of
-    a new threading, P ~ 500), and started from the cubic Hermite interpolant of
-    ``b(mu)`` in the cell (slopes ``1 / table_dmu``; about 1e-10 rad off, against 1e-4
-    for the linear one), so the refinement takes two evaluations instead of four.
+    The cells of :func:`_branch_solve` (the cell tuple of :func:`_branch_refine`), found by
+    one binary search per segment column instead of comparing every tension with every
+    table entry (the path-table build of a new threading), and the cubic Hermite
+    interpolant of ``b(mu)`` in the cell (slopes ``1 / table_dmu``; about 1e-10 rad off,
+    against 1e-4 for the linear one). Returns ``(start, cell)``, element-wise.
     """
     n, m = table_mu.shape
     idx = np.empty(mu.shape, dtype=np.intp)
@@ -256,7 +255,7 @@ def _branch_solve_segments(mu, table_mu, table_b, table_dmu, direction, d1, d2, 
         start = ((2.0 * t3 - 3.0 * t2 + 1.0) * b_lo + (t3 - 2.0 * t2 + t) * span
                  / table_dmu[cols, idx - 1] + (3.0 * t2 - 2.0 * t3) * b_hi
                  + (t3 - t2) * span / table_dmu[cols, idx])
-    return _branch_refine(mu, cell, direction, d1, d2, s, iters, start)
+    return start, cell
 
 
 def _branch_solve_pairs(mu, pair, prof, s, iters=30):
@@ -282,13 +281,19 @@ def _branch_solve_pairs(mu, pair, prof, s, iters=30):
                           prof['d2'][pair], s, iters)
 
 
-def _branch_refine(mu, cell, direction, d1, d2, s, iters, start=None):
+def _branch_refine(mu, cell, direction, d1, d2, s, iters, start=None, derivs=_branch_derivs):
     """Safeguarded Newton for ``2 b + mu l'(b) = 0`` inside the table cell ``cell`` =
     ``(b_lo, b_hi, mu_lo, mu_hi, mu_first, mu_last, b_first, b_last)``, from the linear
-    interpolant in the cell, or from ``start`` where that is finite and in the cell."""
+    interpolant in the cell, or from ``start`` where that is finite and in the cell.
+
+    Strictly per entry: an entry stops changing in the iteration it settles, so its
+    answer is the one it would get alone, whatever else is solved with it (a lazily
+    built path table equals a full one, bit for bit).
+    """
     lo, hi, mu_lo, mu_hi, mu_first, mu_last, b_first, b_last = cell
     below = mu <= mu_first
     above = mu >= mu_last
+    active = ~(below | above)      # entries outside the table take its end values
     with np.errstate(invalid='ignore', divide='ignore'):
         w = np.where(np.isfinite(mu_hi), (mu - mu_lo) / (mu_hi - mu_lo), 0.5)
     w = np.clip(np.nan_to_num(w, nan=0.5), 0.0, 1.0)
@@ -297,7 +302,7 @@ def _branch_refine(mu, cell, direction, d1, d2, s, iters, start=None):
         b = np.where((start >= lo) & (start <= hi), start, b)    # False for NaN
     for _ in range(iters):
         with np.errstate(invalid='ignore'):
-            _, lp, lpp = _branch_derivs(b, direction, d1, d2, s)
+            _, lp, lpp = derivs(b, direction, d1, d2, s)
             r = 2.0 * b + mu * lp
             dr = 2.0 + mu * lpp
         lo = np.where(r < 0.0, b, lo)
@@ -315,9 +320,10 @@ def _branch_refine(mu, cell, direction, d1, d2, s, iters, start=None):
         # Entries outside the table (returned as its end values) never hold the loop.
         settled = np.abs(r) <= 1e-15 * (2.0 * np.abs(b) + np.abs(mu * lp))
         new = np.where(settled, b, new)
-        done = settled | (np.abs(new - b) <= tol) | below | above
-        b = new
-        if done.all():
+        done = settled | (np.abs(new - b) <= tol)
+        b = np.where(active, new, b)
+        active &= ~done
+        if not active.any():
             break
     b = np.where(below, b_first, np.where(above, b_last, b))
     return b

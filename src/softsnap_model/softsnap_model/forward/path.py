@@ -1,23 +1,29 @@
 """Per-threading problem data: the path tables and their caches.
 
 Owns :class:`_Problem` (everything about one skeleton and threading that does not depend
-on the length: per-segment tensions where branches start and end, the exact samples of
-the whole quasi-static path and its quintic start polynomials), the memoised builders
+on the length: per-segment tensions where branches start and end, and the path table
+:class:`_PathTable`, the exact samples of the whole quasi-static path and its quintic
+start polynomials, built block by block as lengths ask for them), the memoised builders
 (:func:`_problem`, :func:`_single`, :func:`_single_named`,
 :func:`_threading_cached`), the batch layout of
 problem data (:func:`_stack`) and the length checks that raise the documented errors.
-Every cache here is a pure function of its key.
+Every cache here is a pure function of its key: a lazily built table gives the answers
+of a full one, bit for bit.
 """
 from __future__ import annotations
 
+import bisect
 import functools
+import math
+import threading
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..geometry import _G_COEF, _G_TERMS
 from ..skeleton import Skeleton
-from .branch import _BRANCH_SAMPLES, _branch_derivs, _branch_solve_segments, _pair_profiles
+from .branch import (_BRANCH_SAMPLES, _branch_derivs, _branch_refine, _pair_profiles,
+                     _segment_cells)
 from .results import InfeasibleLengthError, SnapThroughError
 
 
@@ -26,6 +32,262 @@ from .results import InfeasibleLengthError, SnapThroughError
 #: loop over every threading of 7 ribs with 3 holes (3^7 = 2187) or a robot's modules
 #: never rebuilds a table per solve (a rebuild costs a few ms).
 _THREADINGS_CACHED = 2560
+
+
+#: Path samples per block of a lazily built path table (:class:`_PathTable`): a first
+#: solve builds one or two blocks, a few percent of the table's entries.
+_BLOCK = 16
+
+
+class _PathTable:
+    """Exact samples of the quasi-static path of one threading and their start
+    polynomials, built block by block on demand.
+
+    The tensions ``lam`` (P,) of every sample are known from the branch profiles; a
+    sample's branch magnitudes ``b`` (per distinct segment) and total length cost a
+    refinement, and a cell's quintic start polynomial needs its two end samples. A
+    solve asks for its length (:meth:`ensure`), which builds the block of
+    :data:`_BLOCK` cells holding its cell, found from approximate lengths at the block
+    boundaries (:meth:`_guess`, no refinement) and confirmed on the exact ones; a
+    batch builds the rest (:meth:`complete`). Every entry is computed on its own (the
+    refinement, the derivatives and the polynomials are element-wise, the length sums
+    in a fixed order), so a partly built table agrees bit for bit with a full one
+    wherever it is built.
+
+    ``len`` (P,) and its Python-list copies ``len_list``, ``neg_len_list`` (what the
+    solves search) are exact at built samples; a sample not built holds the length of
+    the last built sample before it (``inf`` before the first). So they stay
+    non-increasing and never below the exact lengths, and where a search for ``L``
+    lands on a built cell (both ends exact, ``len[j-1] > L >= len[j]``), that is the
+    cell a search of the full table finds. ``poly`` (P-1, 6, U+1) rows of cells not
+    built yet are undefined (never read: a solve searches after :meth:`ensure`, a batch
+    after :meth:`complete`). Lengths along the path are taken as computed (non-increasing in
+    every table checked); should built ones ever rise, the whole table is built and made
+    monotone (cumulative minimum).
+    """
+
+    def __init__(self, lam, straight, s, seg, extra=()):
+        self.lam = lam
+        self.straight = straight
+        self.s = s
+        # Per distinct segment: holes, stiffness, direction, profile tables, the
+        # tensions where it starts bending and reaches its end, and how many share it.
+        self.seg = seg
+        n_samples, n_cols = lam.size, seg['k'].size
+        self.n_cells = n_samples - 1
+        # Allocated, not filled: a row is written when its sample or cell is built (and
+        # the ~0.2 MB of polynomials, above malloc's mmap threshold, cost no page
+        # faults for the blocks never built).
+        self._exact = np.empty(n_samples)                    # exact lengths where built
+        self.b = np.empty((n_samples, n_cols))
+        self._derivs = np.empty((3, n_samples, n_cols))      # l', l'', l''' at the samples
+        self.poly = np.empty((n_samples - 1, _START_DEGREE + 1, n_cols + 1))
+        self._sample_built = np.zeros(n_samples, dtype=bool)
+        self._cell_built = [False] * self.n_cells            # a list: one cheap lookup
+        self.len = np.full(n_samples, np.inf)
+        self.len_list = self.len.tolist()
+        self.neg_len_list = (-self.len).tolist()
+        # Samples built with the first block (lengths asked for by length_at_tension).
+        self._extra = np.asarray(extra, dtype=np.intp)
+        self._watchers = []         # (tension, layout, key) waiting, see watch_length
+        self.complete_ = False
+        self._lock = threading.RLock()
+
+    def ensure(self, length):
+        """Build what a search for ``length`` (mm) in ``len_list`` needs to find the
+        full table's cell: the cell and its block."""
+        if self.complete_:
+            return
+        j = min(max(bisect.bisect_left(self.neg_len_list, -length), 1), self.n_cells)
+        if self._cell_built[j - 1]:
+            return
+        with self._lock:
+            for _ in range(4):
+                j = min(max(bisect.bisect_left(self.neg_len_list, -length), 1), self.n_cells)
+                if self._cell_built[j - 1]:
+                    return
+                # Sample j is built (or this is the first build); the exact cell is
+                # after the last built sample before it: cells p .. j - 1.
+                before = np.flatnonzero(self._sample_built[:j])
+                p = int(before[-1]) if before.size else 0
+                blocks = range(p // _BLOCK, (j - 1) // _BLOCK + 1)
+                if len(blocks) > 2:
+                    blocks = self._guess(length, blocks)
+                self._build_blocks(blocks)
+            self._complete()    # not reached: a guess is off by one block at most
+
+    def _guess(self, length, blocks):
+        """The blocks whose approximate boundary lengths bracket ``length``, with a
+        margin (all of them if none does). Approximate: each segment's magnitude
+        interpolated linearly in its profile table (off by up to ~1e-4 rad, some
+        1e-3 mm in the length), no refinement."""
+        seg = self.seg
+        at = np.minimum(np.arange(blocks[0], blocks[-1] + 2) * _BLOCK, self.n_cells)
+        mu = self.lam[at, None] / seg['k']
+        b = np.empty(mu.shape)
+        for i in range(b.shape[1]):
+            b[:, i] = np.interp(mu[:, i], seg['table_mu'][i], seg['table_b'][i])
+        x = (b * b).ravel()
+        g = _series(x, _G_COEF1)[0].reshape(b.shape)
+        approx = _weighted_sum(np.sqrt(seg['dd2'] + g * (self.s + seg['e1'] * b)
+                                       * (self.s + seg['e2'] * b)), seg['count'])
+        margin = 0.05 + 1e-6 * abs(length)
+        hit = np.flatnonzero((approx[1:] <= length + margin) & (approx[:-1] >= length - margin))
+        if not hit.size:
+            return blocks
+        return range(blocks[0] + int(hit[0]), blocks[0] + int(hit[-1]) + 1)
+
+    def _build_blocks(self, blocks):
+        """Samples and cells of ``blocks`` (consecutive), in one pass."""
+        first = blocks[0] * _BLOCK
+        last = min((blocks[-1] + 1) * _BLOCK, self.n_cells)
+        idx = np.arange(first, last + 1)
+        if self._extra.size:
+            idx = _sorted_unique(np.concatenate([idx, self._extra]))
+            self._extra = self._extra[:0]
+        self._build_samples(idx)
+        if np.any(np.diff(self._exact[self._sample_built]) > 0):
+            self._complete()
+            return
+        self._build_cells(first, last)
+        self._cell_built[first:last] = [True] * (last - first)
+        self._publish()
+        self._notify()
+
+    def _publish(self):
+        """Searchable lengths from the built samples (in place: the single-solve layout
+        holds this very array and these lists)."""
+        built = self._sample_built
+        last = np.maximum.accumulate(np.where(built, np.arange(built.size), -1))
+        self.len[:] = np.where(last >= 0, self._exact[last], np.inf)
+        self.len_list[:] = self.len.tolist()
+        self.neg_len_list[:] = (-self.len).tolist()
+
+    def _build_samples(self, idx):
+        """Refine the samples ``idx`` (sorted indices) not built yet."""
+        idx = idx[~self._sample_built[idx]]
+        if not idx.size:
+            return
+        seg = self.seg
+        b, (lengths, lp, lpp, l3) = _path_samples(self.lam[idx, None] / seg['k'], seg,
+                                                  self.s)
+        total = _weighted_sum(lengths, seg['count'])
+        # Every segment straight (the start of the path, before a mirror segment
+        # buckles): the straight length, exactly.
+        total[(b == 0.0).all(axis=1)] = self.straight
+        self._exact[idx] = total
+        self.b[idx] = b
+        self._derivs[:, idx] = (lp, lpp, l3)
+        self._sample_built[idx] = True
+
+    def _build_cells(self, first, last):
+        """Start polynomials of cells ``first .. last - 1`` (their samples built)."""
+        seg = self.seg
+        at = slice(first, last + 1)
+        lp, lpp, l3 = self._derivs[:, at]
+        self.poly[first:last] = _path_polynomials(
+            self.lam[at], self._exact[at], self.b[at], lp, lpp, l3, seg['k'], seg['lam_c'],
+            seg['lam_end'], seg['count'])
+
+    def complete(self):
+        """Build every sample and cell (the batch solver and the full views use them)."""
+        if not self.complete_:
+            with self._lock:
+                self._complete()
+        return self
+
+    def _complete(self):
+        if self.complete_:
+            return
+        self._build_samples(np.arange(self.lam.size))
+        if np.any(np.diff(self._exact) > 0):
+            # Never seen: rounding making a length rise along the path. Keep it monotone.
+            self._exact[:] = np.minimum.accumulate(self._exact)
+            self._build_cells(0, self.n_cells)
+        elif not any(self._cell_built):
+            self._build_cells(0, self.n_cells)
+        else:
+            for c in range(0, self.n_cells, _BLOCK):
+                if not all(self._cell_built[c:c + _BLOCK]):
+                    self._build_cells(c, min(c + _BLOCK, self.n_cells))
+        self._cell_built[:] = [True] * self.n_cells
+        self._publish()
+        self._notify()
+        self.complete_ = True
+
+    def watch_length(self, lam, layout, name):
+        """``layout[name] =`` the path length at tension ``lam`` (one of the extra
+        samples given to the constructor): now if they are built, else ``inf`` until
+        they are, with the first block (a bound that never claims too much)."""
+        with self._lock:
+            j = int(np.searchsorted(self.lam, lam))
+            if self._sample_built[max(j - 1, 0):j + 2].all():
+                layout[name] = self.length_at_tension(lam)
+            else:
+                layout[name] = math.inf
+                self._watchers.append((lam, layout, name))
+
+    def _notify(self):
+        for lam, layout, name in self._watchers:
+            layout[name] = self.length_at_tension(lam)
+        self._watchers.clear()
+
+    def length_at_tension(self, lam):
+        """Path length (mm) at tension ``lam``: ``np.interp`` on the full table (only the
+        samples next to ``lam`` are read, so only those are built)."""
+        j = int(np.searchsorted(self.lam, lam))
+        near = np.arange(max(j - 1, 0), min(j + 2, self.lam.size))
+        with self._lock:
+            self._build_samples(near)
+        return float(np.interp(lam, self.lam[near], self._exact[near]))
+
+
+def _path_samples(mu, seg, s):
+    """Exact branch magnitudes ``b`` (P, U) of the distinct segments at tensions ``mu``
+    per unit stiffness, and ``l, l', l'', l'''`` there (:func:`_path_derivatives`).
+
+    One Newton step from the cubic start of the cell (:func:`.branch._segment_cells`,
+    about 1e-10 rad off) lands at rounding level; the evaluation at that point, which the
+    table needs anyway, gives the next step, and the entry is kept where that step is at
+    rounding level too. The rest (near a pitchfork, a start outside its cell; a few per
+    table) take the safeguarded refinement. Entries outside a segment's table (straight
+    before buckling, at contact) take its end values. Everything is per entry.
+    """
+    direction, d1, d2 = seg['direction'], seg['d1'], seg['d2']
+    start, cell = _segment_cells(mu, seg['table_mu'], seg['table_b'], seg['dmu'])
+    b_lo, b_hi = cell[:2]
+    out = mu <= seg['table_mu'][:, 0]
+    above = mu >= seg['table_mu'][:, -1]
+    ends = np.where(out, seg['table_b'][:, 0], seg['table_b'][:, -1])
+    out |= above
+    with np.errstate(all='ignore'):
+        b = np.fmin(np.fmax(start, b_lo), b_hi)
+        _, lp, lpp = _branch_eval(b, direction, d1, d2, s)
+        b = np.where(out, ends, np.fmin(np.fmax(b - (2.0 * b + mu * lp) / (2.0 + mu * lpp),
+                                                b_lo), b_hi))
+        ev = _path_derivatives(b, direction, d1, d2, s)
+        step = (2.0 * b + mu * ev[1]) / (2.0 + mu * ev[2])
+        # The root is inside the cell (mu_lo < mu), never at b_lo: this also turns away
+        # the straight root b = 0 of a mirror segment just past its pitchfork.
+        ok = out | ((np.abs(step) <= 1e-15 * (1.0 + np.abs(b))) & (b > b_lo))
+    if not ok.all():
+        rest = ~ok
+        shape = mu.shape
+        sub = tuple(np.broadcast_to(c, shape)[rest] for c in cell)
+        dd = [np.broadcast_to(c, shape)[rest] for c in (direction, d1, d2)]
+        b[rest] = _branch_refine(mu[rest], sub, *dd, s, 30, start[rest], _branch_eval)
+        for full, part in zip(ev, _path_derivatives(b[rest], *dd, s)):
+            full[rest] = part
+    return b, ev
+
+
+def _weighted_sum(values, weights):
+    """``values @ weights`` for (..., U) values, summed column by column in a fixed order
+    (a BLAS product may round differently with the number of rows)."""
+    out = values[..., 0] * weights[0]
+    for j in range(1, weights.size):
+        out += values[..., j] * weights[j]
+    return out
 
 
 @dataclass(frozen=True)
@@ -50,11 +312,31 @@ class _Problem:
     min_mm: float            # infimum of reachable lengths (or length at the fold)
     snap: bool               # the path ends at a fold (snap-through), not at contact
     path_lam: np.ndarray     # (P,) increasing tensions along the whole path
-    path_len: np.ndarray     # (P,) non-increasing total length there
-    path_b: np.ndarray       # (P, n) exact branch magnitudes there
-    path_poly: np.ndarray    # (P-1, 6, U+1) start polynomials per cell of the U distinct
-    #                          segments and lambda, see _path_polynomials
+    path: '_PathTable'       # samples there and start polynomials, built on demand
     path_columns: np.ndarray  # (n+1,) column of path_poly for each segment, then lambda
+
+    @property
+    def path_len(self) -> np.ndarray:
+        """(P,) non-increasing total length at the path samples (full table)."""
+        return self.path.complete().len
+
+    @property
+    def path_b(self) -> np.ndarray:
+        """(P, n) exact branch magnitudes at the path samples (full table)."""
+        return self.path.complete().b[:, self.path_columns[:-1]]
+
+    @property
+    def path_poly(self) -> np.ndarray:
+        """(P-1, 6, U+1) start polynomials per cell of the U distinct segments and
+        lambda (full table), see :func:`_path_polynomials`."""
+        return self.path.complete().poly
+
+
+def _sorted_unique(values):
+    """``np.unique`` of finite numbers: a sort and one comparison (cheaper for ~1000, and
+    numpy 2.4's ``unique`` imports ``numpy.ma`` on first use, 70 ms)."""
+    values = np.sort(values)
+    return values[np.concatenate(([True], values[1:] != values[:-1]))]
 
 
 @functools.lru_cache(maxsize=_THREADINGS_CACHED)
@@ -82,36 +364,37 @@ def _problem(skeleton: Skeleton, d: tuple) -> _Problem:
     else:
         finite = lam_end[np.isfinite(lam_end)]
         lam_top = float(finite.max()) if finite.size else float(lam_all.max())
-    lam_path = np.unique(np.concatenate([[0.0], lam_all[lam_all <= lam_top], [lam_top]]))
+    lam_path = _sorted_unique(np.concatenate([[0.0], lam_all[lam_all <= lam_top], [lam_top]]))
     if lam_path.size > 4 * _BRANCH_SAMPLES:
-        # Thin to a bounded table; keep the ends and every buckling tension.
-        keep = np.unique(np.concatenate([np.linspace(0, lam_path.size - 1,
-                                                     4 * _BRANCH_SAMPLES).astype(int)]))
-        lam_path = np.unique(np.concatenate([lam_path[keep], lam_c, lam_end, [lam_top]]))
+        # Thin to a bounded table; keep the ends and every buckling tension (the kept
+        # indices are strictly increasing: their step is above 1).
+        keep = np.linspace(0, lam_path.size - 1, 4 * _BRANCH_SAMPLES).astype(int)
+        lam_path = _sorted_unique(np.concatenate([lam_path[keep], lam_c, lam_end, [lam_top]]))
         lam_path = lam_path[lam_path <= lam_top]
     # Segments with the same holes and stiffness have the same angle at every tension:
     # the path is solved once per distinct segment (5 to 7 of 11 for the paper's
     # threadings; the table build is arithmetic on (samples, segments) arrays) and
     # gathered back, the totals weighted by how many segments share each column.
-    position = {}
-    inverse = np.array([position.setdefault(key, len(position)) for key in
-                        zip(d1.tolist(), d2.tolist(), k.tolist())])
-    first = np.unique(inverse, return_index=True)[1]
-    count = np.bincount(inverse)
-    u1, u2, uk, udir = d1[first], d2[first], k[first], direction[first]
-    mu = lam_path[:, None] / uk[None, :]
-    bu = _branch_solve_segments(mu, table_mu[first], table_b[first], prof['dmu'][first],
-                                udir, u1, u2, s)
-    lengths, lp, lpp, l3 = _path_derivatives(bu, udir, u1, u2, s)
-    count = count.astype(float)
-    path_len = np.minimum.accumulate(lengths @ count)
-    path_len[0] = straight
-    poly = _path_polynomials(lam_path, path_len, bu, lp, lpp, l3, uk, lam_c[first],
-                             lam_end[first], count)
+    position, first = {}, []
+    for i, key in enumerate(zip(d1.tolist(), d2.tolist(), k.tolist())):
+        if key not in position:
+            position[key] = len(position)
+            first.append(i)
+    inverse = np.array([position[key] for key in zip(d1.tolist(), d2.tolist(), k.tolist())])
+    first = np.array(first)
+    seg = dict(d1=d1[first], d2=d2[first], k=k[first], direction=direction[first],
+               table_mu=table_mu[first], table_b=table_b[first], dmu=prof['dmu'][first],
+               lam_c=lam_c[first], lam_end=lam_end[first],
+               count=np.bincount(inverse).astype(float))
+    seg.update(e1=seg['d1'] * seg['direction'], e2=seg['d2'] * seg['direction'],
+               dd2=(seg['d1'] - seg['d2']) ** 2)
+    # The samples around the first branch end too (_single asks for the length there).
+    at = int(np.searchsorted(lam_path, lam_end.min()))
+    table = _PathTable(lam_path, straight, s, seg, range(max(at - 1, 0),
+                                                         min(at + 2, lam_path.size)))
     columns = np.append(inverse, first.size)     # [b of each segment..., lambda]
-    bb = bu[:, inverse]
     if snap:
-        min_mm = float(path_len[-1])
+        min_mm = table.length_at_tension(lam_path[-1])
     else:
         end_len, _, _ = _branch_derivs(b_end, direction, d1, d2, s)
         min_mm = float(end_len.sum())
@@ -119,8 +402,7 @@ def _problem(skeleton: Skeleton, d: tuple) -> _Problem:
                     mu_c=mu_c, beta=beta,
                     lam_end=lam_end, b_end=b_end, kind=kind, table_mu=table_mu,
                     table_b=table_b, straight_mm=straight, min_mm=min_mm, snap=snap,
-                    path_lam=lam_path, path_len=path_len, path_b=bb, path_poly=poly,
-                    path_columns=columns)
+                    path_lam=lam_path, path=table, path_columns=columns)
 
 
 #: Degree of the start polynomials of the path cells (quintic Hermite, :func:`_path_polynomials`).
@@ -140,9 +422,34 @@ def _g_series_coefficients():
 
 
 _G_COEF4 = _g_series_coefficients()
+_G_COEF3 = np.ascontiguousarray(_G_COEF4[:, :3])
+_G_COEF1 = np.ascontiguousarray(_G_COEF4[:, :1])
 
 
-def _path_derivatives(b, direction, d1, d2, s):
+def _series(x, coef):
+    """Columns ``sum_j coef[j, c] x^j`` (C, N) for flat ``x`` (N,) by Estrin's scheme.
+
+    Pairs of terms, then pairs of pairs with ``x^2``, ``x^4``, ...: about 11 numpy calls
+    for 16 terms (Horner takes 30), each element-wise, so an entry's rounding does not
+    depend on how many are evaluated together (``geometry._power_series`` picks its
+    algorithm by size). ``coef`` has a power-of-two number of rows.
+    """
+    p = coef[0::2, :, None] + coef[1::2, :, None] * x
+    power = x
+    while p.shape[0] > 1:
+        power = power * power
+        p = p[0::2] + p[1::2] * power
+    return p[0]
+
+
+def _branch_eval(b, direction, d1, d2, s):
+    """``l, l', l''`` along the branches for the path-table refinement: the series of
+    :func:`_path_derivatives`, whose rounding (unlike ``segment_length_derivatives``,
+    which picks its algorithm by array size) is the same for any number of entries."""
+    return _path_derivatives(b, direction, d1, d2, s, third=False)
+
+
+def _path_derivatives(b, direction, d1, d2, s, third=True):
     """``l, l', l'', l'''`` along the branches (in the magnitude ``b``), one series pass.
 
     Product form of :func:`.newton._branch_eval`: ``Q = l^2 = (d1 - d2)^2 + g(b) p(b)``
@@ -150,15 +457,12 @@ def _path_derivatives(b, direction, d1, d2, s):
     ``Q' = g' p + g p'``, ``Q'' = g'' p + 2 g' p' + g p''``, ``Q''' = g''' p + 3 g'' p' +
     3 g' p''`` (``p'' = 2 e1 e2``), and ``l' = Q'/2l``, ``l'' = (Q'' - 2 l'^2)/2l``,
     ``l''' = (Q''' - 6 l' l'')/2l``. Agrees with ``segment_length_derivatives`` to a few ulp.
+    Element-wise, whatever the size (:func:`_series`). Without ``third``: ``l, l', l''`` only.
     """
     x = (b * b).ravel()
-    series = np.empty((4, x.size))             # Horner on the four columns at once
-    series[...] = _G_COEF4[-1][:, None]
-    for row in _G_COEF4[-2::-1]:
-        series *= x
-        series += row[:, None]
-    g, g1_over_b, g2, g3_over_b = (col.reshape(b.shape) for col in series)
-    g1, g3 = b * g1_over_b, b * g3_over_b
+    series = _series(x, _G_COEF4 if third else _G_COEF3)
+    g, g1_over_b, g2 = (col.reshape(b.shape) for col in series[:3])
+    g1 = b * g1_over_b
     e1, e2 = d1 * direction, d2 * direction
     p1, p2 = s + e1 * b, s + e2 * b
     p = p1 * p2
@@ -168,6 +472,9 @@ def _path_derivatives(b, direction, d1, d2, s):
     half_inv = 0.5 / length
     lp = (g1 * p + g * p_b) * half_inv
     lpp = (g2 * p + 2.0 * g1 * p_b + g * p_bb - 2.0 * lp * lp) * half_inv
+    if not third:
+        return length, lp, lpp
+    g3 = b * series[3].reshape(b.shape)
     l3 = (g3 * p + 3.0 * g2 * p_b + 3.0 * g1 * p_bb - 6.0 * lp * lpp) * half_inv
     return length, lp, lpp, l3
 
@@ -205,17 +512,18 @@ def _path_polynomials(lam, length, b, lp, lpp, l3, k, lam_c, lam_end, count):
         v_all = -k * phi2 * u_all ** 3
         # Segments moving across the whole cell (bent, not yet at their branch end).
         free = (lam[:-1, None] >= lam_c) & (lam[1:, None] <= lam_end)
-        ends = []
-        for at in (slice(None, -1), slice(1, None)):     # cell start, cell end
-            u = np.where(free, u_all[at], 0.0)
-            v = np.where(free, v_all[at], 0.0)
-            t1 = ((u * lp[at]) @ count)[:, None]                              # T'
-            t2 = ((u * u * lpp[at] + v * lp[at]) @ count)[:, None]            # T''
-            du = np.concatenate([u, np.ones_like(t1)], axis=1)   # d/dlambda of [b, lambda]
-            dv = np.concatenate([v, np.zeros_like(t1)], axis=1)  # d2/dlambda2
-            # In t: d/dt = h d/dL and d/dL = (d/dlambda) / T'.
-            ends.append((h * du / t1, h * h * (dv / (t1 * t1) - du * t2 / t1 ** 3)))
-        (d0, s0), (d1, s1) = ends
+        # Both cell ends at once (leading axis: cell start, cell end).
+        ends = np.arange(lam.size - 1) + np.array([[0], [1]])
+        lp_e = lp[ends]
+        u = np.where(free, u_all[ends], 0.0)
+        v = np.where(free, v_all[ends], 0.0)
+        t1 = _weighted_sum(u * lp_e, count)[..., None]                        # T'
+        t2 = _weighted_sum(u * u * lpp[ends] + v * lp_e, count)[..., None]    # T''
+        du = np.concatenate([u, np.ones_like(t1)], axis=2)   # d/dlambda of [b, lambda]
+        dv = np.concatenate([v, np.zeros_like(t1)], axis=2)  # d2/dlambda2
+        # In t: d/dt = h d/dL and d/dL = (d/dlambda) / T'.
+        d0, d1 = h * du / t1
+        s0, s1 = h * h * (dv / (t1 * t1) - du * t2 / t1 ** 3)
         # Quintic with the values, slopes d and second derivatives s (in t) at both ends.
         e_val = p1 - p0 - d0 - 0.5 * s0
         e_slope = d1 - d0 - s0
@@ -292,36 +600,47 @@ _PER_ITEM = ('uid', 'k', 'd', 'd1', 'd2', 'direction', 'lam_c', 'lam_end', 'mu_c
              'two_e1e2', 'dd2', 'two_k', 'inv_two_k', 'straight')
 
 
-def _stack(probs, index):
+def _one(arrays):
+    """``np.stack`` of a one-element list (a read-only view with a leading axis)."""
+    out = arrays[0][None]
+    out.flags.writeable = False
+    return out
+
+
+def _stack(probs, index, complete=True):
     """Batch arrays: per-item (B, n) arrays, tables once per distinct threading.
 
     ``index`` (B,) maps batch rows to ``probs``; keys in :data:`_PER_ITEM` have the
     batch as leading axis (and are what a sub-batch slices). The per-segment fields are
     computed once per threading and gathered for the rows in one indexing operation
     (read-only views of it); with one threading they are broadcast views, no copy.
+    The path tables are built in full unless ``complete`` is false (the single-solve
+    layout, whose lengths are made ready one by one, :meth:`_PathTable.ensure`).
     """
     index = np.asarray(index)
     nb = index.shape[0]
-    tables_mu = np.stack([p.table_mu for p in probs])
-    tables_b = np.stack([p.table_b for p in probs])
-    k = np.stack([p.k for p in probs])
-    mu_c = np.stack([p.mu_c for p in probs])
-    beta = np.stack([p.beta for p in probs])
-    d1 = np.stack([p.d1 for p in probs])
-    d2 = np.stack([p.d2 for p in probs])
-    direction = np.stack([p.direction for p in probs])
+    # One threading (a new threading's first solve builds this): no copies to stack.
+    stack = _one if len(probs) == 1 else np.stack
+    tables_mu = stack([p.table_mu for p in probs])
+    tables_b = stack([p.table_b for p in probs])
+    k = stack([p.k for p in probs])
+    mu_c = stack([p.mu_c for p in probs])
+    beta = stack([p.beta for p in probs])
+    d1 = stack([p.d1 for p in probs])
+    d2 = stack([p.d2 for p in probs])
+    direction = stack([p.direction for p in probs])
     mirror = mu_c > 0
     fields = dict(
-        k=k, d1=d1, d2=d2, direction=direction, lam_c=np.stack([p.lam_c for p in probs]),
-        lam_end=np.stack([p.lam_end for p in probs]), mu_c=mu_c, beta=beta,
-        b_end=np.stack([p.b_end for p in probs]),
+        k=k, d1=d1, d2=d2, direction=direction, lam_c=stack([p.lam_c for p in probs]),
+        lam_end=stack([p.lam_end for p in probs]), mu_c=mu_c, beta=beta,
+        b_end=stack([p.b_end for p in probs]),
         mu_c_safe=np.where(mirror, mu_c, 1.0), beta_safe=np.where(mirror, beta, 1.0),
         mu_1=tables_mu[:, :, 1], lam_1=k * tables_mu[:, :, 1], b_1=tables_b[:, :, 1],
         e1=d1 * direction, e2=d2 * direction, two_e1e2=2.0 * d1 * d2, dd2=(d1 - d2) ** 2,
         two_k=2.0 * k, inv_two_k=0.5 / k)
     names = list(fields)
     table = np.stack([fields[name] for name in names], axis=1)        # (U, F, n)
-    d = np.stack([p.d for p in probs])
+    d = stack([p.d for p in probs])
     straight = np.array([p.straight_mm for p in probs])
     if len(probs) == 1:
         rows = np.broadcast_to(table[0], (nb,) + table.shape[1:])
@@ -334,7 +653,8 @@ def _stack(probs, index):
     out.update({name: rows[:, f] for f, name in enumerate(names)})
     out.update(uid=index, s=probs[0].s, has_mirror=bool(mirror.any()),
                tables_mu=tables_mu, tables_b=tables_b,
-               paths=[(p.path_len, p.path_lam, p.path_poly, p.path_columns) for p in probs])
+               paths=[((p.path.complete() if complete else p.path).len, p.path_lam,
+                       p.path.poly, p.path_columns) for p in probs])
     return out
 
 
@@ -368,33 +688,37 @@ def _q_coefficients(dd2, s, e1, e2):
 @functools.lru_cache(maxsize=_THREADINGS_CACHED)
 def _single(skeleton: Skeleton, d: tuple):
     """Problem data stacked as a batch of one, plus 1-D views for the single-solve path
-    (memoised with the problem)."""
+    (memoised with the problem). Its path table is built lazily: call
+    ``S['path'].ensure(L)`` before searching the cell of a length ``L``."""
     prob = _problem(skeleton, d)
-    P = _stack([prob], np.zeros(1, dtype=int))
+    table = prob.path
+    P = _stack([prob], np.zeros(1, dtype=int), complete=False)
     S = {key: (val[0] if isinstance(val, np.ndarray) and val.ndim >= 1 else val)
          for key, val in P.items()}
     finite_end = prob.lam_end[np.isfinite(prob.lam_end)]
-    S.update(P=P, lam_end_min=float(prob.lam_end.min()),
-             neg_path_len=-prob.path_len, path_lam=prob.path_lam, path_poly=prob.path_poly,
+    S.update(P=P, lam_end_min=float(prob.lam_end.min()), path=table,
+             path_lam=prob.path_lam, path_poly=table.poly,
              path_columns=prob.path_columns,
-             straight=prob.straight_mm, n_path=prob.path_len.size,
+             straight=prob.straight_mm, n_path=prob.path_lam.size,
              ones=np.ones(prob.k.shape), has_finite_end=bool(finite_end.size),
              # For the single-solve evaluation (newton._eval_single): l^2 as polynomials
-             # in b; the cell search reads Python floats (cheaper than array items).
+             # in b; the cell search reads Python floats (cheaper than array items), the
+             # table's own lists, filled in as its blocks are built.
              q_coef=_q_coefficients(S['dd2'], prob.s, S['e1'], S['e2']),
-             two_beta=2.0 * prob.beta, path_len_list=prob.path_len.tolist(),
+             two_beta=2.0 * prob.beta, path_len_list=table.len_list,
              path_lam_list=prob.path_lam.tolist(),
-             neg_path_len_list=(-prob.path_len).tolist(),
+             neg_path_len_list=table.neg_len_list,
              minus_i_d=-1j * prob.d,
              # Mirror segments (index array) and their first table cells in tension,
              # for the cheap tests of the single-solve path.
              mirror_idx=np.flatnonzero(S['mirror']),
              mirror_first_cells=[(float(S['lam_c'][i]), float(S['lam_1'][i]))
                                  for i in np.flatnonzero(S['mirror'])],
-             # Longer cables than this keep every segment free (no branch end reached):
-             # the path length at the first branch-end tension (a path sample).
-             all_free_above_mm=float(np.interp(prob.lam_end.min(), prob.path_lam,
-                                               prob.path_len)))
+             )
+    # Longer cables than this keep every segment free (no branch end reached): the
+    # path length at the first branch-end tension (a path sample), known once the
+    # table's first block is built (inf until then: segments may be held).
+    table.watch_length(prob.lam_end.min(), S, 'all_free_above_mm')
     return prob, P, S
 
 

@@ -1,0 +1,147 @@
+"""The lazily built path table (issue 17, first solve of a new threading): a table built
+block by block, in any order, gives the same solutions bit for bit as one built in full,
+and the caches stay bounded over many threadings."""
+import itertools
+import threading
+
+import numpy as np
+import pytest
+
+import softsnap_model.forward as fwd
+from softsnap_model import Skeleton
+from softsnap_model.forward import path as fpath
+from softsnap_model.reference import PAPER_THREADINGS
+
+SKELETONS = (Skeleton(), Skeleton(rib_thickness_mm=0.0))
+# The paper's threadings, one with every segment a mirror segment (a plateau at the
+# start of the path: nothing bends before the first buckling) and a few 7-rib ones.
+THREADINGS = ([list(t) for t in PAPER_THREADINGS.values()] + [['R3', 'L3'] * 6]
+              + [['R1'] * 5 + list(tail) for tail in
+                 (('R3',) * 7, ('R1', 'R2', 'R3', 'L3', 'R3', 'L1', 'R2'), ('L2', 'R2') * 3
+                  + ('L1',))])
+
+
+def forget_tables():
+    """Forget every per-threading table; the shared pair profiles stay (a full and a
+    lazy table are then built from the same profiles)."""
+    for cached in (fwd._problem, fwd._single, fwd._single_named, fwd._threading_cached):
+        cached.cache_clear()
+
+
+def key(sk, t):
+    return tuple(sk.threading_mm(t).tolist())
+
+
+def lengths_of(sk, t, n, seed):
+    lo, hi = fwd.reachable_range(sk, t)
+    rng = np.random.default_rng(seed)
+    # Random order, and both ends of the range.
+    return np.concatenate([[lo + 1e-9, hi - 1e-9], rng.uniform(lo, hi, n)])
+
+
+@pytest.mark.parametrize('sk', SKELETONS, ids=('thick ribs', 'thin ribs'))
+def test_partly_built_table_gives_the_full_tables_solutions_bit_for_bit(sk):
+    n_solves = n_partial = 0
+    for seed, t in enumerate(THREADINGS):
+        lengths = lengths_of(sk, t, 25, seed)
+        forget_tables()
+        lazy = [fwd.solve_forward(sk, t, length) for length in lengths]
+        table = fwd._problem(sk, key(sk, t)).path
+        n_partial += not table.complete_
+        built = table._sample_built.copy()
+        cells = np.array(table._cell_built)
+        exact, b, poly = table._exact.copy(), table.b.copy(), table.poly.copy()
+        forget_tables()
+        full = fwd._problem(sk, key(sk, t)).path.complete()
+        # Every entry built lazily is the full build's entry, exactly.
+        assert np.array_equal(exact[built], full._exact[built])
+        assert np.array_equal(b[built], full.b[built])
+        assert cells.any() and np.array_equal(poly[cells], full.poly[cells])
+        assert built[:-1][cells].all() and built[1:][cells].all()
+        for length, res in zip(lengths, lazy):
+            ref = fwd.solve_forward(sk, t, length)
+            assert res.converged and ref.converged
+            assert np.array_equal(res.angles, ref.angles), (t, length)
+            assert res.tension == ref.tension and res.iterations == ref.iterations
+            n_solves += 1
+    assert n_partial >= len(THREADINGS) - 2     # the lazy tables were partial indeed
+    assert n_solves == 27 * len(THREADINGS)
+
+
+def test_lazy_single_solves_agree_with_the_batch_solver():
+    # Independent of the single-solve path: the batch engine, on the full table, with
+    # its own start search and vectorised Newton.
+    sk = SKELETONS[0]
+    for seed, t in enumerate(THREADINGS[:9]):
+        lengths = lengths_of(sk, t, 20, 100 + seed)
+        forget_tables()
+        single = np.array([fwd.solve_forward(sk, t, length).angles for length in lengths])
+        assert not fwd._problem(sk, key(sk, t)).path.complete_
+        batch = fwd.solve_forward_batch(sk, t, lengths)
+        assert batch.converged.all()
+        assert np.max(np.abs(batch.angles - single)) <= 1e-12, t
+        # The batch built the rest of the table; single solves still agree.
+        assert fwd._problem(sk, key(sk, t)).path.complete_
+        again = np.array([fwd.solve_forward(sk, t, length).angles for length in lengths])
+        assert np.array_equal(again, single)
+
+
+def test_first_solve_builds_only_a_small_part_of_the_table():
+    sk = SKELETONS[1]
+    for name in ('yellow', 'blue', 'red', 'snake', 'w'):
+        t = list(PAPER_THREADINGS[name])
+        forget_tables()
+        fwd.solve_forward(sk, t, sk.straight_length_mm(t) - 30.0)
+        table = fwd._problem(sk, key(sk, t)).path
+        n = table.lam.size
+        assert n > 200, name                           # a table worth building lazily
+        assert table._sample_built.sum() <= 0.1 * n, (name, table._sample_built.sum(), n)
+        assert sum(table._cell_built) <= 2 * fpath._BLOCK
+        # The searchable lengths stay non-increasing, built or not.
+        assert np.all(table.len[1:] <= table.len[:-1])
+        assert table.len_list == table.len.tolist()
+        assert table.neg_len_list == (-table.len).tolist()
+
+
+def test_concurrent_first_solves_of_one_threading_agree_with_sequential_ones():
+    sk = SKELETONS[0]
+    t = list(PAPER_THREADINGS['blue'])
+    lengths = lengths_of(sk, t, 40, 7)
+    forget_tables()
+    expected = [fwd.solve_forward(sk, t, length).angles for length in lengths]
+    forget_tables()
+    got = [None] * len(lengths)
+
+    def work(part):
+        for i in part:
+            got[i] = fwd.solve_forward(sk, t, lengths[i]).angles
+
+    workers = [threading.Thread(target=work, args=(range(j, len(lengths), 3),))
+               for j in range(3)]
+    for w in workers:
+        w.start()
+    for w in workers:
+        w.join()
+    assert all(np.array_equal(g, e) for g, e in zip(got, expected))
+
+
+def test_loop_over_every_7_rib_threading_builds_each_table_once_and_stays_small():
+    # 3^7 = 2187 threadings (the benchmark's loop): each table is built once, lazily,
+    # kept by the cache (2560 threadings), and a second pass rebuilds nothing.
+    sk = SKELETONS[1]
+    ts = [['R1'] * 5 + list(tail) for tail in itertools.product(('R1', 'R2', 'R3'), repeat=7)]
+    forget_tables()
+    first = [fwd.solve_forward(sk, t, sk.straight_length_mm(t) - 20.0) for t in ts]
+    info = fwd._problem.cache_info()
+    assert info.currsize == len(ts) <= info.maxsize == fpath._THREADINGS_CACHED
+    misses = (fwd._problem.cache_info().misses, fwd._single.cache_info().misses)
+    second = [fwd.solve_forward(sk, t, sk.straight_length_mm(t) - 20.0) for t in ts]
+    assert (fwd._problem.cache_info().misses, fwd._single.cache_info().misses) == misses
+    assert all(np.array_equal(a.angles, b.angles) for a, b in zip(first, second))
+    # Lazily built: a small part of each table's entries computed; the memory a table
+    # holds is bounded (its arrays are allocated in full, about 0.3 MB at most).
+    tables = [fwd._problem(sk, key(sk, t)).path for t in ts[::97]]
+    assert max(tb._sample_built.mean() for tb in tables) <= 0.5
+    nbytes = max(sum(a.nbytes for a in (tb.len, tb._exact, tb.b, tb._derivs, tb.poly))
+                 for tb in tables)
+    assert nbytes <= 0.35e6, nbytes
