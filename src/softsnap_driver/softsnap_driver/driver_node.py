@@ -146,7 +146,9 @@ class CommandInbox:
         wait_set = _rclpy.WaitSet(1, 0, 0, 0, 0, 0, context.handle)
         handle = self._subscription.handle
         timeout_ns = int(COMMAND_WAIT_S * 1e9)
-        while not self._stop.is_set() and context.ok():
+        # The context is asked only after a wake without a message (rclpy takes a lock
+        # for it): a shut-down context ends the thread within one wait.
+        while not self._stop.is_set():
             try:
                 with handle:
                     # rcl_wait empties the set's slots of entities that are not ready:
@@ -160,6 +162,8 @@ class CommandInbox:
                     taken = handle.take_message(CableLength, True)
                 if taken is not None:
                     self._take(taken[0])
+                elif not context.ok():
+                    return
             except Exception as exc:  # noqa: BLE001 - report and go on; never die silently
                 if self._stop.is_set() or not context.ok():
                     return  # shutting down: the context or the handle is gone
