@@ -192,7 +192,7 @@ string_texts = st.text(st.characters(max_codepoint=0x7f), max_size=70) | st.text
     'm_error': number_texts, 'battery': number_texts,
     'pause': st.sampled_from(['true', 'false', '1', 'null', '"false"']),
     'power': st.text('0123456789ABCDEFabcdef', max_size=1024) | st.text('0123456789ABCDEFg', max_size=1030)}),
-    st.sampled_from(['', '\r\n\r\n', '\n', ' ', '\r\n\r\nx', '\t\r\n']))
+    st.sampled_from(['', '\r\n\r\n', '\n', ' ', '\r\n\r\nx', '\t\r\n', ' ' * 16000]))
 def test_fast_path_agrees_with_the_general_parser(fields, tail):
     body = ('{"status":"ok","ip":"%(ip)s","mac":"%(mac)s","m_current":%(m_current)s,'
             '"m_power":%(m_power)s,"m_error":%(m_error)s,"battery":%(battery)s,'

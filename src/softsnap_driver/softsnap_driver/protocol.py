@@ -269,6 +269,8 @@ def _parse_firmware_reply(raw: bytes) -> ModuleStatus | None:
     everything else (other framing, spacing or key order, a value out of range) goes
     to :func:`_parse_reply`, which gives the reason.
     """
+    if len(raw) > MAX_REPLY_BYTES:   # (trailing whitespace is unbounded in the pattern)
+        return None
     match = _FIRMWARE_REPLY.fullmatch(raw)
     if match is None:
         return None
