@@ -20,6 +20,11 @@ measuring window after a warm-up. Cases:
   node's CPU and its CPU per length, and whether it served them all within one core.
 - ``driver``: driver_node polling a simulated module at 10 Hz and taking 50 Hz commands
   (a new length each time), the simulated module in a separate process.
+- ``drivers5`` and ``container5``: five modules driven like ``driver`` (one process
+  serving the five simulated modules, one publishing the five command streams, as the
+  gait does), by five ``driver_node`` processes or by one ``driver_container`` process;
+  the CPU is the sum over the driver processes, the table divides it by five. The
+  container needs the current code (not run for ``--before``).
 - ``rerun``: rerun_logger recording the 5-module robot: both RobotShape topics at 50 Hz
   (commanded shapes change every message, predicted ones at 20 Hz: in between the
   model node re-sends them unchanged), commands at 50 Hz, measured lengths and states at
@@ -65,9 +70,10 @@ PACKAGES = ('softsnap_model', 'softsnap_driver', 'softsnap_gaits')
 MAIN = {  # node -> (module with main(), what main needs in argv)
     'model_node': 'softsnap_model.model_node',
     'driver_node': 'softsnap_driver.driver_node',
+    'driver_container': 'softsnap_driver.driver_container',
     'rerun_logger': 'softsnap_gaits.rerun_logger',
 }
-CASES = ('baseline', 'model5', 'model_idle', 'model50', 'driver', 'rerun')
+CASES = ('baseline', 'model5', 'model_idle', 'model50', 'driver', 'drivers5', 'container5', 'rerun')
 
 BASELINE_NODE = '''
 import rclpy
@@ -135,30 +141,33 @@ def read_counters(path: Path | list[Path]) -> dict[str, float]:
         return {}
 
 
-def measure(proc: subprocess.Popen, warmup: float, seconds: float, log: Path,
-            counters: Path | list[Path] | None = None, ready=None) -> tuple[float, dict[str, float]]:
-    """(CPU of ``proc`` over ``seconds`` in % of one core, rates per second of the node's
-    own counters over the same window, read from ``counters``).
+def measure(proc: subprocess.Popen | list[subprocess.Popen], warmup: float, seconds: float,
+            log: Path, counters: Path | list[Path] | None = None,
+            ready=None) -> tuple[float, dict[str, float]]:
+    """(CPU of ``proc`` (summed over the processes of a list) over ``seconds`` in % of one
+    core, rates per second of the node's own counters over the same window, read from
+    ``counters``).
 
     The window starts ``warmup`` s after the node is working: its counters move (or
     ``ready()`` is true), so that start-up (imports take seconds on a loaded machine)
     is never measured.
     """
+    procs = proc if isinstance(proc, list) else [proc]
     deadline = time.monotonic() + 180.0
     while ready is not None and not ready():
-        if proc.poll() is not None or time.monotonic() > deadline:
+        if any(p.poll() is not None for p in procs) or time.monotonic() > deadline:
             raise RuntimeError(f'node not working after 180 s:\n{log.read_text()[-3000:]}')
         time.sleep(0.2)
     time.sleep(warmup)
-    if proc.poll() is not None:
+    if any(p.poll() is not None for p in procs):
         raise RuntimeError(f'process ended early:\n{log.read_text()[-3000:]}')
-    ps = psutil.Process(proc.pid)
+    ps = [psutil.Process(p.pid) for p in procs]
     n0 = read_counters(counters) if counters else {}
-    c0, t0 = cpu_seconds(ps), time.monotonic()
+    c0, t0 = sum(map(cpu_seconds, ps)), time.monotonic()
     time.sleep(seconds)
-    c1, t1 = cpu_seconds(ps), time.monotonic()
+    c1, t1 = sum(map(cpu_seconds, ps)), time.monotonic()
     n1 = read_counters(counters) if counters else {}
-    if proc.poll() is not None:
+    if any(p.poll() is not None for p in procs):
         raise RuntimeError(f'process ended early:\n{log.read_text()[-3000:]}')
     rates = {k: (n1[k] - n0.get(k, 0.0)) / (t1 - t0) for k in n1}
     return 100.0 * (c1 - c0) / (t1 - t0), rates
@@ -220,14 +229,16 @@ def publish_lengths(scene_path: str, rate: float, moving: bool, share: int = 0,
         pass
 
 
-def publish_driver_commands(rate: float, straight_m: float) -> None:
-    """(child process) 50 Hz cable-length commands to module m1, a new length each time."""
+def publish_driver_commands(rate: float, straight_m: float, modules: int = 1) -> None:
+    """(child process) 50 Hz cable-length commands to modules m1 (m1-m5 for 5), a new length
+    each time, all modules in the same tick (as the gait sends them)."""
     import rclpy
     from softsnap_interfaces.msg import CableLength
 
     rclpy.init()
     node = rclpy.create_node('command_publisher')
-    pub = node.create_publisher(CableLength, f'{NS}/m1/cable_length/command', 10)
+    pubs = [node.create_publisher(CableLength, f'{NS}/m{i + 1}/cable_length/command', 10)
+            for i in range(modules)]
     msg = CableLength()
     period = 1.0 / rate
     start = time.monotonic()
@@ -236,7 +247,8 @@ def publish_driver_commands(rate: float, straight_m: float) -> None:
         while True:
             msg.header.stamp = node.get_clock().now().to_msg()
             msg.cable_length = straight_m - 0.010 - 0.030 * ((tick * 0.01) % 1.0)
-            pub.publish(msg)
+            for pub in pubs:
+                pub.publish(msg)
             tick += 1
             time.sleep(max(0.0, start + tick * period - time.monotonic()))
     except KeyboardInterrupt:
@@ -414,52 +426,78 @@ def listen(kind: str, out: str) -> None:
         node.create_subscription(ModelDiagnostics, f'{NS}/model/diagnostics', lambda m: write({
             'solves': m.solves,
             'lengths': sum(m.commanded_lengths) + sum(m.measured_lengths)}), 10)
-    else:
-        node.create_subscription(ModuleState, f'{NS}/m1/state', lambda m: write({
-            'commands': m.commands_received, 'targets': m.targets_sent}), 10)
+    else:   # driver: m1's counters; drivers5: m1-m5 summed
+        seen: dict[str, tuple[int, int]] = {}
+
+        def state(m) -> None:
+            seen[m.module] = (m.commands_received, m.targets_sent)
+            write({'commands': sum(c for c, _ in seen.values()),
+                   'targets': sum(t for _, t in seen.values())})
+
+        for i in range(5 if kind == 'drivers5' else 1):
+            node.create_subscription(ModuleState, f'{NS}/m{i + 1}/state', state, 10)
     try:
         rclpy.spin(node)
     except BaseException:
         pass
 
 
-def case_driver(code_dir, work: Path, warmup, seconds):
+DRIVER_PARAMS = ['-p', 'counts_per_mm:=89.13', '-p', 'straight_length_m:=0.198',
+                 '-p', 'pwm_power:=255', '-p', 'poll_rate_hz:=10.0', '-p', 'command_timeout_s:=0.0']
+
+
+def case_driver(code_dir, work: Path, warmup, seconds, modules: int = 1,
+                container: bool = False):
+    """``modules`` simulated modules (one process) driven by one driver_node process
+    each, or by one driver_container process; CPU summed over the driver processes."""
     log = work / 'driver.log'
-    procs = [start(run_child('sim'), None, work / 'sim.log')]
+    procs = [start(run_child('sim', str(modules)), None, work / 'sim.log')]
     try:
         port_file = work / 'sim.port'
         deadline = time.monotonic() + 60
         while not port_file.exists() and time.monotonic() < deadline:
             time.sleep(0.1)
-        port = int(port_file.read_text())
-        node = start_ros_node('driver_node', [
-            '-r', f'__ns:={NS}', '-p', 'module:=m1', '-p', f'port:={port}',
-            '-p', 'counts_per_mm:=89.13', '-p', 'straight_length_m:=0.198',
-            '-p', 'pwm_power:=255', '-p', 'poll_rate_hz:=10.0', '-p', 'command_timeout_s:=0.0'],
-            code_dir, log)
-        procs.append(node)
-        procs.append(start(run_child('listen', 'driver', str(work / 'counters')), None,
-                           work / 'listen.log'))
-        procs.append(start(run_child('commands', '50', '0.198'), None, work / 'commands.log'))
-        return measure(node, warmup, seconds, log, work / 'counters',
+        ports = [int(p) for p in port_file.read_text().split()]
+        names = [f'm{i + 1}' for i in range(modules)]
+        if container:
+            drivers = [start_ros_node('driver_container', [
+                '-r', f'__ns:={NS}', '-p', f'modules:=[{",".join(names)}]',
+                '-p', f'ports:=[{",".join(map(str, ports))}]', *DRIVER_PARAMS], code_dir, log)]
+        else:
+            drivers = [start_ros_node('driver_node', [
+                '-r', f'__ns:={NS}', '-p', f'module:={name}', '-p', f'port:={port}',
+                *DRIVER_PARAMS], code_dir, log if i == 0 else work / f'driver{i}.log')
+                for i, (name, port) in enumerate(zip(names, ports))]
+        procs += drivers
+        procs.append(start(run_child('listen', 'drivers5' if modules > 1 else 'driver',
+                                     str(work / 'counters')), None, work / 'listen.log'))
+        procs.append(start(run_child('commands', '50', '0.198', str(modules)), None,
+                           work / 'commands.log'))
+        return measure(drivers, warmup, seconds, log, work / 'counters',
                        lambda: read_counters(work / 'counters').get('commands', 0) > 0)
     finally:
         for p in reversed(procs):
             stop(p)
 
 
-def run_sim(work: str) -> None:
-    """(child process) One simulated module; writes its port to <work>/sim.port."""
+def run_sim(work: str, count: int = 1) -> None:
+    """(child process) ``count`` simulated modules; writes their ports to <work>/sim.port
+    (one line, separated by spaces)."""
     from softsnap_driver.sim_module import SimServer
-    with SimServer() as server:
+    servers = [SimServer() for _ in range(count)]
+    for server in servers:
+        server.start()
+    try:
         tmp = Path(work) / 'sim.port.tmp'
-        tmp.write_text(str(server.port))
+        tmp.write_text(' '.join(str(server.port) for server in servers))
         tmp.rename(Path(work) / 'sim.port')
-        try:
-            while True:
-                time.sleep(1.0)
-        except KeyboardInterrupt:
-            pass
+        while True:
+            time.sleep(1.0)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        for server in servers:
+            server.stop()
 
 
 def case_rerun(code_dir, work: Path, warmup, seconds, recording: Path):
@@ -533,10 +571,11 @@ def main() -> int:
         kind, rest = args.child[0], args.child[1:]
         {'lengths': lambda: publish_lengths(rest[0], float(rest[1]), bool(int(rest[2])),
                                             *(int(v) for v in rest[3:5]), *rest[5:6]),
-         'commands': lambda: publish_driver_commands(float(rest[0]), float(rest[1])),
+         'commands': lambda: publish_driver_commands(float(rest[0]), float(rest[1]),
+                                                     int(rest[2]) if len(rest) > 2 else 1),
          'robot': lambda: publish_robot(float(rest[0]), rest[1]),
          'listen': lambda: listen(rest[0], rest[1]),
-         'sim': lambda: run_sim(os.environ['NODE_COST_WORK'])}[kind]()
+         'sim': lambda: run_sim(os.environ['NODE_COST_WORK'], int(rest[0]) if rest else 1)}[kind]()
         return 0
 
     print(f'load average at start: {" ".join(f"{v:.2f}" for v in os.getloadavg())} '
@@ -554,8 +593,8 @@ def main() -> int:
     for repeat in range(args.repeats):
         for case in args.cases:
             for label, code_dir in versions.items():
-                if case == 'baseline' and label == 'before':
-                    continue
+                if case in ('baseline', 'container5') and label == 'before':
+                    continue   # the container is new: no old code to compare
                 run_dir = work / f'{case}-{label}-{repeat}'
                 run_dir.mkdir()
                 os.environ['NODE_COST_WORK'] = str(run_dir)
@@ -571,6 +610,8 @@ def main() -> int:
                                      args.length_publishers)
                 elif case == 'driver':
                     cpu = case_driver(code_dir, run_dir, w, s)
+                elif case in ('drivers5', 'container5'):
+                    cpu = case_driver(code_dir, run_dir, w, s, 5, case == 'container5')
                 else:
                     recordings[label] = run_dir / 'robot.rrd'
                     cpu = case_rerun(code_dir, run_dir, w, s, recordings[label])
@@ -583,12 +624,14 @@ def main() -> int:
                       flush=True)
 
     per_module = {'baseline': 1, 'model5': 5, 'model_idle': 5, 'model50': 50, 'driver': 1,
-                  'rerun': 5}
+                  'drivers5': 5, 'container5': 5, 'rerun': 5}
     what = {'baseline': 'idle rclpy node, 100 Hz empty timer',
             'model5': 'model_node, 5 modules, 100 Hz, all lengths changing',
             'model_idle': 'model_node, 5 modules, 100 Hz, no lengths (idle)',
             'model50': 'model_node, 50 modules, 100 Hz, all lengths changing',
             'driver': 'driver_node, 10 Hz polls + 50 Hz commands',
+            'drivers5': '5 driver_node processes, each as driver',
+            'container5': '1 driver_container process, 5 modules, each as driver',
             'rerun': 'rerun_logger, 5 modules at 50 Hz'}
     print()
     print(f'CPU in % of one core, median [range] of {args.repeats} runs of {args.seconds:g} s'
@@ -609,6 +652,11 @@ def main() -> int:
         rate = statistics.median(rates)
         per = f', {cpu * 1e4 / rate:.0f} µs of CPU per {name[:-1]}' if rate > 0 else ''
         print(f'  {case} {label}: {name} {rate:.0f}/s [{min(rates):.0f}-{max(rates):.0f}]{per}')
+    if ('container5', 'after') in results and ('drivers5', 'after') in results:
+        one = statistics.median(results[('container5', 'after')])
+        five = statistics.median(results[('drivers5', 'after')])
+        print(f'5 modules in one driver_container process: {one / 5:.2f}% of a core per module '
+              f'against {five / 5:.2f}% in 5 driver_node processes ({one / five:.2f}x)')
     if 'model_idle' in args.cases:
         idle = statistics.median(results[('model_idle', 'after')])
         print(f'model_node idle tick (after): {idle / 100 * 10:.3f} ms of CPU per 10 ms tick')

@@ -19,6 +19,7 @@ setup(
     entry_points={
         'console_scripts': [
             'driver_node = softsnap_driver.driver_node:main',
+            'driver_container = softsnap_driver.driver_container:main',
             'sim_module = softsnap_driver.sim_module:main',
             'sim_robot = softsnap_driver.sim_robot:main',
         ],

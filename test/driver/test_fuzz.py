@@ -7,7 +7,8 @@ from hypothesis import strategies as st
 
 from softsnap_driver.firmware import KEYWORDS, SimModule, http_reply, parse_request
 from softsnap_driver.protocol import (INT32_MAX, INT32_MIN, MalformedReply, ModuleStatus,
-                                      encode_set_request, parse_reply)
+                                      _parse_firmware_reply, _parse_reply, encode_set_request,
+                                      parse_reply)
 
 FUZZ = settings(max_examples=200, deadline=None)
 
@@ -169,3 +170,58 @@ def test_hostile_values_give_the_reason(field, text, reason):
 def test_non_utf8_reply_is_malformed_with_the_reason():
     with pytest.raises(MalformedReply, match='not UTF-8'):
         parse_reply(SimModule(start_time=0.0).reply().replace(b'"ok"', b'"\xff\xfe"'))
+
+
+# -- the firmware-framing fast path agrees with the general parser ----------------------
+
+FIRMWARE_HEAD = b'HTTP/1.1 200 OK\r\nContent-type:application/json\r\nConnection: close\r\n\r\n'
+
+number_texts = st.one_of(
+    st.integers(0, 99).map(str),            # valid in every field: the fast path's cases
+    st.integers(-2 ** 33, 2 ** 33).map(str),
+    st.sampled_from(['0', '-0', '00', '007', '-01', '255', '256', '2147483647', '2147483648',
+                     '-2147483648', '-2147483649', '4294967295', '4294967296', '1e3', '4.15',
+                     '99.999999', '100', '4.', '.5', '4.1234567', '1' * 11]),
+    st.floats(0, 120).map(lambda v: f'{v:.{abs(hash(v)) % 8}f}'))
+string_texts = st.text(st.characters(max_codepoint=0x7f), max_size=70) | st.text('0123456789.:AB"\\', max_size=20)
+
+
+@FUZZ
+@given(st.fixed_dictionaries({
+    'ip': string_texts, 'mac': string_texts, 'm_current': number_texts, 'm_power': number_texts,
+    'm_error': number_texts, 'battery': number_texts,
+    'pause': st.sampled_from(['true', 'false', '1', 'null', '"false"']),
+    'power': st.text('0123456789ABCDEFabcdef', max_size=1024) | st.text('0123456789ABCDEFg', max_size=1030)}),
+    st.sampled_from(['', '\r\n\r\n', '\n', ' ', '\r\n\r\nx', '\t\r\n', ' ' * 16000]))
+def test_fast_path_agrees_with_the_general_parser(fields, tail):
+    body = ('{"status":"ok","ip":"%(ip)s","mac":"%(mac)s","m_current":%(m_current)s,'
+            '"m_power":%(m_power)s,"m_error":%(m_error)s,"battery":%(battery)s,'
+            '"pause":%(pause)s,"power":"%(power)s"}' % fields)
+    raw = FIRMWARE_HEAD + body.encode() + tail.encode()
+    fast = _parse_firmware_reply(raw)
+    try:
+        general = _parse_reply(raw)
+    except MalformedReply:
+        assert fast is None, 'the fast path accepted a reply the general parser refuses'
+        return
+    if fast is not None:
+        assert fast == general
+        assert (fast.battery_voltage, fast.ip, fast.mac, tuple(fast.power_history_w)) == \
+            (general.battery_voltage, general.ip, general.mac, tuple(general.power_history_w))
+
+
+@FUZZ
+@given(st.integers(-10 ** 6, 10 ** 6), st.integers(0, 255), st.booleans(), st.integers(0, 1000),
+       st.floats(0.0, 50.0))
+def test_simulated_replies_take_the_fast_path(count, power, paused, errors, seconds):
+    # The firmware's (and the simulator's) framing must not silently fall back to the
+    # slow parser: that is where the driver's CPU per request goes.
+    sim = SimModule(start_time=0.0)
+    sim.advance_to(seconds)
+    sim.position, sim.motor_power, sim.paused, sim.encoder_errors = float(count), power, paused, errors
+    raw = sim.reply()
+    fast = _parse_firmware_reply(raw)
+    assert fast is not None
+    assert fast == _parse_reply(raw)
+    assert (fast.encoder_count, fast.motor_power, fast.paused, fast.encoder_errors) == \
+        (count, power, paused, errors)

@@ -85,6 +85,7 @@ def test_parse_firmware_reply():
     (firmware_reply(power='XYZW'), 'not hex'),
     (http_reply('{"status":"ok","m_current":1}'), 'lacks'),
     (firmware_reply() + b'x' * 20000, 'exceeds'),
+    (firmware_reply() + b' ' * 20000, 'exceeds'),      # the fast path's whitespace tail too
 ])
 def test_parse_refuses_malformed_replies(raw, why):
     with pytest.raises(MalformedReply, match=why):

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 #: A command counts as clamped only when it lies outside the allowed cable-length range
 #: by more than this (m): 1 nm, far below one encoder count, above float rounding.
@@ -106,7 +107,8 @@ class CableCalibration:
             raise ValueError(f'the contraction range [{self.min_contraction_m}, {self.max_contraction_m}] m '
                              f'holds no whole encoder count at {self.counts_per_mm} counts/mm')
 
-    @property
+    # Cached (the fields are frozen): read for every command the driver takes.
+    @cached_property
     def count_range(self) -> tuple[int, int]:
         """Allowed encoder targets (lowest, highest), inclusive."""
         low = math.ceil(self.min_contraction_m * 1000.0 * self.counts_per_mm - 1e-9)
@@ -115,7 +117,7 @@ class CableCalibration:
             return low, high
         return -high, -low
 
-    @property
+    @cached_property
     def length_range_m(self) -> tuple[float, float]:
         """Allowed cable lengths (shortest, longest), in metres."""
         return (self.straight_length_m - self.max_contraction_m,

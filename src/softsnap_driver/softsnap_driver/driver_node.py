@@ -145,14 +145,25 @@ class CommandInbox:
         context = self._node.context
         wait_set = _rclpy.WaitSet(1, 0, 0, 0, 0, 0, context.handle)
         handle = self._subscription.handle
-        while not self._stop.is_set() and context.ok():
+        timeout_ns = int(COMMAND_WAIT_S * 1e9)
+        # The context is asked only after a wake without a message (rclpy takes a lock
+        # for it): a shut-down context ends the thread within one wait.
+        while not self._stop.is_set():
             try:
                 with handle:
+                    # rcl_wait empties the set's slots of entities that are not ready:
+                    # the subscription is added again for every wait.
                     wait_set.clear_entities()
                     wait_set.add_subscription(handle)
-                    wait_set.wait(int(COMMAND_WAIT_S * 1e9))
-                    while (taken := handle.take_message(CableLength, True)) is not None:
-                        self._take(taken[0])
+                    wait_set.wait(timeout_ns)
+                    # One message per wake: at 50 Hz there is one, and a take that finds
+                    # none costs half a wait; if more are queued the next wait returns
+                    # at once.
+                    taken = handle.take_message(CableLength, True)
+                if taken is not None:
+                    self._take(taken[0])
+                elif not context.ok():
+                    return
             except Exception as exc:  # noqa: BLE001 - report and go on; never die silently
                 if self._stop.is_set() or not context.ok():
                     return  # shutting down: the context or the handle is gone

@@ -105,7 +105,7 @@ import threading
 import time
 import traceback
 from collections import deque
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 from softsnap_driver.core import CableCalibration, TargetCommand, reboot_suspected
 from softsnap_driver.protocol import (FIRMWARE_DEADBAND_COUNTS, ModuleClient, ModuleError,
@@ -245,7 +245,10 @@ class ModuleLink:
         self._commands_accepted = 0                 # a new command supersedes a wanted stop
         self._stale_handled = True
         self._stop_wanted: str | None = None        # why a stop is wanted and not confirmed
-        self._counters = Counters()
+        # Counted in place (two per command, one per request); a frozen Counters is made
+        # for a report only when a count changed since the last one.
+        self._counts = dict.fromkeys(Counters.__dataclass_fields__, 0)
+        self._counters: Counters | None = Counters()
         self._errors: dict[str, str] = {}           # active problems by kind (_ERROR_KEYS)
         self._last_error_stamp = math.nan
         self._calibrated = True
@@ -304,7 +307,7 @@ class ModuleLink:
         can tell how many of its commands up to that stamp arrived.
         """
         with self._cond:
-            self._count(commands_received=1)
+            self._count('commands_received')
             self._last_command_stamp_ns = int(stamp_ns)
             try:
                 cmd = self._config.calibration.command(length_m)
@@ -312,12 +315,12 @@ class ModuleLink:
                     raise NeedsCalibration('module rebooted and must be recalibrated: '
                                            'command refused until calibrate succeeds')
             except ValueError as exc:
-                self._count(commands_refused=1)
+                self._count('commands_refused')
                 self._set_error('command', f'command refused: {exc}')
                 self._warn_throttled('refused', self._errors['command'])
                 raise
             if cmd.clamped:
-                self._count(commands_clamped=1)
+                self._count('commands_clamped')
                 low, high = self._config.calibration.length_range_m
                 self._set_error('command', f'command {cmd.requested_length_m!r} m clamped to '
                                 f'{cmd.length_m:.6f} m (allowed [{low:.6f}, {high:.6f}] m)')
@@ -358,9 +361,16 @@ class ModuleLink:
         return action.ok, action.message
 
     # -- helpers -----------------------------------------------------------------------
-    def _count(self, **deltas: int) -> None:
-        values = {name: getattr(self._counters, name) + delta for name, delta in deltas.items()}
-        self._counters = replace(self._counters, **values)
+    def _count(self, name: str) -> None:
+        """Under the lock: one more event of counter ``name``."""
+        self._counts[name] += 1
+        self._counters = None
+
+    def _counters_now(self) -> Counters:
+        """Under the lock: the counts as a frozen snapshot."""
+        if self._counters is None:
+            self._counters = Counters(**self._counts)
+        return self._counters
 
     def _set_error(self, key: str, message: str) -> None:
         """Under the lock: record an active problem and the time of the latest error."""
@@ -480,9 +490,9 @@ class ModuleLink:
 
     def _on_internal_error(self, job: str, exc: Exception) -> None:
         with self._cond:
-            self._count(internal_errors=1)
+            self._count('internal_errors')
             self._set_error('internal', f'internal error in {job}: {type(exc).__name__}: {exc}')
-            count = self._counters.internal_errors
+            count = self._counts['internal_errors']
             config = self._config
         now = self._clock()
         if now - self._warned_at.get('internal', -math.inf) >= INTERNAL_ERROR_LOG_PERIOD_S:
@@ -541,7 +551,7 @@ class ModuleLink:
                        'stopping it (reach)')
             with self._cond:
                 self._set_error('stall', message)
-                self._count(stalls_detected=1)
+                self._count('stalls_detected')
                 self._stop_wanted = 'stalled motor'
                 self._pending = None
             self._log.warning(message)
@@ -568,7 +578,7 @@ class ModuleLink:
         self._failures += 1
         message = f'{what} failed: {type(exc).__name__}: {exc}'
         with self._cond:
-            self._count(request_failures=1)
+            self._count('request_failures')
             self._set_error('link', message)
         if self._online and self._failures >= config.offline_after_failures:
             self._online = False
@@ -582,7 +592,7 @@ class ModuleLink:
         message = (f'module reboot detected ({evidence}): position reference lost; '
                    'holding with reach; commands refused until calibrate')
         with self._cond:
-            self._count(reboots_detected=1)
+            self._count('reboots_detected')
             self._calibrated = False
             self._pending = None
             self._stop_wanted = 'module reboot'
@@ -600,7 +610,7 @@ class ModuleLink:
         except ValueError as exc:
             # The range changed since the command was accepted: it is refused now.
             with self._cond:
-                self._count(commands_refused=1)
+                self._count('commands_refused')
                 self._set_error('command', f'command refused: {exc}')
             self._log.warning(f'command refused: {exc}')
             return
@@ -624,14 +634,14 @@ class ModuleLink:
         self._sent = key
         self._module_target = cmd.count
         with self._cond:
-            self._count(targets_sent=1)
+            self._count('targets_sent')
         self._progress = (status.encoder_count, self._motion_clock())   # a new target: re-arm
 
     def _do_stale(self, config: LinkConfig) -> None:
         message = (f'no command for {config.command_timeout_s:g} s: '
                    'stopping the module where it is (reach)')
         with self._cond:
-            self._count(stale_stops=1)
+            self._count('stale_stops')
             self._set_error('stale', message)
         self._log.warning(message)
         self._stop_until_confirmed(config, 'stale command stream')
@@ -656,7 +666,7 @@ class ModuleLink:
             elif not superseded and not self._stop:
                 self._stop_wanted = why
                 if 'stop' not in self._errors:
-                    self._count(stops_unconfirmed=1)    # once per wanted stop, not per round
+                    self._count('stops_unconfirmed')    # once per wanted stop, not per round
                 self._set_error('stop', outcome.message + '; still trying')
         if not outcome.confirmed:
             # Next round after the failure backoff (also when every request was answered).
@@ -781,7 +791,7 @@ class ModuleLink:
         calibration = config.calibration
         status = self._status
         with self._cond:
-            calibrated, counters = self._calibrated, self._counters
+            calibrated, counters = self._calibrated, self._counters_now()
             last_error, last_error_stamp = self._last_error(), self._last_error_stamp
             last_command_stamp_ns = self._last_command_stamp_ns
         measured = (calibration.length_m(status.encoder_count)

@@ -37,6 +37,7 @@ import socket
 import struct
 import threading
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 #: Commands the firmware understands (keyword searched in the request head).
@@ -92,8 +93,9 @@ class ModuleStatus:
         ``battery``: mean of the last 8 battery samples, in volts (V).
     paused : bool
         ``pause``: motion disabled.
-    power_history_w : tuple of float
-        ``power``: the last power samples, oldest first, in watts (W).
+    power_history_w : sequence of float
+        ``power``: the last power samples, oldest first, in watts (W): a
+        :class:`PowerHistory` when parsed from a reply (equal to the tuple of its floats).
     ip, mac : str
         Network identity the module reports.
     """
@@ -103,7 +105,7 @@ class ModuleStatus:
     encoder_errors: int
     battery_voltage: float
     paused: bool
-    power_history_w: tuple[float, ...] = field(repr=False, default=())
+    power_history_w: Sequence[float] = field(repr=False, default=())
     ip: str = ''
     mac: str = ''
 
@@ -178,14 +180,59 @@ def _field(data: dict, key: str, kind):
 
 
 _HEX_DIGITS = re.compile(r'[0-9a-fA-F]*')
+_SAMPLE = struct.Struct('>H')     # POWER_DIGITS = 4 hex digits: one big-endian uint16
 
 
-def parse_power_history(text: str) -> tuple[float, ...]:
-    """Decode the ``power`` field: 4 hex digits per sample in 0.1 mW, to watts (W).
+class PowerHistory(Sequence):
+    """The ``power`` samples of one reply in watts (W), oldest first; read-only.
+
+    Kept as the reply's raw 16-bit samples and converted when read: a driver reads one
+    sample per reply (:attr:`ModuleStatus.power_w`), and making 256 floats of every
+    reply was the largest cost of parsing it. Compares equal to a tuple of the same
+    floats (and hashes like it).
+    """
+
+    __slots__ = ('_raw',)
+
+    def __init__(self, raw: bytes = b''):
+        if len(raw) % _SAMPLE.size:
+            raise ValueError(f'power history must be whole {_SAMPLE.size}-byte samples, '
+                             f'got {len(raw)} bytes')
+        self._raw = bytes(raw)
+
+    def __len__(self) -> int:
+        return len(self._raw) // _SAMPLE.size
+
+    def __getitem__(self, index):
+        if isinstance(index, slice):
+            return tuple(self)[index]
+        n = len(self)
+        if not -n <= index < n:
+            raise IndexError(f'power history index {index} outside [{-n}, {n})')
+        return _SAMPLE.unpack_from(self._raw, _SAMPLE.size * (index % n))[0] * POWER_UNIT_W
+
+    def __iter__(self):
+        return (count * POWER_UNIT_W for (count,) in _SAMPLE.iter_unpack(self._raw))
+
+    def __eq__(self, other) -> bool:
+        if isinstance(other, PowerHistory):
+            return self._raw == other._raw
+        if isinstance(other, (tuple, list)):
+            return tuple(self) == tuple(other)
+        return NotImplemented
+
+    def __hash__(self) -> int:
+        return hash(tuple(self))
+
+    def __repr__(self) -> str:
+        return f'PowerHistory({len(self)} samples)'
+
+
+def parse_power_history(text: str) -> PowerHistory:
+    """Decode the ``power`` field: 4 hex digits per sample in 0.1 mW (read in watts).
 
     Every reply carries 256 samples: they are checked with one regular expression and
-    decoded with ``bytes.fromhex`` (a per-sample Python loop was the largest CPU cost of
-    a driver polling its module).
+    decoded with ``bytes.fromhex``; watts are computed only for the samples read.
     """
     if len(text) % POWER_DIGITS or len(text) > POWER_SAMPLES * POWER_DIGITS:
         raise MalformedReply(f'power history must be at most {POWER_SAMPLES} samples of '
@@ -196,9 +243,47 @@ def parse_power_history(text: str) -> tuple[float, ...]:
             if not _HEX_DIGITS.fullmatch(chunk):
                 raise MalformedReply(f'power history sample {i // POWER_DIGITS} is not hex: '
                                      f'{chunk!r}')
-    raw = bytes.fromhex(text)
-    counts = struct.unpack(f'>{len(raw) // 2}H', raw)  # POWER_DIGITS = 4: 2 bytes each
-    return tuple(map(POWER_UNIT_W.__mul__, counts))   # a quarter of a generator's time
+    return PowerHistory(bytes.fromhex(text))
+
+
+#: The firmware's reply exactly as it frames it (FACTS.md: status line, two headers, one
+#: JSON line with its keys in this order and no spaces), matched as bytes in one pass.
+#: Each group admits only text that the general parser reads to the same value: ASCII
+#: strings without quotes, escapes or control characters, JSON integers (no leading
+#: zeros), a plain decimal battery voltage, upper- or lower-case hex.
+_FIRMWARE_REPLY = re.compile(
+    rb'HTTP/1\.1 200 OK\r\nContent-type:application/json\r\nConnection: close\r\n\r\n'
+    rb'\{"status":"ok","ip":"([\x20\x21\x23-\x5b\x5d-\x7e]{0,64})",'
+    rb'"mac":"([\x20\x21\x23-\x5b\x5d-\x7e]{0,64})",'
+    rb'"m_current":(-?(?:0|[1-9][0-9]{0,9})),"m_power":(0|[1-9][0-9]{0,2}),'
+    rb'"m_error":(0|[1-9][0-9]{0,9}),"battery":((?:0|[1-9][0-9]?)(?:\.[0-9]{1,6})?),'
+    rb'"pause":(true|false),"power":"([0-9A-Fa-f]{0,1024})"\}[ \t\r\n]*')
+
+
+def _parse_firmware_reply(raw: bytes) -> ModuleStatus | None:
+    """The status of a reply framed exactly as the firmware frames it; None otherwise.
+
+    The driver parses one reply per request: this single regular expression costs a
+    fraction of decoding, splitting and ``json.loads``. Whatever it accepts,
+    :func:`_parse_reply` accepts with the same result (a fuzz test holds them to it);
+    everything else (other framing, spacing or key order, a value out of range) goes
+    to :func:`_parse_reply`, which gives the reason.
+    """
+    if len(raw) > MAX_REPLY_BYTES:   # (trailing whitespace is unbounded in the pattern)
+        return None
+    match = _FIRMWARE_REPLY.fullmatch(raw)
+    if match is None:
+        return None
+    ip, mac, count, power, errors, battery, paused, history = match.groups()
+    count, power, errors = int(count), int(power), int(errors)
+    if not (INT32_MIN <= count <= INT32_MAX and power <= PWM_MAX and errors <= 2 ** 32 - 1
+            and len(history) % POWER_DIGITS == 0):
+        return None
+    return ModuleStatus(
+        encoder_count=count, motor_power=power, encoder_errors=errors,
+        battery_voltage=float(battery), paused=paused == b'true',
+        power_history_w=PowerHistory(bytes.fromhex(history.decode('ascii'))),
+        ip=ip.decode('ascii'), mac=mac.decode('ascii'))
 
 
 def parse_reply(raw: bytes) -> ModuleStatus:
@@ -210,6 +295,10 @@ def parse_reply(raw: bytes) -> ModuleStatus:
     network, and the module has no authentication).
     """
     try:
+        if type(raw) is bytes:
+            status = _parse_firmware_reply(raw)
+            if status is not None:
+                return status
         return _parse_reply(raw)
     except MalformedReply:
         raise

@@ -1,0 +1,149 @@
+"""driver_container: several modules' drivers in one process (one per module, as separate
+processes would run them).
+
+Each module gets the same :class:`~softsnap_driver.driver_node.DriverNode` as a
+``driver_node`` process: node ``<module>_driver``, the same parameters, topics,
+services, link worker thread, command thread and safety behaviour (docs/safety.md). What
+they share is what an rclpy process costs whatever it does: the DDS participant and its
+threads, and one executor for the services, parameters and the diagnostics timers. With
+several modules on one machine (the simulated robot, or one computer driving a robot's
+modules over Wi-Fi) that fixed cost is paid once (docs/driver.md, "Several modules in
+one process").
+
+Parameters of the container node ``driver_container`` (read-only):
+
+- ``modules`` (string array, required): the module names, e.g. ``[yellow, blue]``;
+- ``ports`` (integer array, optional): module i's TCP port is ``ports[i]``;
+- ``hosts`` (string array, optional): module i's address is ``hosts[i]``.
+
+Every other parameter is a driver's own: a global ``-p name:=value`` applies to every
+driver, and a parameters file addresses one driver by its node name (``yellow_driver:
+ros__parameters: {port: 8101}``). ``ports``/``hosts`` entries win over both.
+
+A module that fails (its link offline, a reboot, an unconfirmed stop) affects no other:
+each has its own link thread and state. On Ctrl-C or SIGTERM every link stops in
+parallel (each with its confirmed stop, ``stop_on_shutdown``), within the same 2 s budget
+as one driver.
+"""
+from __future__ import annotations
+
+import sys
+import threading
+
+import rclpy
+from rcl_interfaces.msg import ParameterDescriptor, ParameterType
+from rclpy.exceptions import ParameterUninitializedException
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+
+from softsnap_driver.driver_node import _NAME, COMMAND_WAIT_S, DriverNode
+from softsnap_driver.link import SHUTDOWN_BUDGET_S
+from softsnap_driver.spinning import spin_until_shutdown
+
+
+def _array(kind: int, description: str) -> ParameterDescriptor:
+    return ParameterDescriptor(type=kind, description=description, read_only=True)
+
+
+class DriverContainer(Node):
+    """Reads which modules to drive and builds one :class:`DriverNode` for each."""
+
+    def __init__(self, **kwargs):
+        super().__init__('driver_container', **kwargs)
+        self.declare_parameter('modules', Parameter.Type.STRING_ARRAY, _array(
+            ParameterType.PARAMETER_STRING_ARRAY, 'Names of the modules driven by this process'))
+        self.declare_parameter('ports', Parameter.Type.INTEGER_ARRAY, _array(
+            ParameterType.PARAMETER_INTEGER_ARRAY,
+            'TCP port of each module, in the order of modules (optional)'))
+        self.declare_parameter('hosts', Parameter.Type.STRING_ARRAY, _array(
+            ParameterType.PARAMETER_STRING_ARRAY,
+            'Address of each module, in the order of modules (optional)'))
+        self.drivers: list[DriverNode] = []
+
+    def _array(self, name: str) -> list:
+        """An array parameter's value; [] when it was not given."""
+        try:
+            return list(self.get_parameter(name).value or [])
+        except ParameterUninitializedException:
+            return []
+
+    def module_overrides(self) -> list[tuple[str, list[Parameter]]]:
+        """(module, parameters set for its driver) for each module; ValueError when the
+        lists do not make one driver per module."""
+        modules = self._array('modules')
+        if not modules:
+            raise ValueError('parameter modules must name at least one module, '
+                             'e.g. modules:=[yellow,blue]')
+        for name in modules:
+            if not _NAME.match(name):
+                raise ValueError(f'module names must be like "yellow" ([A-Za-z][A-Za-z0-9_]*), '
+                                 f'got {name!r} in modules')
+        if len(set(modules)) != len(modules):
+            raise ValueError(f'module names must differ, got {list(modules)}')
+        overrides = [[Parameter('module', Parameter.Type.STRING, name)] for name in modules]
+        for key, kind in (('ports', Parameter.Type.INTEGER), ('hosts', Parameter.Type.STRING)):
+            values = self._array(key)
+            if not values:
+                continue
+            if len(values) != len(modules):
+                raise ValueError(f'{key} must give one value per module ({len(modules)}: '
+                                 f'{list(modules)}), got {len(values)}: {list(values)}')
+            for parameters, value in zip(overrides, values):
+                parameters.append(Parameter(key[:-1], kind, value))
+        return list(zip(modules, overrides))
+
+    def start_drivers(self) -> None:
+        """One driver per module; ValueError (the drivers built so far are stopped)."""
+        for module, parameters in self.module_overrides():
+            name = f'{module}_driver'
+            # A node-local remap: a process-wide `-r __node:=X` must not rename them all.
+            self.drivers.append(DriverNode(
+                name, parameter_overrides=parameters,
+                cli_args=['--ros-args', '-r', f'__node:={name}']))
+
+    def stop_drivers(self) -> None:
+        """Stop every link at once (each within its own budget), then destroy the nodes."""
+        def stop(driver: DriverNode) -> None:
+            driver.commands.stop(2 * COMMAND_WAIT_S)
+            driver.link.stop()
+
+        threads = [threading.Thread(target=stop, args=(d,), name=f'stop:{d.module}')
+                   for d in self.drivers]
+        for thread in threads:
+            thread.start()
+        for thread in threads:
+            thread.join(SHUTDOWN_BUDGET_S + 2 * COMMAND_WAIT_S + 0.1)
+        for driver in self.drivers:
+            driver.destroy_node()   # links already stopped: returns at once
+        self.drivers = []
+
+
+def main(args=None):
+    rclpy.init(args=args)
+    container = None
+    try:
+        container = DriverContainer()
+        container.start_drivers()
+        # One thread for all drivers' executor work (services, parameters, diagnostics):
+        # their callbacks never do I/O (each link's worker thread does).
+        executor = SingleThreadedExecutor()
+        executor.add_node(container)
+        for driver in container.drivers:
+            executor.add_node(driver)
+        spin_until_shutdown(executor)
+    except KeyboardInterrupt:
+        pass
+    except ValueError as exc:
+        print(f'driver_container: {exc}', file=sys.stderr)
+        return 2
+    finally:
+        if container is not None:
+            container.stop_drivers()
+            container.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
