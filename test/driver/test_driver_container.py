@@ -1,5 +1,7 @@
 """driver_container across processes: several modules' drivers in one process, each as
 a driver_node process would be (names, topics, services, stops), failing alone."""
+import time
+
 import pytest
 
 from test_driver_ros import NS, ModuleProbe, driver_args, within_deadband
@@ -33,8 +35,16 @@ def test_each_module_is_driven_stopped_and_fails_on_its_own(start_node, ros_node
     probes = {m: ModuleProbe(ros_node, m) for m in MODULES}
     for probe in probes.values():
         probe.wait_ready(30.0)
-    names = {name for name, ns in ros_node.get_node_names_and_namespaces() if ns == NS}
-    assert {f'{m}_driver' for m in MODULES} <= names, names
+    # Node names come over DDS's discovery-info topic, which can lag the data on a busy
+    # machine: wait for them rather than read the graph once.
+    wanted = {f'{m}_driver' for m in MODULES}
+    deadline = time.monotonic() + 30.0
+    while True:
+        names = {name for name, ns in ros_node.get_node_names_and_namespaces() if ns == NS}
+        if wanted <= names or time.monotonic() > deadline:
+            break
+        time.sleep(0.2)
+    assert wanted <= names, names
     assert [probes[m].last().module for m in MODULES] == list(MODULES)
 
     # Each module tracks its own command (different lengths: no crossed wires).
