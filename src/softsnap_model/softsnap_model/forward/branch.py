@@ -149,7 +149,9 @@ def _pair_profiles(d1, d2, s: float, b_max: float) -> dict:
     Each distinct pair is built once per process (pure function of ``(d1, d2, s,
     b_max)``); the pairs not seen before are built together, vectorised.
     """
-    keys = [(float(x), float(y), float(s), float(b_max)) for x, y in zip(d1, d2)]
+    s, b_max = float(s), float(b_max)
+    keys = [(x, y, s, b_max) for x, y in zip(np.asarray(d1, dtype=float).tolist(),
+                                                np.asarray(d2, dtype=float).tolist())]
     with _PROFILE_LOCK:
         found = [_PROFILE_CACHE.get(key) for key in keys]
     missing = list(dict.fromkeys(key for key, f in zip(keys, found) if f is None))
