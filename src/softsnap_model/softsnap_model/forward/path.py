@@ -235,10 +235,10 @@ def _path_samples(mu, seg, s):
     out |= above
     with np.errstate(all='ignore'):
         b = np.fmin(np.fmax(start, b_lo), b_hi)
-        _, lp, lpp = _branch_eval(b, direction, d1, d2, s)
+        _, lp, lpp = _branch_eval(b, direction, d1, d2, s, seg['pre'])
         b = np.where(out, ends, np.fmin(np.fmax(b - (2.0 * b + mu * lp) / (2.0 + mu * lpp),
                                                 b_lo), b_hi))
-        ev = _path_derivatives(b, direction, d1, d2, s)
+        ev = _path_derivatives(b, direction, d1, d2, s, pre=seg['pre'])
         step = (2.0 * b + mu * ev[1]) / (2.0 + mu * ev[2])
         # The root is inside the cell (mu_lo < mu), never at b_lo: this also turns away
         # the straight root b = 0 of a mirror segment just past its pitchfork.
@@ -361,6 +361,7 @@ def _problem(skeleton: Skeleton, d: tuple) -> _Problem:
                count=np.bincount(inverse).astype(float))
     seg.update(e1=seg['d1'] * seg['direction'], e2=seg['d2'] * seg['direction'],
                dd2=(seg['d1'] - seg['d2']) ** 2)
+    seg['pre'] = (seg['e1'], seg['e2'], seg['dd2'], 2.0 * seg['e1'] * seg['e2'])
     table = _PathTable(lam_path, straight, s, seg)
     columns = np.append(inverse, first.size)     # [b of each segment..., lambda]
     if snap:
@@ -412,14 +413,14 @@ def _series(x, coef):
     return p[0]
 
 
-def _branch_eval(b, direction, d1, d2, s):
+def _branch_eval(b, direction, d1, d2, s, pre=None):
     """``l, l', l''`` along the branches for the path-table refinement: the series of
     :func:`_path_derivatives`, whose rounding (unlike ``segment_length_derivatives``,
     which picks its algorithm by array size) is the same for any number of entries."""
-    return _path_derivatives(b, direction, d1, d2, s, third=False)
+    return _path_derivatives(b, direction, d1, d2, s, third=False, pre=pre)
 
 
-def _path_derivatives(b, direction, d1, d2, s, third=True):
+def _path_derivatives(b, direction, d1, d2, s, third=True, pre=None):
     """``l, l', l'', l'''`` along the branches (in the magnitude ``b``), one series pass.
 
     Product form of :func:`.newton._branch_eval`: ``Q = l^2 = (d1 - d2)^2 + g(b) p(b)``
@@ -428,17 +429,22 @@ def _path_derivatives(b, direction, d1, d2, s, third=True):
     3 g' p''`` (``p'' = 2 e1 e2``), and ``l' = Q'/2l``, ``l'' = (Q'' - 2 l'^2)/2l``,
     ``l''' = (Q''' - 6 l' l'')/2l``. Agrees with ``segment_length_derivatives`` to a few ulp.
     Element-wise, whatever the size (:func:`_series`). Without ``third``: ``l, l', l''`` only.
+    ``pre``: ``(e1, e2, (d1 - d2)^2, 2 e1 e2)`` computed once per table (``seg``), the
+    same values this computes otherwise.
     """
     x = (b * b).ravel()
     series = _series(x, _G_COEF4 if third else _G_COEF3)
     g, g1_over_b, g2 = (col.reshape(b.shape) for col in series[:3])
     g1 = b * g1_over_b
-    e1, e2 = d1 * direction, d2 * direction
+    if pre is None:
+        e1, e2 = d1 * direction, d2 * direction
+        dd2, p_bb = (d1 - d2) ** 2, 2.0 * e1 * e2
+    else:
+        e1, e2, dd2, p_bb = pre
     p1, p2 = s + e1 * b, s + e2 * b
     p = p1 * p2
     p_b = e1 * p2 + e2 * p1
-    p_bb = 2.0 * e1 * e2
-    length = np.sqrt((d1 - d2) ** 2 + g * p)
+    length = np.sqrt(dd2 + g * p)
     half_inv = 0.5 / length
     lp = (g1 * p + g * p_b) * half_inv
     lpp = (g2 * p + 2.0 * g1 * p_b + g * p_bb - 2.0 * lp * lp) * half_inv
