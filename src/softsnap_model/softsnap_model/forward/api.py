@@ -181,7 +181,7 @@ def solve_forward(skeleton: Skeleton, threading, cable_length_mm, initial=None, 
     (True, (11,), True)
     """
     _check_skeleton(skeleton)
-    prob, P, S = _single_for(skeleton, threading)
+    prob, _, S = _single_for(skeleton, threading)
     L = _as_length(cable_length_mm)
     if type(max_iter) is not int and (isinstance(max_iter, bool)
                                       or not isinstance(max_iter, numbers.Integral)) \

@@ -149,7 +149,9 @@ def _pair_profiles(d1, d2, s: float, b_max: float) -> dict:
     Each distinct pair is built once per process (pure function of ``(d1, d2, s,
     b_max)``); the pairs not seen before are built together, vectorised.
     """
-    keys = [(float(x), float(y), float(s), float(b_max)) for x, y in zip(d1, d2)]
+    s, b_max = float(s), float(b_max)
+    keys = [(x, y, s, b_max) for x, y in zip(np.asarray(d1, dtype=float).tolist(),
+                                                np.asarray(d2, dtype=float).tolist())]
     with _PROFILE_LOCK:
         found = [_PROFILE_CACHE.get(key) for key in keys]
     missing = list(dict.fromkeys(key for key, f in zip(keys, found) if f is None))
@@ -241,10 +243,13 @@ def _segment_cells(mu, table_mu, table_b, table_dmu):
     idx = np.empty(mu.shape, dtype=np.intp)
     for i in range(n):
         idx[:, i] = table_mu[i].searchsorted(mu[:, i], side='left')
-    idx = np.clip(idx, 1, m - 1)
+    # Clamped to 1 .. m - 1 in place (np.clip of integers costs two type lookups).
+    np.maximum(idx, 1, out=idx)
+    np.minimum(idx, m - 1, out=idx)
+    below = idx - 1
     cols = np.arange(n)
-    b_lo, b_hi = table_b[cols, idx - 1], table_b[cols, idx]
-    mu_lo, mu_hi = table_mu[cols, idx - 1], table_mu[cols, idx]
+    b_lo, b_hi = table_b[cols, below], table_b[cols, idx]
+    mu_lo, mu_hi = table_mu[cols, below], table_mu[cols, idx]
     cell = (b_lo, b_hi, mu_lo, mu_hi, table_mu[:, 0], table_mu[:, -1], table_b[:, 0],
             table_b[:, -1])
     with np.errstate(all='ignore'):
@@ -253,7 +258,7 @@ def _segment_cells(mu, table_mu, table_b, table_dmu):
         t2 = t * t
         t3 = t2 * t
         start = ((2.0 * t3 - 3.0 * t2 + 1.0) * b_lo + (t3 - 2.0 * t2 + t) * span
-                 / table_dmu[cols, idx - 1] + (3.0 * t2 - 2.0 * t3) * b_hi
+                 / table_dmu[cols, below] + (3.0 * t2 - 2.0 * t3) * b_hi
                  + (t3 - t2) * span / table_dmu[cols, idx])
     return start, cell
 

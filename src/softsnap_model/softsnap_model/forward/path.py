@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import bisect
 import functools
-import math
 import threading
 from dataclasses import dataclass
 
@@ -66,7 +65,7 @@ class _PathTable:
     monotone (cumulative minimum).
     """
 
-    def __init__(self, lam, straight, s, seg, extra=()):
+    def __init__(self, lam, straight, s, seg):
         self.lam = lam
         self.straight = straight
         self.s = s
@@ -87,9 +86,6 @@ class _PathTable:
         self.len = np.full(n_samples, np.inf)
         self.len_list = self.len.tolist()
         self.neg_len_list = (-self.len).tolist()
-        # Samples built with the first block (lengths asked for by length_at_tension).
-        self._extra = np.asarray(extra, dtype=np.intp)
-        self._watchers = []         # (tension, layout, key) waiting, see watch_length
         self.complete_ = False
         self._lock = threading.RLock()
 
@@ -141,18 +137,13 @@ class _PathTable:
         """Samples and cells of ``blocks`` (consecutive), in one pass."""
         first = blocks[0] * _BLOCK
         last = min((blocks[-1] + 1) * _BLOCK, self.n_cells)
-        idx = np.arange(first, last + 1)
-        if self._extra.size:
-            idx = _sorted_unique(np.concatenate([idx, self._extra]))
-            self._extra = self._extra[:0]
-        self._build_samples(idx)
+        self._build_samples(np.arange(first, last + 1))
         if np.any(np.diff(self._exact[self._sample_built]) > 0):
             self._complete()
             return
         self._build_cells(first, last)
         self._cell_built[first:last] = [True] * (last - first)
         self._publish()
-        self._notify()
 
     def _publish(self):
         """Searchable lengths from the built samples (in place: the single-solve layout
@@ -212,25 +203,7 @@ class _PathTable:
                     self._build_cells(c, min(c + _BLOCK, self.n_cells))
         self._cell_built[:] = [True] * self.n_cells
         self._publish()
-        self._notify()
         self.complete_ = True
-
-    def watch_length(self, lam, layout, name):
-        """``layout[name] =`` the path length at tension ``lam`` (one of the extra
-        samples given to the constructor): now if they are built, else ``inf`` until
-        they are, with the first block (a bound that never claims too much)."""
-        with self._lock:
-            j = int(np.searchsorted(self.lam, lam))
-            if self._sample_built[max(j - 1, 0):j + 2].all():
-                layout[name] = self.length_at_tension(lam)
-            else:
-                layout[name] = math.inf
-                self._watchers.append((lam, layout, name))
-
-    def _notify(self):
-        for lam, layout, name in self._watchers:
-            layout[name] = self.length_at_tension(lam)
-        self._watchers.clear()
 
     def length_at_tension(self, lam):
         """Path length (mm) at tension ``lam``: ``np.interp`` on the full table (only the
@@ -262,10 +235,10 @@ def _path_samples(mu, seg, s):
     out |= above
     with np.errstate(all='ignore'):
         b = np.fmin(np.fmax(start, b_lo), b_hi)
-        _, lp, lpp = _branch_eval(b, direction, d1, d2, s)
+        _, lp, lpp = _branch_eval(b, direction, d1, d2, s, seg['pre'])
         b = np.where(out, ends, np.fmin(np.fmax(b - (2.0 * b + mu * lp) / (2.0 + mu * lpp),
                                                 b_lo), b_hi))
-        ev = _path_derivatives(b, direction, d1, d2, s)
+        ev = _path_derivatives(b, direction, d1, d2, s, pre=seg['pre'])
         step = (2.0 * b + mu * ev[1]) / (2.0 + mu * ev[2])
         # The root is inside the cell (mu_lo < mu), never at b_lo: this also turns away
         # the straight root b = 0 of a mirror segment just past its pitchfork.
@@ -388,10 +361,8 @@ def _problem(skeleton: Skeleton, d: tuple) -> _Problem:
                count=np.bincount(inverse).astype(float))
     seg.update(e1=seg['d1'] * seg['direction'], e2=seg['d2'] * seg['direction'],
                dd2=(seg['d1'] - seg['d2']) ** 2)
-    # The samples around the first branch end too (_single asks for the length there).
-    at = int(np.searchsorted(lam_path, lam_end.min()))
-    table = _PathTable(lam_path, straight, s, seg, range(max(at - 1, 0),
-                                                         min(at + 2, lam_path.size)))
+    seg['pre'] = (seg['e1'], seg['e2'], seg['dd2'], 2.0 * seg['e1'] * seg['e2'])
+    table = _PathTable(lam_path, straight, s, seg)
     columns = np.append(inverse, first.size)     # [b of each segment..., lambda]
     if snap:
         min_mm = table.length_at_tension(lam_path[-1])
@@ -442,14 +413,14 @@ def _series(x, coef):
     return p[0]
 
 
-def _branch_eval(b, direction, d1, d2, s):
+def _branch_eval(b, direction, d1, d2, s, pre=None):
     """``l, l', l''`` along the branches for the path-table refinement: the series of
     :func:`_path_derivatives`, whose rounding (unlike ``segment_length_derivatives``,
     which picks its algorithm by array size) is the same for any number of entries."""
-    return _path_derivatives(b, direction, d1, d2, s, third=False)
+    return _path_derivatives(b, direction, d1, d2, s, third=False, pre=pre)
 
 
-def _path_derivatives(b, direction, d1, d2, s, third=True):
+def _path_derivatives(b, direction, d1, d2, s, third=True, pre=None):
     """``l, l', l'', l'''`` along the branches (in the magnitude ``b``), one series pass.
 
     Product form of :func:`.newton._branch_eval`: ``Q = l^2 = (d1 - d2)^2 + g(b) p(b)``
@@ -458,17 +429,22 @@ def _path_derivatives(b, direction, d1, d2, s, third=True):
     3 g' p''`` (``p'' = 2 e1 e2``), and ``l' = Q'/2l``, ``l'' = (Q'' - 2 l'^2)/2l``,
     ``l''' = (Q''' - 6 l' l'')/2l``. Agrees with ``segment_length_derivatives`` to a few ulp.
     Element-wise, whatever the size (:func:`_series`). Without ``third``: ``l, l', l''`` only.
+    ``pre``: ``(e1, e2, (d1 - d2)^2, 2 e1 e2)`` computed once per table (``seg``), the
+    same values this computes otherwise.
     """
     x = (b * b).ravel()
     series = _series(x, _G_COEF4 if third else _G_COEF3)
     g, g1_over_b, g2 = (col.reshape(b.shape) for col in series[:3])
     g1 = b * g1_over_b
-    e1, e2 = d1 * direction, d2 * direction
+    if pre is None:
+        e1, e2 = d1 * direction, d2 * direction
+        dd2, p_bb = (d1 - d2) ** 2, 2.0 * e1 * e2
+    else:
+        e1, e2, dd2, p_bb = pre
     p1, p2 = s + e1 * b, s + e2 * b
     p = p1 * p2
     p_b = e1 * p2 + e2 * p1
-    p_bb = 2.0 * e1 * e2
-    length = np.sqrt((d1 - d2) ** 2 + g * p)
+    length = np.sqrt(dd2 + g * p)
     half_inv = 0.5 / length
     lp = (g1 * p + g * p_b) * half_inv
     lpp = (g2 * p + 2.0 * g1 * p_b + g * p_bb - 2.0 * lp * lp) * half_inv
@@ -685,41 +661,69 @@ def _q_coefficients(dd2, s, e1, e2):
     return out
 
 
+class _SingleLayout(dict):
+    """The single-solve layout of one threading (:func:`_single`): a dict of 1-D arrays
+    and lists, whose batch-of-one layout ``'P'`` (:func:`_stack`, only read by the rare
+    kick, guess and fallback paths of :mod:`.single`) is built on first access, once,
+    under a lock (concurrent first solves share it)."""
+
+    __slots__ = ('_prob', '_lock')
+
+    def __init__(self, prob):
+        super().__init__()
+        self._prob = prob
+        self._lock = threading.Lock()
+
+    def __missing__(self, key):
+        if key != 'P':
+            raise KeyError(key)
+        with self._lock:
+            P = dict.get(self, 'P')
+            if P is None:
+                P = self['P'] = _stack([self._prob], np.zeros(1, dtype=int), complete=False)
+        return P
+
+
 @functools.lru_cache(maxsize=_THREADINGS_CACHED)
 def _single(skeleton: Skeleton, d: tuple):
-    """Problem data stacked as a batch of one, plus 1-D views for the single-solve path
-    (memoised with the problem). Its path table is built lazily: call
-    ``S['path'].ensure(L)`` before searching the cell of a length ``L``."""
+    """``(problem, None, S)``: the single-solve layout ``S`` of the problem data, 1-D
+    (memoised with the problem). The batch-of-one layout is ``S['P']``, built when a
+    solve first reads it. Its path table is built lazily: call ``S['path'].ensure(L)``
+    before searching the cell of a length ``L``."""
     prob = _problem(skeleton, d)
     table = prob.path
-    P = _stack([prob], np.zeros(1, dtype=int), complete=False)
-    S = {key: (val[0] if isinstance(val, np.ndarray) and val.ndim >= 1 else val)
-         for key, val in P.items()}
-    finite_end = prob.lam_end[np.isfinite(prob.lam_end)]
-    S.update(P=P, lam_end_min=float(prob.lam_end.min()), path=table,
+    k, d1, d2, direction = prob.k, prob.d1, prob.d2, prob.direction
+    # The per-segment fields of _stack's row, computed the same way on 1-D arrays (the
+    # same element-wise operations: bit for bit the batch layout's row).
+    mirror = prob.mu_c > 0
+    lam_1 = k * prob.table_mu[:, 1]
+    e1, e2 = d1 * direction, d2 * direction
+    dd2 = (d1 - d2) ** 2
+    mirror_idx = np.flatnonzero(mirror)
+    S = _SingleLayout(prob)
+    S.update(k=k, d=prob.d, d1=d1, d2=d2, direction=direction, lam_c=prob.lam_c,
+             lam_end=prob.lam_end, b_end=prob.b_end, mirror=mirror, lam_1=lam_1,
+             e1=e1, e2=e2, dd2=dd2, two_k=2.0 * k, inv_two_k=0.5 / k, s=prob.s,
+             has_mirror=bool(mirror.any()),
+             lam_end_min=float(prob.lam_end.min()), path=table,
              path_lam=prob.path_lam, path_poly=table.poly,
              path_columns=prob.path_columns,
              straight=prob.straight_mm, n_path=prob.path_lam.size,
-             ones=np.ones(prob.k.shape), has_finite_end=bool(finite_end.size),
-             # For the single-solve evaluation (newton._eval_single): l^2 as polynomials
+             # For the single-solve evaluation (single._evaluate): l^2 as polynomials
              # in b; the cell search reads Python floats (cheaper than array items), the
              # table's own lists, filled in as its blocks are built.
-             q_coef=_q_coefficients(S['dd2'], prob.s, S['e1'], S['e2']),
+             q_coef=_q_coefficients(dd2, prob.s, e1, e2),
              two_beta=2.0 * prob.beta, path_len_list=table.len_list,
              path_lam_list=prob.path_lam.tolist(),
              neg_path_len_list=table.neg_len_list,
              minus_i_d=-1j * prob.d,
              # Mirror segments (index array) and their first table cells in tension,
              # for the cheap tests of the single-solve path.
-             mirror_idx=np.flatnonzero(S['mirror']),
-             mirror_first_cells=[(float(S['lam_c'][i]), float(S['lam_1'][i]))
-                                 for i in np.flatnonzero(S['mirror'])],
+             mirror_idx=mirror_idx,
+             mirror_first_cells=[(float(prob.lam_c[i]), float(lam_1[i]))
+                                 for i in mirror_idx],
              )
-    # Longer cables than this keep every segment free (no branch end reached): the
-    # path length at the first branch-end tension (a path sample), known once the
-    # table's first block is built (inf until then: segments may be held).
-    table.watch_length(prob.lam_end.min(), S, 'all_free_above_mm')
-    return prob, P, S
+    return prob, None, S
 
 
 @functools.lru_cache(maxsize=2 * _THREADINGS_CACHED)
@@ -730,7 +734,7 @@ def _single_named(skeleton: Skeleton, key: tuple):
 
 
 def _single_for(skeleton: Skeleton, threading):
-    """``(problem, P, S)`` of any accepted threading form (memoised for hashable input,
+    """``(problem, None, S)`` of any accepted threading form (memoised for hashable input,
     and for a string of names or a 1-D array of offsets, by their items)."""
     if isinstance(threading, str):
         threading = threading.split()
