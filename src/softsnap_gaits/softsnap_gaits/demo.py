@@ -183,6 +183,17 @@ class Process:
         self._log.close()
 
 
+def recorder_subscribed(observer: Observer) -> bool:
+    """True once the observer's graph shows rerun_logger's shape subscription."""
+    namespace = observer.node.get_namespace()
+    try:  # its subscriptions live on its inbox node (rerun_logger.py)
+        topics = observer.node.get_subscriber_names_and_types_by_node('rerun_logger_inbox',
+                                                                      namespace)
+    except Exception:  # rclpy's NodeNameNonExistentError: not discovered yet
+        return False
+    return any(name == f'{namespace}/model/shape/commanded' for name, _ in topics)
+
+
 def stop_gait(processes: list[Process]) -> None:
     """SIGINT the gait node and wait until it exited (no more commands or phases).
 
@@ -899,8 +910,13 @@ def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
                     crashed.append(p)
             return not crashed and not stop_requested
 
+        def ready() -> bool:
+            # The recorder too: on a loaded machine rerun_logger came up seconds after the
+            # nodes it records, and a short run's recording had no shapes at all.
+            return observer.ready() and (args.no_rerun or recorder_subscribed(observer))
+
         deadline = time.monotonic() + args.ready_timeout
-        while check_children() and not observer.ready() and time.monotonic() < deadline:
+        while check_children() and not ready() and time.monotonic() < deadline:
             observer.spin_for(0.1)
         if check_children() and not observer.ready():
             not_ready = observer.missing()
