@@ -7,7 +7,6 @@ runs on one machine (or a developer's other nodes) never see each other's topics
 from __future__ import annotations
 
 import os
-import signal
 import subprocess
 import sys
 import time
@@ -23,6 +22,7 @@ VENV = Path(sys.prefix)
 # ports that no other test session or demo on this machine uses while this one runs.
 # Set before rclpy is imported anywhere in this process or its children.
 from softsnap_gaits.isolation import claim_slot  # noqa: E402  (no ROS imports)
+from process_group import stop_process_group  # noqa: E402  (test/ is on sys.path)
 
 SLOT, _slot_warning = claim_slot()
 if _slot_warning:
@@ -58,15 +58,9 @@ class NodeProcess:
         return self.log_path.read_text(errors='replace')
 
     def stop(self, timeout: float = 10.0) -> int:
-        if self.proc.poll() is None:
-            os.killpg(self.proc.pid, signal.SIGINT)
-            try:
-                self.proc.wait(timeout)
-            except subprocess.TimeoutExpired:
-                os.killpg(self.proc.pid, signal.SIGKILL)
-                self.proc.wait()
+        returncode = stop_process_group(self.proc, timeout)
         self._log.close()
-        return self.proc.returncode
+        return returncode
 
 
 @pytest.fixture

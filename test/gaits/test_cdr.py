@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import math
 import os
-import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -22,6 +21,7 @@ from softsnap_driver.cdr import (CdrError, decode_cable_length, decode_module_st
                                  decode_robot_shape)
 
 sys.path.insert(0, str(Path(__file__).parent))
+from process_group import stop_process_group  # noqa: E402  (test/, put on sys.path by conftest)
 from shape_peer import sample_lengths, sample_shapes, sample_states  # noqa: E402
 
 
@@ -207,12 +207,8 @@ def test_raw_dds_samples_decode_to_what_rclpy_delivers(ros_node, tmp_path):
         assert ros_node.spin_until(all_received, 60.0), (
             [(len(r), len(m)) for r, m in received], (tmp_path / 'peer.log').read_text())
     finally:
-        os.killpg(peer.pid, signal.SIGINT)
-        try:
-            peer.wait(15)
-        except subprocess.TimeoutExpired:
-            os.killpg(peer.pid, signal.SIGKILL)
-            peer.wait()
+        stop_process_group(peer, 15.0)
+        log.close()
     for (raw, rclpy_msgs), (_, _, sent, decode, check) in zip(received, cases):
         assert all(isinstance(b, bytes) for b in raw)
         assert len(raw) == len(rclpy_msgs) == len(sent)

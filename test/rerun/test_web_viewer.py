@@ -12,7 +12,6 @@ SOFTSNAP_UPDATE_DOCS=1 to write it there (otherwise it stays in the test's tmp_p
 from __future__ import annotations
 
 import os
-import signal
 import socket
 import subprocess
 import sys
@@ -23,6 +22,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from process_group import stop_process_group  # test/, put on sys.path by conftest
 from softsnap_model import recording as rec_mod
 
 pytestmark = pytest.mark.slow
@@ -123,12 +123,7 @@ def served_recording(tmp_path):
                 time.sleep(0.1)
         yield url
     finally:
-        os.killpg(proc.pid, signal.SIGINT)
-        try:
-            proc.wait(10)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
+        stop_process_group(proc, 10.0)
 
 
 def colour_pixels(image: np.ndarray, rgb) -> int:

@@ -1,11 +1,14 @@
 """Two separate processes exchange a custom message and a custom service over Fast DDS."""
 import os
+import signal
 import subprocess
 import sys
 import warnings
 from pathlib import Path
 
 import pytest
+
+from process_group import stop_process_group  # test/, put on sys.path by conftest
 
 pytestmark = pytest.mark.ros
 
@@ -16,17 +19,12 @@ PEER = Path(__file__).with_name('echo_peer.py')
 def peer(tmp_path):
     log = open(tmp_path / 'peer.log', 'wb')
     proc = subprocess.Popen([sys.executable, str(PEER)], stdout=log, stderr=subprocess.STDOUT,
-                            env=dict(os.environ, ROS_HOME=str(tmp_path)))
+                            env=dict(os.environ, ROS_HOME=str(tmp_path)), start_new_session=True)
     yield proc
-    proc.send_signal(2)
-    try:
-        proc.wait(10)
-    except subprocess.TimeoutExpired:
+    if stop_process_group(proc, 10.0) == -signal.SIGKILL:
         # The peer is this test's helper, not a product node (their SIGINT exit is tested in
         # test/e2e/test_sigint.py); once in a full CI run it hung silently in rclpy's
-        # shutdown. Kill it so no process outlives the test, and say so.
-        proc.kill()
-        proc.wait(10)
+        # shutdown. It was killed so no process outlives the test: say so.
         warnings.warn(f'echo_peer ignored SIGINT for 10 s and was killed; log: '
                       f'{(tmp_path / "peer.log").read_bytes()[-500:]!r}')
     log.close()

@@ -66,11 +66,15 @@ STOP_TIMEOUT_S = 10.0  # per process, after SIGINT, before SIGKILL
 #: in wall seconds (sim_robot stalled or its /clock lost).
 CLOCK_STALL_S = 30.0
 READY_TIMEOUT_S = 60.0  # the whole graph up: discovery + first predicted shapes
-DRAIN_TIMEOUT_S = 10.0  # after the run: the observer takes what is still queued for it
-DRAIN_IDLE_S = 1.0  # ... and stops early once no command arrived for this long
-#: Queue depth of the observer's command and measured-length subscriptions: 20 s of 50 Hz
-#: commands, so an observer that falls behind on a loaded machine catches up afterwards
-#: instead of having its queue overwritten (which DDS does not report as lost).
+#: After the run (gait node stopped): the observer takes what is still queued for it, at
+#: most this long; it stops as soon as it has everything stamped in the run (a 4 s run:
+#: 7-26 s with two demos at once on 2 cores kept busy, load average 20-24).
+DRAIN_TIMEOUT_S = 60.0
+DRAIN_IDLE_S = 2.0  # ... or once no command or gait phase arrived for this long
+#: Queue depth of the observer's command, measured-length, driver-state and gait-phase
+#: subscriptions: 20 s of 50 Hz commands, so an observer that falls behind on a loaded
+#: machine catches up afterwards instead of having its queue overwritten (which DDS does
+#: not report as lost; the command counts need the states and phases of the whole run).
 STREAM_DEPTH = 1000
 #: Two commanded lengths closer than this (m) are the same length: the gait is holding.
 #: Holds are exact (the gait library computes a held value from the same numbers), so
@@ -179,6 +183,31 @@ class Process:
         self._log.close()
 
 
+def recorder_subscribed(observer: Observer) -> bool:
+    """True once the observer's graph shows rerun_logger's shape subscription."""
+    namespace = observer.node.get_namespace()
+    try:  # its subscriptions live on its inbox node (rerun_logger.py)
+        topics = observer.node.get_subscriber_names_and_types_by_node('rerun_logger_inbox',
+                                                                      namespace)
+    except Exception:  # rclpy's NodeNameNonExistentError: not discovered yet
+        return False
+    return any(name == f'{namespace}/model/shape/commanded' for name, _ in topics)
+
+
+def stop_gait(processes: list[Process]) -> None:
+    """SIGINT the gait node and wait until it exited (no more commands or phases).
+
+    One that ignores SIGINT is left to the final shutdown (which kills it and says so).
+    """
+    for p in processes:
+        if p.spec.name == 'gait_node':
+            p.signal(signal.SIGINT)
+            try:
+                p.popen.wait(STOP_TIMEOUT_S)
+            except subprocess.TimeoutExpired:
+                pass
+
+
 class Observer:
     """An rclpy node that counts and measures what flows through the robot's topics."""
 
@@ -194,6 +223,7 @@ class Observer:
         # The gait node's own counts: tick stamp (ns) -> {module: commands sent up to and
         # including that tick} (GaitPhase is published after the tick's commands).
         self.gait_sent: dict[int, dict[str, int]] = {}
+        self.last_phase_arrival_s: float | None = None  # time.monotonic() of the latest phase
         self.context = rclpy.Context()
         rclpy.init(context=self.context)
         # --physics: the observer's clock is sim_robot's /clock like every node's, so its
@@ -225,7 +255,7 @@ class Observer:
             subscribe(ModuleShape, f'{m.name}/shape/predicted',
                       lambda msg, s=s: self._predicted(s, msg), s)
             self.node.create_subscription(ModuleState, f'{m.name}/state',
-                                          lambda msg, s=s: self._state(s, msg), 100)
+                                          lambda msg, s=s: self._state(s, msg), STREAM_DEPTH)
         self.node.create_subscription(ModelDiagnostics, 'model/diagnostics',
                                       lambda msg: setattr(self, 'diagnostics', msg), 10)
         self.node.create_subscription(GaitPhase, 'gait/phase', self._phase, STREAM_DEPTH)
@@ -253,6 +283,7 @@ class Observer:
                 s.simulated_shapes.append((centres, float(shape.cable_length)))
 
     def _phase(self, msg) -> None:
+        self.last_phase_arrival_s = time.monotonic()
         if msg.running:
             self.phases.append((_stamp_ns(msg), int(msg.cycle), float(msg.phase)))
         if len(msg.modules) == len(msg.commands_sent):
@@ -310,23 +341,31 @@ class Observer:
     def now_ns(self) -> int:
         return self.node.get_clock().now().nanoseconds
 
-    def drain(self, end_ns: int) -> None:
-        """Spin until every module's commands, and the gait's phases, stamped up to
-        `end_ns` have been taken.
+    def drain(self, end_ns: int, keep_going=lambda: True) -> None:
+        """Spin until every module's commands and driver states, and the gait's phases,
+        stamped up to `end_ns` have been taken.
 
         Messages of one topic arrive in order, so a command stamped after `end_ns` means
-        all earlier ones are in (likewise a phase). On a starved machine the phases can
-        lag the commands by seconds. Bounded: DRAIN_TIMEOUT_S in all, and it stops once no
-        command came for DRAIN_IDLE_S (a gait played once stops commanding).
+        all earlier ones are in (likewise a phase, a state). On a starved machine the
+        phases can lag the commands by seconds. Bounded: DRAIN_TIMEOUT_S in all, and it
+        stops once no command or phase came for DRAIN_IDLE_S (the gait node stopped, or a
+        gait played once stopped commanding, and the queues are empty), or once
+        `keep_going()` is false (Ctrl-C).
         """
-        deadline = time.monotonic() + DRAIN_TIMEOUT_S
-        while time.monotonic() < deadline:
+        start = time.monotonic()
+        deadline = start + DRAIN_TIMEOUT_S
+        while time.monotonic() < deadline and keep_going():
             stats = self.stats.values()
-            if (all(s.command_stamps_ns and s.command_stamps_ns[-1] > end_ns for s in stats)
+            if (all(s.command_stamps_ns and s.command_stamps_ns[-1] > end_ns
+                    and s.driver_counts and s.driver_counts[-1][0] > end_ns for s in stats)
                     and (not self.phases or self.phases[-1][0] > end_ns)):
                 return
-            arrivals = [s.last_command_arrival_s for s in stats if s.command_stamps_ns]
-            if not arrivals or time.monotonic() - max(arrivals) > DRAIN_IDLE_S:
+            # Idle from the drain's start at the earliest: the seconds this process spent
+            # not spinning before it (stopping the gait node) are no sign of empty queues.
+            arrivals = [start] + [s.last_command_arrival_s for s in stats if s.command_stamps_ns]
+            if self.last_phase_arrival_s is not None:
+                arrivals.append(self.last_phase_arrival_s)
+            if time.monotonic() - max(arrivals) > DRAIN_IDLE_S:
                 return
             self.spin_for(0.05)
 
@@ -871,8 +910,13 @@ def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
                     crashed.append(p)
             return not crashed and not stop_requested
 
+        def ready() -> bool:
+            # The recorder too: on a loaded machine rerun_logger came up seconds after the
+            # nodes it records, and a short run's recording had no shapes at all.
+            return observer.ready() and (args.no_rerun or recorder_subscribed(observer))
+
         deadline = time.monotonic() + args.ready_timeout
-        while check_children() and not observer.ready() and time.monotonic() < deadline:
+        while check_children() and not ready() and time.monotonic() < deadline:
             observer.spin_for(0.1)
         if check_children() and not observer.ready():
             not_ready = observer.missing()
@@ -892,10 +936,21 @@ def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
                     observer.spin_for(0.1)
             elapsed = time.monotonic() - start
             window_ns = (window_start_ns, observer.now_ns())
+            if args.physics:
+                # The run is the stamps of exactly `seconds` of simulated time: the loop
+                # sees the end a spin late (0.1 s of wall time, more when this process is
+                # starved), which at a real-time factor of 2 is 0.2 s or more of sim time.
+                window_ns = (window_start_ns,
+                             min(window_ns[1], window_start_ns + round(args.seconds * 1e9)))
             usage_end = {p.spec.name: p.usage() for p in processes}
             observer.spin_for(0.2)
             if check_children():
-                observer.drain(window_ns[1])
+                # The gait node first: while it publishes, an observer starved on a loaded
+                # machine takes its 50 Hz streams slower than they come (rclpy serves one
+                # message per subscription per wait) and never catches up; stopped, what
+                # it sent stays queued (STREAM_DEPTH) and is taken afterwards.
+                stop_gait(processes)
+                observer.drain(window_ns[1], lambda: not stop_requested)
     finally:
         # Stop the producers first (gait), the recorders last so they see everything.
         order = sorted(processes, key=lambda p: {'gait_node': 0, 'rerun_logger': 2,
