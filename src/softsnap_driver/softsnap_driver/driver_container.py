@@ -30,16 +30,14 @@ from __future__ import annotations
 import sys
 import threading
 
-import rclpy
 from rcl_interfaces.msg import ParameterDescriptor, ParameterType
 from rclpy.exceptions import ParameterUninitializedException
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from softsnap_driver.driver_node import _NAME, COMMAND_WAIT_S, DriverNode
 from softsnap_driver.link import SHUTDOWN_BUDGET_S
-from softsnap_driver.spinning import spin_until_shutdown
+from softsnap_driver.spinning import run_nodes_main
 
 
 def _array(kind: int, description: str) -> ParameterDescriptor:
@@ -120,29 +118,16 @@ class DriverContainer(Node):
 
 
 def main(args=None):
-    rclpy.init(args=args)
-    container = None
-    try:
+    def build(at_exit):
         container = DriverContainer()
+        at_exit(container.destroy_node)
+        at_exit(container.stop_drivers)      # runs first: the links' stops, in parallel
         container.start_drivers()
         # One thread for all drivers' executor work (services, parameters, diagnostics):
         # their callbacks never do I/O (each link's worker thread does).
-        executor = SingleThreadedExecutor()
-        executor.add_node(container)
-        for driver in container.drivers:
-            executor.add_node(driver)
-        spin_until_shutdown(executor)
-    except KeyboardInterrupt:
-        pass
-    except ValueError as exc:
-        print(f'driver_container: {exc}', file=sys.stderr)
-        return 2
-    finally:
-        if container is not None:
-            container.stop_drivers()
-            container.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+        return [container, *container.drivers]
+
+    return run_nodes_main(args, 'driver_container', build)
 
 
 if __name__ == '__main__':

@@ -33,12 +33,10 @@ import sys
 import threading
 import time
 
-import rclpy
 from builtin_interfaces.msg import Time
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 SetParametersResult)
 from rclpy.clock import Clock, ClockType
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -54,7 +52,7 @@ from softsnap_driver.diagnostics import DriverHealth, battery_state, diagnostic_
 from softsnap_driver.link import LinkConfig, LinkReport, ModuleLink
 from softsnap_driver.protocol import FIRMWARE_DEADBAND_COUNTS
 from softsnap_driver.ros_parameters import SoftSnapNode
-from softsnap_driver.spinning import spin_until_shutdown
+from softsnap_driver.spinning import run_nodes_main
 
 #: Default winch: 2800 counts per output revolution (N20 encoder, 7 PPR x4, 1:100) on a
 #: 10 mm diameter spool. Calibrate it per module (docs/driver.md).
@@ -420,26 +418,15 @@ def main(args=None):
     # `-r __node:=...` remap still wins.
     module = _module_argument(list(argv))
     node_name = f'{module}_driver' if module and _NAME.match(module) else 'driver_node'
-    # rclpy.init() is a context manager only from Kilted on; this form runs on Jazzy too.
-    rclpy.init(args=args)
-    node = None
-    try:
+    # One thread is enough: callbacks here never do I/O (the link's worker thread
+    # does); a service waits for its own request only, bounded by request_timeout_s.
+
+    def build(at_exit):
         node = DriverNode(node_name)
-        # One thread is enough: callbacks here never do I/O (the link's worker thread
-        # does); a service waits for its own request only, bounded by request_timeout_s.
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        spin_until_shutdown(executor)
-    except KeyboardInterrupt:
-        pass
-    except ValueError as exc:
-        print(f'driver_node: {exc}', file=sys.stderr)
-        return 2
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+        at_exit(node.destroy_node)
+        return [node]
+
+    return run_nodes_main(args, 'driver_node', build)
 
 
 if __name__ == '__main__':

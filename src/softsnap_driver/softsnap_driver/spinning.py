@@ -59,3 +59,35 @@ def run_simulator_main(argv: list[str] | None, name: str, build_parser: Callable
             status = stop_node(node) or status
         rclpy.try_shutdown()
     return status
+
+
+def run_nodes_main(args: list[str] | None, program: str, build: Callable) -> int:
+    """``main()`` of a process whose nodes are served by one single-threaded executor.
+
+    ``build(at_exit)`` creates the nodes and returns them; it registers with
+    ``at_exit(callable)`` what must run at exit (stops, ``destroy_node``), as soon as
+    the thing exists, so a failure half way through still cleans up what was started.
+    Cleanups run in reverse order. A ``ValueError`` while building (a bad argument) is
+    printed after the program's name and ends with exit status 2.
+    """
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+
+    cleanups: list[Callable] = []
+    rclpy.init(args=args)
+    try:
+        nodes = build(cleanups.append)
+        executor = SingleThreadedExecutor()
+        for node in nodes:
+            executor.add_node(node)
+        spin_until_shutdown(executor)
+    except KeyboardInterrupt:
+        pass
+    except ValueError as exc:
+        print(f'{program}: {exc}', file=sys.stderr)
+        return 2
+    finally:
+        for cleanup in reversed(cleanups):
+            cleanup()
+        rclpy.try_shutdown()
+    return 0
