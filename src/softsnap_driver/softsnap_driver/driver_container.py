@@ -40,7 +40,7 @@ from softsnap_driver.link import SHUTDOWN_BUDGET_S
 from softsnap_driver.spinning import run_nodes_main
 
 
-def _array(kind: int, description: str) -> ParameterDescriptor:
+def _read_only_array(kind: int, description: str) -> ParameterDescriptor:
     return ParameterDescriptor(type=kind, description=description, read_only=True)
 
 
@@ -49,12 +49,12 @@ class DriverContainer(Node):
 
     def __init__(self, **kwargs):
         super().__init__('driver_container', **kwargs)
-        self.declare_parameter('modules', Parameter.Type.STRING_ARRAY, _array(
+        self.declare_parameter('modules', Parameter.Type.STRING_ARRAY, _read_only_array(
             ParameterType.PARAMETER_STRING_ARRAY, 'Names of the modules driven by this process'))
-        self.declare_parameter('ports', Parameter.Type.INTEGER_ARRAY, _array(
+        self.declare_parameter('ports', Parameter.Type.INTEGER_ARRAY, _read_only_array(
             ParameterType.PARAMETER_INTEGER_ARRAY,
             'TCP port of each module, in the order of modules (optional)'))
-        self.declare_parameter('hosts', Parameter.Type.STRING_ARRAY, _array(
+        self.declare_parameter('hosts', Parameter.Type.STRING_ARRAY, _read_only_array(
             ParameterType.PARAMETER_STRING_ARRAY,
             'Address of each module, in the order of modules (optional)'))
         self.drivers: list[DriverNode] = []
@@ -102,11 +102,7 @@ class DriverContainer(Node):
 
     def stop_drivers(self) -> None:
         """Stop every link at once (each within its own budget), then destroy the nodes."""
-        def stop(driver: DriverNode) -> None:
-            driver.commands.stop(2 * COMMAND_WAIT_S)
-            driver.link.stop()
-
-        threads = [threading.Thread(target=stop, args=(d,), name=f'stop:{d.module}')
+        threads = [threading.Thread(target=d.stop_link, name=f'stop:{d.module}')
                    for d in self.drivers]
         for thread in threads:
             thread.start()

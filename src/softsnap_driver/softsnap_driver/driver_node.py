@@ -394,12 +394,15 @@ class DriverNode(SoftSnapNode):
         battery.header.frame_id = self.module
         self.battery_publisher.publish(battery)
 
-    def destroy_node(self) -> None:
-        # No new command after this (within COMMAND_WAIT_S); then the link's stop, bounded
-        # (link.SHUTDOWN_BUDGET_S) to fit the 2 s SIGINT budget.
+    def stop_link(self) -> None:
+        """No new command after this (within COMMAND_WAIT_S); then the link's stop, bounded
+        (link.SHUTDOWN_BUDGET_S) to fit the 2 s SIGINT budget. A second call returns at once."""
         if hasattr(self, 'commands'):
             self.commands.stop(2 * COMMAND_WAIT_S)
         self.link.stop()
+
+    def destroy_node(self) -> None:
+        self.stop_link()
         self._inbox.destroy_node()
         super().destroy_node()
 
