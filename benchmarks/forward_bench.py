@@ -361,7 +361,7 @@ def main():
     for cap in (0, 1, 2):
         times, errs = [], []
         for (name, t, length), ref in zip(probs, refs):
-            _, _, S = fwd._single(SK, tuple(SK.threading_mm(t).tolist()))
+            _, S = fwd._single(SK, tuple(SK.threading_mm(t).tolist()))
             dt, out = timed(lambda: fwd._solve_single(S, length, max_iter=cap,
                                                       fallback=False), reps)
             times.append(dt)

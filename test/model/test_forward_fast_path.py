@@ -85,7 +85,7 @@ def test_quintic_path_start_is_the_answer_for_most_cold_solves():
     for name in ('yellow', 'blue', 'red', 'snake', 'w'):
         t = list(PAPER_THREADINGS[name])
         lo, hi = fwd.reachable_range(SK, t)
-        _, _, S = fwd._single(SK, tuple(SK.threading_mm(t).tolist()))
+        _, S = fwd._single(SK, tuple(SK.threading_mm(t).tolist()))
         for i, length in enumerate(np.linspace(lo + 0.5, hi - 0.5, 40)):
             res = fwd.solve_forward(SK, t, length)
             assert res.converged

@@ -25,7 +25,7 @@ def test_first_solve_leaves_the_batch_layout_unbuilt():
     d = _fresh(t)
     res = fwd.solve_forward(SK, t, SK.straight_length_mm(t) - 30.0)
     assert res.converged and res.iterations == 0
-    _, _, S = fpath._single(SK, d)
+    _, S = fpath._single(SK, d)
     assert 'P' not in S          # a plain dict lookup: nothing built it
 
 
@@ -33,7 +33,7 @@ def test_single_layout_is_the_row_of_the_batch_layout_bit_for_bit():
     for name in ('yellow', 'blue', 'red', 'w'):
         t = list(PAPER_THREADINGS[name])
         d = _fresh(t)
-        prob, _, S = fpath._single(SK, d)
+        prob, S = fpath._single(SK, d)
         P = S['P']
         assert P is S['P']                        # built once, then kept
         ref = fpath._stack([prob], np.zeros(1, dtype=int), complete=False)
@@ -49,7 +49,7 @@ def test_single_layout_is_the_row_of_the_batch_layout_bit_for_bit():
 def test_concurrent_first_reads_build_one_batch_layout():
     t = list(PAPER_THREADINGS['blue'])
     d = _fresh(t)
-    _, _, S = fpath._single(SK, d)
+    _, S = fpath._single(SK, d)
     barrier = threading.Barrier(6)
     seen, errors = [], []
 
@@ -71,7 +71,7 @@ def test_concurrent_first_reads_build_one_batch_layout():
 
 def test_other_missing_keys_still_raise():
     t = list(PAPER_THREADINGS['red'])
-    _, _, S = fpath._single(SK, _fresh(t))
+    _, S = fpath._single(SK, _fresh(t))
     try:
         S['no such key']
     except KeyError:

@@ -181,7 +181,7 @@ def solve_forward(skeleton: Skeleton, threading, cable_length_mm, initial=None, 
     (True, (11,), True)
     """
     _check_skeleton(skeleton)
-    prob, _, S = _single_for(skeleton, threading)
+    prob, S = _single_for(skeleton, threading)
     L = _as_length(cable_length_mm)
     if type(max_iter) is not int and (isinstance(max_iter, bool)
                                       or not isinstance(max_iter, numbers.Integral)) \
@@ -202,7 +202,6 @@ def solve_forward(skeleton: Skeleton, threading, cable_length_mm, initial=None, 
                    residual=0.0, is_minimum=True, min_curvature=1.0, slack=True,
                    at_contact=np.zeros(n, dtype=bool))
     else:
-        S['path'].ensure(L)     # the path table is built lazily, around the lengths asked
         out = _solve_single(S, L, lam0, a0, max_iter=int(max_iter))
     angles = out['angles']
     values = angles.tolist()

@@ -348,13 +348,13 @@ def _problem(skeleton: Skeleton, d: tuple) -> _Problem:
     # the path is solved once per distinct segment (5 to 7 of 11 for the paper's
     # threadings; the table build is arithmetic on (samples, segments) arrays) and
     # gathered back, the totals weighted by how many segments share each column.
-    position, first = {}, []
+    position, first, inverse = {}, [], []
     for i, key in enumerate(zip(d1.tolist(), d2.tolist(), k.tolist())):
         if key not in position:
             position[key] = len(position)
             first.append(i)
-    inverse = np.array([position[key] for key in zip(d1.tolist(), d2.tolist(), k.tolist())])
-    first = np.array(first)
+        inverse.append(position[key])
+    inverse, first = np.array(inverse), np.array(first)
     seg = dict(d1=d1[first], d2=d2[first], k=k[first], direction=direction[first],
                table_mu=table_mu[first], table_b=table_b[first], dmu=prof['dmu'][first],
                lam_c=lam_c[first], lam_end=lam_end[first],
@@ -634,7 +634,7 @@ def _stack(probs, index, complete=True):
     return out
 
 
-#: Degree in ``b`` of ``Q = l^2`` as evaluated by :func:`.newton._eval_single` (the series of
+#: Degree in ``b`` of ``Q = l^2`` as evaluated by :func:`.single._evaluate` (the series of
 #: ``g`` to ``b^(2 (_G_TERMS - 1))`` times a quadratic).
 _Q_DEGREE = 2 * _G_TERMS
 
@@ -686,10 +686,10 @@ class _SingleLayout(dict):
 
 @functools.lru_cache(maxsize=_THREADINGS_CACHED)
 def _single(skeleton: Skeleton, d: tuple):
-    """``(problem, None, S)``: the single-solve layout ``S`` of the problem data, 1-D
+    """``(problem, S)``: the single-solve layout ``S`` of the problem data, 1-D
     (memoised with the problem). The batch-of-one layout is ``S['P']``, built when a
-    solve first reads it. Its path table is built lazily: call ``S['path'].ensure(L)``
-    before searching the cell of a length ``L``."""
+    solve first reads it. Its path table is built lazily: ``S['path'].ensure(L)``
+    builds the cell of a length ``L`` (:func:`.single._solve_single` calls it)."""
     prob = _problem(skeleton, d)
     table = prob.path
     k, d1, d2, direction = prob.k, prob.d1, prob.d2, prob.direction
@@ -723,7 +723,7 @@ def _single(skeleton: Skeleton, d: tuple):
              mirror_first_cells=[(float(prob.lam_c[i]), float(lam_1[i]))
                                  for i in mirror_idx],
              )
-    return prob, None, S
+    return prob, S
 
 
 @functools.lru_cache(maxsize=2 * _THREADINGS_CACHED)
@@ -734,7 +734,7 @@ def _single_named(skeleton: Skeleton, key: tuple):
 
 
 def _single_for(skeleton: Skeleton, threading):
-    """``(problem, None, S)`` of any accepted threading form (memoised for hashable input,
+    """``(problem, S)`` of any accepted threading form (memoised for hashable input,
     and for a string of names or a 1-D array of offsets, by their items)."""
     if isinstance(threading, str):
         threading = threading.split()

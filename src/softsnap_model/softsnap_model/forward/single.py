@@ -272,7 +272,8 @@ def _solve_single(S, L, lam0=None, a0=None, max_iter=MAX_ITER, fallback=True):
     only if it already meets the inner tolerances (no Newton step); otherwise the solve
     is exactly the cold one. So a warm start never costs Newton iterations or accuracy.
     """
-    sc = S.get('scalars') or _scalars(S)
+    sc = _scalars(S)
+    S['path'].ensure(L)     # the path table is built lazily, around the lengths asked
     tol_mm = max(_INNER_TOL_MM, _CONSTRAINT_ULPS * math.ulp(L))
     # The path cell of L: path lengths decrease along the path (bisect on the negated
     # Python list, cheaper than a numpy search for one value).
