@@ -1,7 +1,5 @@
 """driver_container across processes: several modules' drivers in one process, each as
 a driver_node process would be (names, topics, services, stops), failing alone."""
-import time
-
 import pytest
 
 from test_driver_ros import NS, ModuleProbe, driver_args, within_deadband
@@ -13,9 +11,7 @@ MODULES = ('m1', 'm2', 'm3')
 
 def container_args(ports, **params):
     """The drivers' shared parameters as in test_driver_ros, the modules and their ports."""
-    args = driver_args(0, **params)      # port and module come from ports/modules below
-    drop = {'module:=m1', 'port:=0'}
-    args = [a for i, a in enumerate(args) if not (a in drop or (a == '-p' and args[i + 1] in drop))]
+    args = driver_args(None, module=None, **params)   # from ports/modules below
     return args + ['-p', f'modules:=[{",".join(MODULES)}]',
                    '-p', f'ports:=[{",".join(str(p) for p in ports)}]']
 
@@ -38,13 +34,11 @@ def test_each_module_is_driven_stopped_and_fails_on_its_own(start_node, ros_node
     # Node names come over DDS's discovery-info topic, which can lag the data on a busy
     # machine: wait for them rather than read the graph once.
     wanted = {f'{m}_driver' for m in MODULES}
-    deadline = time.monotonic() + 30.0
-    while True:
-        names = {name for name, ns in ros_node.get_node_names_and_namespaces() if ns == NS}
-        if wanted <= names or time.monotonic() > deadline:
-            break
-        time.sleep(0.2)
-    assert wanted <= names, names
+
+    def names():
+        return {name for name, ns in ros_node.get_node_names_and_namespaces() if ns == NS}
+
+    assert ros_node.spin_until(lambda: wanted <= names(), 30.0), names()
     assert [probes[m].last().module for m in MODULES] == list(MODULES)
 
     # Each module tracks its own command (different lengths: no crossed wires).

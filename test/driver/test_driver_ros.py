@@ -21,7 +21,8 @@ def driver_args(port, module='m1', **params):
     values.update(params)
     args = ['--ros-args', '-r', f'__ns:={NS}']
     for name, value in values.items():
-        args += ['-p', f'{name}:={value}']
+        if value is not None:   # None: left to the caller (e.g. driver_container's lists)
+            args += ['-p', f'{name}:={value}']
     return args
 
 
