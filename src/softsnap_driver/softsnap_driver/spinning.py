@@ -25,6 +25,16 @@ def spin_until_shutdown(executor: Executor) -> None:
             raise  # a real failure, not a shutdown
 
 
+def _spin_nodes(nodes) -> None:
+    """Serve ``nodes`` with one single-threaded executor until the context shuts down."""
+    from rclpy.executors import SingleThreadedExecutor
+
+    executor = SingleThreadedExecutor()
+    for node in nodes:
+        executor.add_node(node)
+    spin_until_shutdown(executor)
+
+
 def run_simulator_main(argv: list[str] | None, name: str, build_parser: Callable,
                        make_node: Callable, stop_node: Callable) -> int:
     """``main()`` of a simulator node whose plain options give its parameters' defaults.
@@ -36,7 +46,6 @@ def run_simulator_main(argv: list[str] | None, name: str, build_parser: Callable
     destroys the node, prints what it did and returns an exit status (0 when clean).
     """
     import rclpy
-    from rclpy.executors import SingleThreadedExecutor
     from rclpy.utilities import remove_ros_args
 
     argv = sys.argv if argv is None else argv
@@ -46,9 +55,7 @@ def run_simulator_main(argv: list[str] | None, name: str, build_parser: Callable
     status = 0
     try:
         node = make_node(defaults)
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        spin_until_shutdown(executor)
+        _spin_nodes([node])
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except (ValueError, OSError) as exc:   # bad parameters or scene, port in use: exit 2
@@ -71,16 +78,11 @@ def run_nodes_main(args: list[str] | None, program: str, build: Callable) -> int
     printed after the program's name and ends with exit status 2.
     """
     import rclpy
-    from rclpy.executors import SingleThreadedExecutor
 
     cleanups: list[Callable] = []
     rclpy.init(args=args)
     try:
-        nodes = build(cleanups.append)
-        executor = SingleThreadedExecutor()
-        for node in nodes:
-            executor.add_node(node)
-        spin_until_shutdown(executor)
+        _spin_nodes(build(cleanups.append))
     except KeyboardInterrupt:
         pass
     except ValueError as exc:
