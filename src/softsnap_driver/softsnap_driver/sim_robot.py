@@ -708,7 +708,7 @@ def build_payload(opts: argparse.Namespace):
         return None
     from softsnap_model.physics.mjcf import Payload
     size = opts.payload_size_m
-    height = getattr(opts, 'payload_height_m', DEFAULT_PAYLOAD_HEIGHT_M)
+    height = opts.payload_height_m
     if opts.payload == 'cylinder' and not (isinstance(height, (int, float))
                                            and math.isfinite(height) and 0.0 < height <= 0.4):
         raise SimRobotError(f'payload_height_m must be in (0, 0.4] m, got {height!r}')

@@ -766,8 +766,8 @@ def _connector_geom(body, scene, params: PhysicsParameters, asset):
 
 def _default_payload_position(scene, payload: Payload) -> tuple:
     """Robot-frame payload centre (m) when the Payload gives none."""
-    r = {'ball': lambda s: s, 'box': lambda s: s[2],
-         'cylinder': lambda s: s[1]}[payload.shape](payload.size_m)
+    # Half its height: a ball's radius, else the last size (box z, cylinder half height).
+    r = payload.size_m if payload.shape == 'ball' else payload.size_m[-1]
     kind = scene.connector.get('type', '')
     if kind == 'ring':
         # On the ground at the ring's centre; the ground is at the modules' underside.
@@ -971,20 +971,15 @@ def robot_mjcf_layout(scene, *, links_per_segment: int = DEFAULT_LINKS_PER_SEGME
         world_pos = (pos[0], pos[1], pos[2] + base_height_m)
         pb = ET.SubElement(world, 'body', name='payload', pos=_f(*world_pos))
         ET.SubElement(pb, 'freejoint', name='payload/free')
-        if payload.shape == 'ball':
-            ET.SubElement(pb, 'geom', name='payload', type='sphere', size=_f(payload.size_m),
-                          mass=_f(payload.mass_kg), contype=str(_PAYLOAD_CLASS[0]),
-                          conaffinity=str(_PAYLOAD_CLASS[1]),
-                          friction=_f(params.payload_friction, 0.005, 0.0001),
-                          rgba='0.9 0.3 0.6 1')
-        else:
-            # MuJoCo's box size is the half extents, its cylinder's (radius, half height).
-            ET.SubElement(pb, 'geom', name='payload', type=payload.shape,
-                          size=_f(*payload.size_m),
-                          mass=_f(payload.mass_kg), contype=str(_PAYLOAD_CLASS[0]),
-                          conaffinity=str(_PAYLOAD_CLASS[1]),
-                          friction=_f(params.payload_friction, 0.005, 0.0001),
-                          rgba='0.9 0.3 0.6 1')
+        # MuJoCo's sphere size is the radius, a box's its half extents, a cylinder's
+        # (radius, half height).
+        ball = payload.shape == 'ball'
+        ET.SubElement(pb, 'geom', name='payload', type='sphere' if ball else payload.shape,
+                      size=_f(*((payload.size_m,) if ball else payload.size_m)),
+                      mass=_f(payload.mass_kg), contype=str(_PAYLOAD_CLASS[0]),
+                      conaffinity=str(_PAYLOAD_CLASS[1]),
+                      friction=_f(params.payload_friction, 0.005, 0.0001),
+                      rgba='0.9 0.3 0.6 1')
         payload_body = 'payload'
         if not free:
             # A hand holds the payload between the open fingers until released.
