@@ -953,15 +953,11 @@ def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
                 observer.drain(window_ns[1], lambda: not stop_requested)
     finally:
         # Stop the producers first (gait), the recorders last so they see everything.
+        stop_gait(processes)
         order = sorted(processes, key=lambda p: {'gait_node': 0, 'rerun_logger': 2,
                                                  'bag_recorder': 2}.get(p.spec.name, 1))
         for p in order:
             p.signal(signal.SIGINT)
-            if p.spec.name in ('gait_node',):
-                try:
-                    p.popen.wait(STOP_TIMEOUT_S)
-                except subprocess.TimeoutExpired:
-                    pass
         for p in order:
             try:
                 p.popen.wait(STOP_TIMEOUT_S)
