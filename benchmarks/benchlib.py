@@ -1,5 +1,6 @@
 """Helpers shared by the benchmark scripts: median timing, repeats with their range,
-the machine's load average, and starting and stopping installed nodes as processes."""
+the machine's load average, starting and stopping installed nodes as processes, and the
+source of an earlier revision for side-by-side runs."""
 from __future__ import annotations
 
 import os
@@ -8,6 +9,7 @@ import statistics
 import subprocess
 import tempfile
 import time
+from pathlib import Path
 
 from ament_index_python.packages import get_package_prefix
 
@@ -66,3 +68,17 @@ def fmt_spread(values, scale: float = 1.0, digits: int = 1) -> str:
     """``'median (min-max)'`` of ``values * scale``."""
     med, lo, hi = spread(values)
     return f'{med * scale:,.{digits}f} ({lo * scale:,.{digits}f}-{hi * scale:,.{digits}f})'
+
+
+#: The repository's root (the benchmarks' parent directory).
+REPO = Path(__file__).resolve().parent.parent
+
+
+def checkout_src(rev: str) -> Path:
+    """A new temporary directory holding ``src/`` of git revision ``rev`` (``git archive``),
+    for running the old code side by side with the current one."""
+    root = Path(tempfile.mkdtemp(prefix='bench_before_'))
+    archive = subprocess.run(['git', '-C', str(REPO), 'archive', rev, 'src'],
+                             check=True, capture_output=True).stdout
+    subprocess.run(['tar', '-x', '-C', str(root)], input=archive, check=True)
+    return root

@@ -536,10 +536,9 @@ def entities(path: Path) -> set[str]:
 
 
 # ------------------------------------------------------------------ main
-def extract(ref: str, into: Path) -> Path:
-    archive = subprocess.run(['git', '-C', str(ROOT), 'archive', ref, 'src'],
-                             check=True, capture_output=True).stdout
-    subprocess.run(['tar', '-x', '-C', str(into)], input=archive, check=True)
+def extract(ref: str) -> Path:
+    from benchlib import checkout_src     # here: children import this file from elsewhere
+    into = checkout_src(ref)
     # Compiled once here: the nodes run with PYTHONDONTWRITEBYTECODE and would otherwise
     # compile the old sources at every start.
     subprocess.run([sys.executable, '-m', 'compileall', '-q', str(into / 'src')], check=True)
@@ -585,7 +584,7 @@ def main() -> int:
     scene50 = write_scene(work / 'synthetic_50.yaml', 50)
     versions = {'after': None}
     if args.before:
-        versions = {'before': extract(args.before, Path(tempfile.mkdtemp(prefix='before_'))),
+        versions = {'before': extract(args.before),
                     'after': None}
     results: dict[tuple[str, str], list[float]] = {}
     recordings: dict[str, Path] = {}

@@ -23,9 +23,10 @@ import os
 import statistics
 import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
+
+from benchlib import checkout_src, load_line
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -83,15 +84,10 @@ def main() -> int:
         us, lengths = measure(args.child[0], int(args.child[1]))
         print(us, lengths)
         return 0
-    print(f'load average at start: {" ".join(f"{v:.2f}" for v in os.getloadavg())} '
-          f'({os.cpu_count()} cores)', flush=True)
+    print(load_line('start'), flush=True)
     versions: dict[str, Path | None] = {'after': None}
     if args.before:
-        into = Path(tempfile.mkdtemp(prefix='before_'))
-        archive = subprocess.run(['git', '-C', str(ROOT), 'archive', args.before, 'src'],
-                                 check=True, capture_output=True).stdout
-        subprocess.run(['tar', '-x', '-C', str(into)], input=archive, check=True)
-        versions = {'before': into, 'after': None}
+        versions = {'before': checkout_src(args.before), 'after': None}
     results: dict[str, list[float]] = {label: [] for label in versions}
     lengths = 0
     for round_ in range(args.rounds):
@@ -108,7 +104,7 @@ def main() -> int:
     if args.before:
         ratio = statistics.median(results['after']) / statistics.median(results['before'])
         print(f'  after/before: {ratio:.2f} (before = {args.before})')
-    print(f'load average at end: {" ".join(f"{v:.2f}" for v in os.getloadavg())}')
+    print(load_line('end'))
     return 0
 
 

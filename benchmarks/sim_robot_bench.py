@@ -49,10 +49,7 @@ import shutil
 import statistics
 import subprocess
 import sys
-import tarfile
-import tempfile
 import time
-from io import BytesIO
 from pathlib import Path
 
 import numpy as np
@@ -136,16 +133,6 @@ def stages(name: str, seconds: float, links: int) -> str:
     return f'{name:13s} nv {robot.simulation.model.nv}: ' + ', '.join(parts)
 
 
-def checkout(rev: str) -> Path:
-    """``src/`` of git revision `rev`, unpacked in a temporary directory."""
-    blob = subprocess.run(['git', '-C', str(REPO), 'archive', rev, 'src'],
-                          check=True, capture_output=True).stdout
-    root = Path(tempfile.mkdtemp(prefix='sim_robot_bench_before_'))
-    with tarfile.open(fileobj=BytesIO(blob)) as tar:
-        tar.extractall(root, filter='data')
-    return root
-
-
 def run_before(root: Path, name: str, seconds: float, links: int) -> tuple[float, float, float]:
     """This script's run_once in a child process on the old revision's source."""
     paths = [str(root / 'src' / p) for p in ('softsnap_model', 'softsnap_driver', 'softsnap_gaits')]
@@ -193,7 +180,8 @@ def main() -> None:
     args = parser.parse_args()
     global TIMESTEP_S
     TIMESTEP_S = args.timestep_ms * 1e-3
-    root = checkout(args.before) if args.before else None
+    from benchlib import checkout_src    # here: run_before's child loads this file from src/
+    root = checkout_src(args.before) if args.before else None
     if hasattr(os, 'sched_setaffinity'):
         os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})
     print(f'load average at start: {" ".join(f"{v:.2f}" for v in os.getloadavg())} '
