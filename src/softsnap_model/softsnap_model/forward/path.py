@@ -142,8 +142,10 @@ class _PathTable:
             self._complete()
             return
         self._build_cells(first, last)
-        self._cell_built[first:last] = [True] * (last - first)
+        # Lists first, then the flags: a solve that sees a cell built without the lock
+        # (ensure's fast path) must find the exact lengths when it searches.
         self._publish()
+        self._cell_built[first:last] = [True] * (last - first)
 
     def _publish(self):
         """Searchable lengths from the built samples (in place: the single-solve layout
@@ -201,8 +203,8 @@ class _PathTable:
             for c in range(0, self.n_cells, _BLOCK):
                 if not all(self._cell_built[c:c + _BLOCK]):
                     self._build_cells(c, min(c + _BLOCK, self.n_cells))
+        self._publish()     # before the flags, as in _build_blocks
         self._cell_built[:] = [True] * self.n_cells
-        self._publish()
         self.complete_ = True
 
     def length_at_tension(self, lam):
