@@ -892,7 +892,6 @@ def robot_mjcf_layout(scene, *, links_per_segment: int = DEFAULT_LINKS_PER_SEGME
     colors = _module_rgba(scene)
     layouts: dict = {}
     tips: dict = {}
-    mod_by_name = {m.name: m for m in scene.modules}
 
     def add(m, parent_elem, pos, quat):
         lay, tip = _add_module(parent_elem, equality, tendons, name=m.name,
