@@ -1,10 +1,10 @@
 """Helpers shared by the benchmark scripts: median timing, repeats with their range,
-the machine's load average, starting and stopping installed nodes as processes, and the
-source of an earlier revision for side-by-side runs."""
+the machine's load average, starting installed nodes as processes (stop them with
+process_group.stop_process_group), and the source of an earlier revision for side-by-side
+runs."""
 from __future__ import annotations
 
 import os
-import signal
 import statistics
 import subprocess
 import tempfile
@@ -25,15 +25,6 @@ def start_node(package: str, executable: str, ros_args: list[str],
     return subprocess.Popen([exe, '--ros-args', *ros_args], stdout=out, stderr=subprocess.STDOUT,
                             start_new_session=True,
                             env=dict(os.environ, ROS_HOME=tempfile.mkdtemp()))
-
-
-def stop(proc: subprocess.Popen) -> None:
-    """SIGINT (like Ctrl-C) to the node's process group; SIGKILL after 10 s."""
-    os.killpg(proc.pid, signal.SIGINT)
-    try:
-        proc.wait(10)
-    except subprocess.TimeoutExpired:
-        os.killpg(proc.pid, signal.SIGKILL)
 
 
 def timed(fn, repeat: int, clock=time.perf_counter):

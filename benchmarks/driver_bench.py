@@ -36,7 +36,8 @@ from softsnap_driver.protocol import ModuleClient  # noqa: E402
 from softsnap_driver.sim_module import SimServer  # noqa: E402
 from softsnap_interfaces.msg import CableLength, ModuleState  # noqa: E402
 
-from benchlib import start_node, stop  # noqa: E402
+from benchlib import start_node  # noqa: E402
+from process_group import stop_process_group  # noqa: E402
 
 NS = '/bench'
 MODULE = 'm1'
@@ -185,7 +186,7 @@ def main():
         cpu, rss, _ = cpu_window(proc, opts.seconds, lambda s: bench.command_rate(50, s))
         rows.append(('driver_node at 50 Hz commands: CPU / RSS', '% / MiB', f'{cpu:.1f} / {rss:.0f}', '', ''))
     finally:
-        stop(driver)
+        stop_process_group(driver)
         server.stop()
         rclpy.try_shutdown()
 

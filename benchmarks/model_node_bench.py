@@ -28,7 +28,8 @@ from softsnap_interfaces.msg import CableLength, ModelDiagnostics, RobotShape
 from softsnap_interfaces.srv import ForwardShape
 from softsnap_model.scene import load_scene
 
-from benchlib import start_node, stop  # noqa: E402
+from benchlib import start_node  # noqa: E402
+from process_group import stop_process_group  # noqa: E402
 
 NS = '/bench'
 
@@ -138,7 +139,7 @@ def main() -> None:
             finally:
                 executor.shutdown()
                 node.destroy_node()
-                stop(proc)
+                stop_process_group(proc)
     finally:
         rclpy.try_shutdown()
     print()

@@ -1,8 +1,10 @@
-"""Stopping a test's child process and everything it started, like Ctrl-C in a terminal.
+"""Stopping a child process and everything it started, like Ctrl-C in a terminal.
 
-Shared by test/conftest.py (NodeProcess) and the tests that start a helper process of their
-own. The process must have been started with ``start_new_session=True``: the signals go to
-its whole process group, so grandchildren (a launched node, rerun's server) stop with it.
+Shared by the benchmark scripts (nodes started by benchlib.start_node) and the tests
+(test/conftest.py's NodeProcess and the tests that start a helper process of their own;
+conftest puts benchmarks/ on sys.path). No ROS imports. The process must have been
+started with ``start_new_session=True``: the signals go to its whole process group, so
+grandchildren (a launched node, rerun's server) stop with it.
 """
 from __future__ import annotations
 

@@ -22,7 +22,11 @@ VENV = Path(sys.prefix)
 # ports that no other test session or demo on this machine uses while this one runs.
 # Set before rclpy is imported anywhere in this process or its children.
 from softsnap_gaits.isolation import claim_slot  # noqa: E402  (no ROS imports)
-from process_group import stop_process_group  # noqa: E402  (test/ is on sys.path)
+
+# benchmarks/ holds the helpers the benchmark scripts share with the tests (process_group);
+# appended, so a test's own modules come first.
+sys.path.append(str(REPO / 'benchmarks'))
+from process_group import stop_process_group  # noqa: E402  (no ROS imports)
 
 SLOT, _slot_warning = claim_slot()
 if _slot_warning:
