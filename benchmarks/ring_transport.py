@@ -41,12 +41,6 @@ def parse_payload(text: str, mass_kg: float) -> Payload:
     return Payload(shape, mass_kg, tuple(m))
 
 
-def ring_centre(sim) -> np.ndarray:
-    """The ring's centre (m, world): the mean of all its rib centres (the base module's
-    frame turns as that module bends, its centre does not)."""
-    return np.mean([sim.rib_centers_world(m) for m in sim.module_names], axis=(0, 1))
-
-
 def transport_mm(scene, payload: Payload, gait_name: str, cycles: int,
                  links_per_segment: int, groups=None, amplitude_mm=None) -> tuple[np.ndarray, np.ndarray]:
     """Ring base and payload ground-plane displacement after each cycle, 2 x (cycles, 2) mm."""
@@ -54,7 +48,7 @@ def transport_mm(scene, payload: Payload, gait_name: str, cycles: int,
                                              links_per_segment=links_per_segment))
     robot.run_until(SETTLE_S)
     sim = robot.simulation
-    ring0 = ring_centre(sim)
+    ring0 = sim.rib_centroid_world()
     load0 = np.asarray(sim.payload_pose()[0])
     spec = dict(scene.gaits[gait_name])
     if groups:
@@ -66,7 +60,7 @@ def transport_mm(scene, payload: Payload, gait_name: str, cycles: int,
     ring, load = [], []
     for c in range(1, cycles + 1):
         robot.run_until(SETTLE_S + c * gait.period_s, script)
-        ring.append((ring_centre(sim) - ring0)[:2] * 1e3)
+        ring.append((sim.rib_centroid_world() - ring0)[:2] * 1e3)
         load.append((np.asarray(sim.payload_pose()[0]) - load0)[:2] * 1e3)
     return np.array(ring), np.array(load)
 

@@ -381,6 +381,9 @@ def test_ring_cylinder_payload_stands_on_the_ground_inside_the_ribs():
     assert end[2] == pytest.approx(0.015, abs=2e-3)              # on its end face
     ribs = np.concatenate([sim.rib_centers_world(m) for m in sim.module_names])
     assert np.min(np.linalg.norm(ribs[:, :2] - end[:2], axis=1)) > 0.1   # no rib inside
+    centre = sim.rib_centroid_world()      # the flat ring's centre: under the puck, 4.5 mm up
+    assert np.linalg.norm(centre[:2] - end[:2]) < 1e-3
+    assert centre[2] == pytest.approx(0.0045, abs=1e-3)
 
 
 def test_reset_restores_the_start_and_repeats_the_run():

@@ -319,6 +319,12 @@ class RobotSimulation:
         self._module(module)
         return self.data.xpos[self._rib_ids[module]].copy()
 
+    def rib_centroid_world(self) -> np.ndarray:
+        """The mean of every module's rib centres (m, (3,), world): where a robot such as
+        the ring is, as opposed to :meth:`robot_base_pose`, whose frame sits on one
+        module's base and turns as that module bends."""
+        return np.mean([self.rib_centers_world(m) for m in self.module_names], axis=(0, 1))
+
     def segment_angles(self, module: str) -> np.ndarray:
         """Bending angle of each segment (rad, counter-clockwise about the module's z):
         the sum of its hinges' angles."""
