@@ -23,7 +23,8 @@ import argparse
 
 import numpy as np
 
-from softsnap_driver.sim_robot import ScriptedCommands, SimRobot, build_simulation
+from softsnap_driver.sim_robot import (DEFAULT_PAYLOAD_HEIGHT_M, ScriptedCommands, SimRobot,
+                                       build_payload, build_simulation)
 from softsnap_gaits.gaits import make_gait
 from softsnap_model.physics.mjcf import Payload
 from softsnap_model.scene import load_scene
@@ -31,14 +32,24 @@ from softsnap_model.scene import load_scene
 SETTLE_S = 0.3
 
 
+#: Sizes (mm) each payload shape takes in ``--payloads``.
+PAYLOAD_SIZES = {'ball': 1, 'box': 1, 'cylinder': 2}
+
+
 def parse_payload(text: str, mass_kg: float) -> Payload:
+    """One ``--payloads`` item as the physics payload (ValueError if bad).
+
+    The shape-to-sizes mapping and its checks are sim_robot's (:func:`build_payload`, from
+    its ``payload*`` options), whose cylinder height is the full height: this script's is
+    the half height, as in :class:`Payload`.
+    """
     shape, *mm = text.split(':')
-    m = [float(v) * 1e-3 for v in mm]
-    if shape == 'ball':
-        return Payload('ball', mass_kg, m[0])
-    if shape == 'box':
-        return Payload('box', mass_kg, (m[0], m[0], m[0]))
-    return Payload(shape, mass_kg, tuple(m))
+    if len(mm) != PAYLOAD_SIZES.get(shape):
+        raise ValueError(f'payload {text!r}: expected cylinder:R:H, ball:R or box:A (mm)')
+    sizes_m = [float(v) * 1e-3 for v in mm]
+    height_m = 2.0 * sizes_m[1] if shape == 'cylinder' else DEFAULT_PAYLOAD_HEIGHT_M
+    return build_payload(argparse.Namespace(payload=shape, payload_mass_kg=mass_kg,
+                                            payload_size_m=sizes_m[0], payload_height_m=height_m))
 
 
 def transport_mm(scene, payload: Payload, gait_name: str, cycles: int,

@@ -14,8 +14,8 @@ from softsnap_driver.firmware import DEADBAND_COUNTS, MotorModel
 from softsnap_driver.protocol import encode_set_request
 from softsnap_driver.sim_robot import (DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_TIMESTEP_S,
                                        OPTIONS, ScriptedCommands, SimRobot, SimRobotError,
-                                       WinchMotor, build_robot, build_simulation, check_options,
-                                       module_ports)
+                                       WinchMotor, build_payload, build_robot, build_simulation,
+                                       check_options, module_ports)
 
 BOOST_V = 6.0
 
@@ -120,6 +120,23 @@ def test_ring_transport_carries_its_demo_payload_with_it():
     load = (np.asarray(sim.payload_pose()[0]) - load0)[:2]
     assert np.all(np.isfinite(ring)) and np.linalg.norm(ring) > 0.005
     assert float(load @ ring) / float(np.linalg.norm(ring)) > 0.005
+
+
+def test_ring_transport_payload_items_are_sim_robots_payloads():
+    """benchmarks/ring_transport.py's ``cylinder:R:H`` takes the half height (mm), sim_robot's
+    payload_height_m the full height (m): both give the demo's puck, through one mapping."""
+    from ring_transport import parse_payload   # benchmarks/, put on sys.path by conftest
+    from softsnap_gaits.demo import PHYSICS_PAYLOADS
+    from softsnap_model.physics.mjcf import Payload
+    demo_puck = build_payload(options(**PHYSICS_PAYLOADS['ring']))
+    assert parse_payload('cylinder:85:15', 0.02) == demo_puck
+    assert parse_payload('ball:40', 0.01) == Payload('ball', 0.01, 0.04)
+    assert parse_payload('box:30', 0.01) == Payload('box', 0.01, (0.03, 0.03, 0.03))
+    for bad in ('cylinder:85', 'ball:40:10', 'none:1', 'cone:10'):
+        with pytest.raises(ValueError, match='expected cylinder:R:H'):
+            parse_payload(bad, 0.02)
+    with pytest.raises(SimRobotError, match='payload_height_m must be in'):
+        parse_payload('cylinder:85:250', 0.02)      # 0.5 m tall
 
 
 def test_a_set_command_hauls_the_cable_in_and_bends_the_module():
