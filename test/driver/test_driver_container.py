@@ -58,7 +58,10 @@ def test_each_module_is_driven_stopped_and_fails_on_its_own(start_node, ros_node
     assert reach(ros_node, probes['m1'], 0.170)
     assert reach(ros_node, probes['m3'], 0.150)
 
-    # One module's link fails (its simulator gone): it alone goes offline.
+    # One module's link fails (its simulator gone): it alone goes offline. Failures counted
+    # so far are the container's first polls racing the simulators' start on a busy
+    # machine (refused connections): only new ones would be m3's failure spilling over.
+    failures_before = {m: probes[m].last().request_failures for m in ('m1', 'm2')}
     assert sims['m3'].stop() == 0
     assert probes['m3'].wait_state(lambda s: not s.online, 20.0), probes['m3'].last()
     assert 'failed' in probes['m3'].last().last_error
@@ -66,7 +69,8 @@ def test_each_module_is_driven_stopped_and_fails_on_its_own(start_node, ros_node
     assert reach(ros_node, probes['m2'], 0.165)
     for m in ('m1', 'm2'):
         state = probes[m].last()
-        assert state.online and state.request_failures == 0 and not state.last_error, (m, state)
+        assert state.online and not state.last_error, (m, state)
+        assert state.request_failures == failures_before[m], (m, failures_before[m], state)
 
     # SIGINT: a clean exit, with each reachable module stopped (confirmed) on the way.
     assert container.alive()
