@@ -31,6 +31,7 @@ All science lives in :mod:`softsnap_model.predictor`, :mod:`.forward`, :mod:`.lo
 from __future__ import annotations
 
 import array
+import contextlib
 import gc
 import math
 import os
@@ -46,6 +47,7 @@ from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescr
                                 SetParametersResult)
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.executors import SingleThreadedExecutor
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.qos import QoSProfile
@@ -79,11 +81,16 @@ LENGTH_TOPIC = {'commanded': 'cable_length/command', 'predicted': 'cable_length/
 DESIGN_STOP_WAIT_S = 0.5
 #: Period of DesignThreading feedback while a goal runs (s).
 FEEDBACK_PERIOD_S = 0.1
-#: On shutdown, how long the prediction thread may take to finish its tick (s).
+#: On shutdown, how long the prediction thread may take to finish its prediction (s).
 TICK_STOP_WAIT_S = 0.5
+#: Longest the idle prediction thread blocks without checking the context (s).
+IDLE_WAIT_MAX_S = 1.0
+#: While a long period runs, how often the length queues are taken (s): a queue of depth
+#: 10 then never overflows below 200 messages a second.
+DRAIN_S = 0.05
 #: How long a publisher's subscription count is trusted before DDS is asked again (s).
 SUBSCRIBERS_REFRESH_S = 0.25
-#: Pose messages kept for reuse (fixed module bases hit it every tick).
+#: Pose messages kept for reuse (fixed module bases hit it every prediction).
 POSE_CACHE_SIZE = 1024
 
 
@@ -113,40 +120,151 @@ class DesignWorker:
         return not self._thread.is_alive()
 
 
-class TickThread:
-    """Calls ``tick()`` every ``period_s`` seconds on a daemon thread until :meth:`stop`.
+class PredictionThread:
+    """Takes the length messages and predicts on a daemon thread, woken by the lengths.
 
-    Why not an rclpy timer: every executor wake rebuilds the wait set over all of the
-    node's entities in Python, which cost more than a whole idle tick (0.5 ms against
-    0.04 ms, measured on the development machine); a sleeping thread wakes for a few
-    microseconds. ``tick`` must catch its own exceptions. A tick that overruns its
-    period is followed at once by the next one, and a backlog of more than a period is
-    dropped (no burst of catch-up ticks).
+    Why not an rclpy timer or executor subscriptions: every executor wake rebuilds the
+    wait set over all of the node's entities in Python (0.5 ms against 0.04 ms for a
+    whole idle tick, measured on the development machine), and rclpy's per-message
+    dispatch (~0.2 ms) would dominate at 100 Hz. Why not a fixed tick: an idle node then
+    still wakes ``rate`` times a second to find nothing.
+
+    Two states:
+
+    - idle: the thread blocks in one rcl wait set over the length subscriptions (and a
+      guard condition for :meth:`stop` and a new period), until a length arrives or the
+      next chore is due (``chores()`` returns when; at most ``IDLE_WAIT_MAX_S``). It takes
+      only from the subscriptions the wait reports ready, then turns active.
+    - active: predictions happen on period boundaries (a grid of ``period_s``, so lengths
+      published together land in one prediction, and no more than one prediction per
+      period). Between two boundaries the thread sleeps without asking DDS: lengths wait
+      in the subscriptions' queues (``depth``), taken at the boundary from every
+      subscription (10 takes that find nothing cost a third of one wait-set round,
+      measured), and every ``DRAIN_S`` while a long period runs, so that a queue never
+      overflows below 10 / DRAIN_S messages a second. A boundary that finds nothing to
+      solve turns the thread idle.
+
+    ``on_length(index, data)`` gets every message of ``subscriptions[index]`` as bytes,
+    oldest first; ``predict()`` solves what is pending and returns False if nothing was;
+    ``chores()`` does what is due (markers) and returns the monotonic time (s) of the
+    next. None of them may raise: ``on_error(exception)`` reports what escapes, and the
+    loop goes on (never a dead thread). The thread ends on :meth:`stop` or when the
+    context shuts down.
     """
 
-    def __init__(self, name: str, period_s: float, tick):
-        self.period_s = float(period_s)  # read at every tick: a new rate applies at once
-        self._tick = tick
+    def __init__(self, name: str, period_s: float, context, subscriptions, msg_type, *,
+                 on_length, predict, chores, on_error):
+        self._period_s = float(period_s)
+        self._context = context
+        self._handles = [subscription.handle for subscription in subscriptions]
+        self._index = {handle.pointer: i for i, handle in enumerate(self._handles)}
+        self._msg_type = msg_type
+        self._on_length, self._predict, self._chores = on_length, predict, chores
+        self._on_error = on_error
+        self._guard = _rclpy.GuardCondition(context.handle)
+        self._wait_set = _rclpy.WaitSet(len(self._handles), 1, 0, 0, 0, 0, context.handle)
         self._stop = threading.Event()
+        self._wake = threading.Event()  # a new period or a stop, for the active state
         self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+
+    @property
+    def period_s(self) -> float:
+        return self._period_s
+
+    @period_s.setter
+    def period_s(self, value: float) -> None:
+        """A new period applies at once: a sleeping thread wakes and computes again."""
+        self._period_s = float(value)
+        self.wake()
+
+    def wake(self) -> None:
+        """Wake the thread to look again at the period and at when chores are due."""
+        self._wake.set()
+        try:
+            self._guard.trigger_guard_condition()
+        except Exception:  # noqa: BLE001 - the context is gone: the wait ends by itself
+            pass
 
     def start(self) -> None:
         self._thread.start()
 
     def _run(self) -> None:
-        next_at = time.monotonic()
-        while True:
-            next_at += self.period_s
-            delay = next_at - time.monotonic()
-            if delay < -self.period_s:
-                next_at, delay = time.monotonic(), 0.0
-            if self._stop.wait(max(delay, 0.0)):
-                return
-            self._tick()
+        last = time.monotonic()  # the boundary of the last prediction (the grid's origin)
+        active = False
+        drained = last           # when the queues were last taken while active
+        while not self._stop.is_set():
+            try:
+                due = self._chores()
+                now = time.monotonic()
+                if not active:
+                    ready = self._wait(min(due - now, IDLE_WAIT_MAX_S))
+                    if not ready:
+                        if not self._context.ok():
+                            return
+                        continue  # a chore, the guard, or the safety timeout
+                    self._take(ready)
+                    # The next boundary of the grid: lengths published together (a gait's
+                    # five commands) are solved together, as they would be on a fixed tick.
+                    period = self._period_s
+                    last += math.floor((now - last) / period) * period
+                    active = True
+                    continue
+                period = self._period_s
+                boundary = last + period  # read again after every wake: a new rate applies
+                if now < boundary:
+                    if now - drained >= DRAIN_S:
+                        self._take(range(len(self._handles)))
+                        drained = now
+                    if self._wake.wait(min(boundary, due, drained + DRAIN_S) - now):
+                        self._wake.clear()
+                    continue
+                self._take(range(len(self._handles)))
+                drained = now
+                if self._predict():
+                    # On the grid; after an overrun of more than a period, from now on
+                    # (no burst of catch-up predictions).
+                    last = boundary if now - boundary < period else now
+                else:
+                    active = False  # a whole period without a length
+            except Exception as error:  # noqa: BLE001 - report and go on; never die silently
+                if self._stop.is_set() or not self._context.ok():
+                    return  # shutting down: the context or a handle is gone
+                self._on_error(error)
+                self._stop.wait(0.01)  # no busy loop if the error repeats
+
+    def _wait(self, timeout_s: float) -> list[int]:
+        """Block until a length subscription is ready, the guard fires or timeout_s
+        passes; the indices of the ready subscriptions."""
+        with contextlib.ExitStack() as held:  # no handle may be destroyed while waited on
+            for handle in self._handles:
+                held.enter_context(handle)
+            held.enter_context(self._guard)
+            wait_set = self._wait_set
+            # rcl_wait empties the slots of entities that are not ready: refill every time.
+            wait_set.clear_entities()
+            for handle in self._handles:
+                wait_set.add_subscription(handle)
+            wait_set.add_guard_condition(self._guard)
+            wait_set.wait(max(0, int(timeout_s * 1e9)))
+            return [self._index[p] for p in wait_set.get_ready_entities('subscription')]
+
+    def _take(self, indices) -> None:
+        """Every waiting message of the given subscriptions, oldest first, to on_length.
+
+        Taken as bytes: reading the two fields needed costs a quarter of building the
+        message object (see :func:`softsnap_driver.cdr.decode_cable_length`).
+        """
+        msg_type, on_length = self._msg_type, self._on_length
+        for index in indices:
+            handle = self._handles[index]
+            with handle:
+                while (taken := handle.take_message(msg_type, True)) is not None:
+                    on_length(index, taken[0])
 
     def stop(self, timeout: float) -> bool:
-        """Stop after the current tick; True if the thread ended within timeout (s)."""
+        """Stop after the current prediction; True if the thread ended within timeout (s)."""
         self._stop.set()
+        self.wake()
         if self._thread.is_alive():
             self._thread.join(timeout)
         return not self._thread.is_alive()
@@ -239,11 +357,11 @@ class ModelNode(SoftSnapNode):
         # Lengths are a stream where only the newest matters: sensor-data QoS would drop
         # messages under load; keep a small reliable queue so no command is lost silently.
         qos = QoSProfile(depth=10)
-        # Length topics are drained once per tick instead of waking the executor for every
-        # message: only the newest length per module matters for a prediction, and rclpy's
-        # per-message dispatch (~0.2 ms) would otherwise dominate the node's CPU at 100 Hz.
-        # The subscriptions live on an inbox node that no executor spins; up to `depth`
-        # messages per topic wait in DDS between two ticks.
+        # Length topics are taken by the prediction thread instead of waking the executor
+        # for every message: only the newest length per module matters for a prediction,
+        # and rclpy's per-message dispatch (~0.2 ms) would otherwise dominate the node's
+        # CPU at 100 Hz. The subscriptions live on an inbox node that no executor spins; up
+        # to `depth` messages per topic wait in DDS between two period boundaries.
         # A `-r __node:=NAME` on the command line renames every node of the process: the
         # inbox's own (node-local, so winning) remap keeps it from taking the model's name.
         self._inbox = Node('model_node_inbox', namespace=self.get_namespace(),
@@ -302,18 +420,23 @@ class ModelNode(SoftSnapNode):
             goal_callback=self.design_goal_callback,
             cancel_callback=self.design_cancel_callback,
             callback_group=self._design_group)
-        # Predictions run on their own thread (TickThread says why); only that thread
-        # touches the predictor, the inbox and the shape publishers' caches.
-        self.ticker = TickThread('prediction_tick', 1.0 / self.get_parameter('rate').value,
-                                 self.tick_callback)
         self.diagnostics_timer = self.create_timer(
             self.get_parameter('diagnostics_period').value, self.diagnostics_callback)
         # Markers are built on the prediction thread when due (a 10 Hz executor timer
-        # woke the executor 10 times a second for a subscription count, ~0.05 ms of an
-        # idle 10 ms tick); the period is read at every tick, so a new rate applies at once.
+        # woke the executor 10 times a second for a subscription count); a new
+        # marker_rate applies at once.
         self._marker_period_s = 1.0 / self.get_parameter('marker_rate').value
         self._next_marker_at = time.monotonic()
-        self.ticker.start()  # last: the node is complete
+        # Predictions run on their own thread, woken by the lengths (PredictionThread says
+        # why); only that thread touches the predictor, the inbox's subscriptions and the
+        # shape publishers' caches.
+        self._length_keys = [(module, source) for module, source, _ in self._length_subscriptions]
+        self.prediction_thread = PredictionThread(
+            'prediction', 1.0 / self.get_parameter('rate').value, self.context,
+            [subscription for _, _, subscription in self._length_subscriptions], CableLength,
+            on_length=self.taken_length_callback, predict=self.predict_callback,
+            chores=self.chores_callback, on_error=self.prediction_error_callback)
+        self.prediction_thread.start()  # last: the node is complete
         self.get_logger().info(
             f'scene {self.scene.name!r}: {len(self.scene.modules)} modules '
             f'({", ".join(self.scene.module_names)}), predicting at '
@@ -342,9 +465,12 @@ class ModelNode(SoftSnapNode):
             elif param.name == 'length_tolerance':
                 self.predictor.length_tol_mm = float(param.value) * MM_PER_M
             elif param.name == 'rate':
-                self.ticker.period_s = 1.0 / float(param.value)
+                self.prediction_thread.period_s = 1.0 / float(param.value)
             elif param.name == 'marker_rate':
                 self._marker_period_s = 1.0 / float(param.value)
+                self._next_marker_at = min(self._next_marker_at,
+                                           time.monotonic() + self._marker_period_s)
+                self.prediction_thread.wake()
         return SetParametersResult(successful=True)
 
     # ------------------------------------------------------------------ topics
@@ -356,7 +482,7 @@ class ModelNode(SoftSnapNode):
         except CdrError:
             try:  # another encoding: let rclpy read it
                 msg = deserialize_message(data, CableLength)
-            except Exception as error:  # undecodable bytes must not stop the tick
+            except Exception as error:  # undecodable bytes must not stop the predictions
                 self.get_logger().warning(f'could not read a {source} length message for '
                                           f'{module!r}: {error!r}', throttle_duration_sec=1.0)
                 return
@@ -372,7 +498,7 @@ class ModelNode(SoftSnapNode):
     def _subscribers(self, publisher) -> int:
         """Subscription count of one of our publishers, refreshed every SUBSCRIBERS_REFRESH_S.
 
-        Asking DDS costs a few microseconds a publisher, and every tick asked it for the
+        Asking DDS costs a few microseconds a publisher, and every prediction asked it for the
         robot's and every module's publishers. A new subscriber is served within
         SUBSCRIBERS_REFRESH_S (discovery itself takes longer).
         """
@@ -393,35 +519,36 @@ class ModelNode(SoftSnapNode):
         return any(self._subscribers(self.module_publishers[(m.name, source)]) > 0
                    for m in self.scene.modules)
 
-    def tick_callback(self) -> None:
+    def taken_length_callback(self, index: int, data: bytes) -> None:
+        """A length message taken by the prediction thread from subscription ``index``."""
+        module, source = self._length_keys[index]
+        self.length_callback(data, module, source)
+
+    def predict_callback(self) -> bool:
+        """Solve and publish what is pending (called on a period boundary by the
+        prediction thread); False if nothing was pending."""
+        if not self.predictor.has_pending:
+            return False
         if not self.context.ok():
-            return  # shutting down: the publishers may be gone
+            return False  # shutting down: the publishers may be gone
         try:
-            self._tick()
-        except Exception as error:  # never let one bad tick stop the predictions
-            self.get_logger().error(f'prediction tick failed: {error!r}', throttle_duration_sec=1.0)
-
-    def _drain_lengths(self) -> None:
-        """Submit every length message that arrived since the last tick, oldest first.
-
-        Taken as bytes: reading the two fields needed costs a quarter of building the
-        message object (see :func:`softsnap_driver.cdr.decode_cable_length`).
-        """
-        for module, source, subscription in self._length_subscriptions:
-            with subscription.handle:
-                while (taken := subscription.handle.take_message(CableLength, True)) is not None:
-                    self.length_callback(taken[0], module, source)
-
-    def _tick(self) -> None:
-        self._drain_lengths()
-        if self.predictor.has_pending:
             self._predict()
-        # else nothing new: no solve, no message (an idle tick costs the drain only)
+        except Exception as error:  # never let one bad prediction stop the predictions
+            self.get_logger().error(f'prediction failed: {error!r}', throttle_duration_sec=1.0)
+        return True
+
+    def chores_callback(self) -> float:
+        """Publish markers when due (on the prediction thread); when the next are due
+        (monotonic s)."""
         now = time.monotonic()
-        if now >= self._next_marker_at:
-            # On schedule, without a burst of catch-up marker arrays after a slow tick.
+        if now >= self._next_marker_at and self.context.ok():
+            # On schedule, without a burst of catch-up marker arrays after a slow prediction.
             self._next_marker_at = max(self._next_marker_at + self._marker_period_s, now)
             self.marker_callback()
+        return self._next_marker_at
+
+    def prediction_error_callback(self, error: Exception) -> None:
+        self.get_logger().error(f'prediction thread: {error!r}', throttle_duration_sec=1.0)
 
     def _predict(self) -> None:
         """Solve the pending lengths and publish the new shapes to whoever subscribes."""
@@ -572,7 +699,7 @@ class ModelNode(SoftSnapNode):
         self._simulated = msg  # drawn (and checked) at the next marker tick, if watched
 
     def marker_callback(self) -> None:
-        """Publish model/markers if someone subscribes (called from the tick when due)."""
+        """Publish model/markers if someone subscribes (called from the prediction thread when due)."""
         if self._subscribers(self.marker_publisher) == 0:
             return  # nobody watches: build nothing
         try:
@@ -942,8 +1069,8 @@ class ModelNode(SoftSnapNode):
         # Stop every design (they poll this between steps), then give the workers a
         # bounded moment: SIGINT must end the node within 2 s whatever it is doing.
         self._stopping.set()
-        if not self.ticker.stop(TICK_STOP_WAIT_S):
-            self.get_logger().warning('the prediction tick did not stop in time')
+        if not self.prediction_thread.stop(TICK_STOP_WAIT_S):
+            self.get_logger().warning('the prediction thread did not stop in time')
         end = time.monotonic() + DESIGN_STOP_WAIT_S
         for worker in (self._service_worker, self._action_worker):
             if not worker.stop(max(0.0, end - time.monotonic())):
@@ -978,7 +1105,7 @@ def main(args=None):
         rclpy.try_shutdown()
         raise SystemExit(2)
     # One thread runs every callback (lower latency than the multi-threaded executor);
-    # predictions run on the node's tick thread and inverse designs on its worker
+    # predictions run on the node's prediction thread and inverse designs on its worker
     # threads, which destroy_node stops within TICK_STOP_WAIT_S and DESIGN_STOP_WAIT_S.
     executor = SingleThreadedExecutor()
     executor.add_node(node)
