@@ -83,6 +83,9 @@ DESIGN_STOP_WAIT_S = 0.5
 FEEDBACK_PERIOD_S = 0.1
 #: On shutdown, how long the prediction thread may take to finish its prediction (s).
 TICK_STOP_WAIT_S = 0.5
+#: After a length wakes the idle prediction thread, the fraction of a period it waits
+#: for more (lengths published together are solved together).
+GATHER_FRACTION = 0.5
 #: Longest the idle prediction thread blocks without checking the context (s).
 IDLE_WAIT_MAX_S = 1.0
 #: While a long period runs, how often the length queues are taken (s): a queue of depth
@@ -132,15 +135,18 @@ class PredictionThread:
     Two states:
 
     - idle: the thread blocks in one rcl wait set over the length subscriptions (and a
-      guard condition for :meth:`stop` and a new period), until a length arrives or the
-      next chore is due (``chores()`` returns when; at most ``IDLE_WAIT_MAX_S``). It takes
-      only from the subscriptions the wait reports ready, then turns active.
-    - active: predictions happen on period boundaries (a grid of ``period_s``, so lengths
-      published together land in one prediction, and no more than one prediction per
-      period). Between two boundaries the thread sleeps without asking DDS: lengths wait
-      in the subscriptions' queues (``depth``), taken at the boundary from every
-      subscription (10 takes that find nothing cost a third of one wait-set round,
-      measured), and every ``DRAIN_S`` while a long period runs, so that a queue never
+      guard condition for :meth:`stop` and :meth:`wake`), until a length arrives or the
+      next chore is due (``chores()`` says when; at most ``IDLE_WAIT_MAX_S``). It takes
+      only from the subscriptions the wait reports ready, then turns active with its
+      next prediction ``GATHER_FRACTION`` of a period later (the mean delay of a fixed
+      tick; lengths published together, such as a gait's five commands, are solved
+      together), and at least a period after the last prediction.
+    - active: predictions follow on a grid of ``period_s`` from there (in phase with the
+      arrivals; at most one prediction per period, a late wake skips to the next
+      boundary). Between two boundaries the thread sleeps without asking DDS: lengths
+      wait in the subscriptions' queues (``depth``) and are taken at the boundary from
+      every subscription (ten takes that find nothing cost a third of one wait-set
+      round, measured), and every ``DRAIN_S`` while a long period runs, so that no queue
       overflows below 10 / DRAIN_S messages a second. A boundary that finds nothing to
       solve turns the thread idle.
 
@@ -202,11 +208,13 @@ class PredictionThread:
                         if not self._context.ok():
                             return
                         continue  # a chore, the guard, or the safety timeout
+                    arrived = time.monotonic()
                     self._take(ready)
-                    # The next boundary of the grid: lengths published together (a gait's
-                    # five commands) are solved together, as they would be on a fixed tick.
+                    # Half a period after the first arrival (the mean delay of a fixed
+                    # tick), and at least a period after the last prediction: lengths
+                    # published together (a gait's five commands) are solved together.
                     period = self._period_s
-                    last += math.floor((now - last) / period) * period
+                    last = max(last, arrived - period * (1.0 - GATHER_FRACTION))
                     active = True
                     continue
                 period = self._period_s
@@ -221,9 +229,9 @@ class PredictionThread:
                 self._take(range(len(self._handles)))
                 drained = now
                 if self._predict():
-                    # On the grid; after an overrun of more than a period, from now on
-                    # (no burst of catch-up predictions).
-                    last = boundary if now - boundary < period else now
+                    # On the grid (in phase with the lengths' arrivals); after a late
+                    # wake, the next boundary of the grid (no catch-up predictions).
+                    last = boundary + math.floor((now - boundary) / period) * period
                 else:
                     active = False  # a whole period without a length
             except Exception as error:  # noqa: BLE001 - report and go on; never die silently
