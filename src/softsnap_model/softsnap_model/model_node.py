@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import array
 import contextlib
+import dataclasses
 import gc
 import math
 import os
@@ -278,6 +279,16 @@ class PredictionThread:
         return not self._thread.is_alive()
 
 
+@dataclasses.dataclass(frozen=True)
+class _Listeners:
+    """Who listens to the shape outputs, per source ('commanded', 'predicted')."""
+
+    rib_centers: dict    # source -> whether shapes carry rib centres
+    modules: dict        # source -> {module: its ModuleShape publisher, if subscribed}
+    robot: dict          # source -> RobotShape topic subscribed
+    joint_states: dict   # source -> JointState topic subscribed
+
+
 def _points_m(points_mm) -> list[Point]:
     """(N, 2) or (N, 3) array in mm -> geometry_msgs/Point list in metres.
 
@@ -350,6 +361,8 @@ class ModelNode(SoftSnapNode):
         self._solve_time_reported = (0, 0.0)
         self._subscriber_counts: dict = {}  # publisher -> subscription count (cached)
         self._subscribers_at = -math.inf    # monotonic s of the last refresh
+        self._listeners_cache: _Listeners | None = None  # see _listeners
+        self._listeners_at = -math.inf
         self._pose_msgs: dict[tuple, Pose] = {}
         # Shape messages are published as CDR bytes kept ready and updated in place
         # (shape_wire says why), if rclpy reads those bytes back as the messages the
@@ -377,8 +390,8 @@ class ModelNode(SoftSnapNode):
                            enable_rosout=False,
                            cli_args=['--ros-args', '-r', f'__node:={self.get_name()}_inbox'])
         self._length_subscriptions = []
-        # Length messages taken per (module, source) since start (count), in diagnostics.
-        self.lengths_taken = {(m.name, source): 0 for m in self.scene.modules for source in SOURCES}
+        # Length messages taken per length subscription since start (count), in diagnostics.
+        self.lengths_taken = [0] * (len(self.scene.modules) * len(SOURCES))
         self.module_publishers = {}
         for module in self.scene.modules:
             for source in SOURCES:
@@ -442,7 +455,7 @@ class ModelNode(SoftSnapNode):
         self.prediction_thread = PredictionThread(
             'prediction', 1.0 / self.get_parameter('rate').value, self.context,
             [subscription for _, _, subscription in self._length_subscriptions], CableLength,
-            on_length=self.taken_length_callback, predict=self.predict_callback,
+            on_length=self.length_callback, predict=self.predict_callback,
             chores=self.chores_callback, on_error=self.prediction_error_callback)
         self.prediction_thread.start()  # last: the node is complete
         self.get_logger().info(
@@ -470,6 +483,7 @@ class ModelNode(SoftSnapNode):
         for param in params:
             if param.name == 'rib_centers':
                 self.rib_centers_mode = param.value
+                self._listeners_cache = None  # built again with the new mode
             elif param.name == 'length_tolerance':
                 self.predictor.length_tol_mm = float(param.value) * MM_PER_M
             elif param.name == 'rate':
@@ -482,9 +496,11 @@ class ModelNode(SoftSnapNode):
         return SetParametersResult(successful=True)
 
     # ------------------------------------------------------------------ topics
-    def length_callback(self, data: bytes, module: str, source: str) -> None:
-        """A serialised CableLength taken from a length topic: submit it to the predictor."""
-        self.lengths_taken[(module, source)] += 1
+    def length_callback(self, index: int, data: bytes) -> None:
+        """A serialised CableLength taken from length subscription ``index`` (see
+        ``_length_keys``): submit it to the predictor."""
+        self.lengths_taken[index] += 1
+        module, source = self._length_keys[index]
         try:
             stamp_ns, length_m = decode_cable_length(data)
         except CdrError:
@@ -506,8 +522,8 @@ class ModelNode(SoftSnapNode):
     def _subscribers(self, publisher) -> int:
         """Subscription count of one of our publishers, refreshed every SUBSCRIBERS_REFRESH_S.
 
-        Asking DDS costs a few microseconds a publisher, and every prediction asked it for the
-        robot's and every module's publishers. A new subscriber is served within
+        Asking DDS costs a few microseconds a publisher, and every prediction asked it for
+        the robot's and every module's publishers. A new subscriber is served within
         SUBSCRIBERS_REFRESH_S (discovery itself takes longer).
         """
         now = time.monotonic()
@@ -519,18 +535,28 @@ class ModelNode(SoftSnapNode):
             count = self._subscriber_counts[publisher] = publisher.get_subscription_count()
         return count
 
-    def _want_rib_centers(self, source: str) -> bool:
-        if self.rib_centers_mode != 'auto':
-            return self.rib_centers_mode == 'always'
-        if self._subscribers(self.robot_publishers[source]) > 0:
-            return True
-        return any(self._subscribers(self.module_publishers[(m.name, source)]) > 0
-                   for m in self.scene.modules)
-
-    def taken_length_callback(self, index: int, data: bytes) -> None:
-        """A length message taken by the prediction thread from subscription ``index``."""
-        module, source = self._length_keys[index]
-        self.length_callback(data, module, source)
+    def _listeners(self) -> _Listeners:
+        """Who listens to the shape outputs, refreshed with the subscription counts (one
+        look-up a prediction instead of one per topic and shape)."""
+        listeners, now = self._listeners_cache, time.monotonic()
+        if listeners is None or now - self._listeners_at > SUBSCRIBERS_REFRESH_S:
+            self._listeners_at = now
+            modules = {source: {m.name: self.module_publishers[(m.name, source)]
+                                for m in self.scene.modules
+                                if self._subscribers(self.module_publishers[(m.name, source)])}
+                       for source in SOURCES}
+            robot = {source: self._subscribers(self.robot_publishers[source]) > 0
+                     for source in SOURCES}
+            if self.rib_centers_mode == 'auto':
+                rib_centers = {source: robot[source] or bool(modules[source])
+                               for source in SOURCES}
+            else:
+                rib_centers = dict.fromkeys(SOURCES, self.rib_centers_mode == 'always')
+            listeners = self._listeners_cache = _Listeners(
+                rib_centers=rib_centers, modules=modules, robot=robot,
+                joint_states={source: self._subscribers(self.joint_state_publishers[source]) > 0
+                              for source in SOURCES})
+        return listeners
 
     def predict_callback(self) -> bool:
         """Solve and publish what is pending (called on a period boundary by the
@@ -560,32 +586,36 @@ class ModelNode(SoftSnapNode):
 
     def _predict(self) -> None:
         """Solve the pending lengths and publish the new shapes to whoever subscribes."""
-        want = {source: self._want_rib_centers(source) for source in SOURCES}
-        updated = self.predictor.tick(want)
+        listeners = self._listeners()
+        updated = self.predictor.tick(listeners.rib_centers)
         for module, source, reason in self.predictor.errors:
             self.get_logger().warning(f'could not solve the {source} shape of {module!r}: '
                                       f'{reason}; keeping the last valid shape',
                                       throttle_duration_sec=1.0)
         self.predictor.errors.clear()
-        stamp_ns = self.get_clock().now().nanoseconds
+        clock = self.get_clock().handle  # the node's clock (ROS time, simulated or not)
+        with clock:
+            stamp_ns = clock.get_now().nanoseconds
         stamp = None  # its message, built only for the message-object fallback
         for source in SOURCES:
             if not updated[source]:
                 continue
-            if self._subscribers(self.joint_state_publishers[source]) > 0:
+            if listeners.joint_states[source]:
                 for joint_state in standard.joint_states(updated[source]):
                     self.joint_state_publishers[source].publish(joint_state)
                     self.joint_states_published += 1
             if not self.wire_format and stamp is None:
                 stamp = Time(nanoseconds=stamp_ns).to_msg()
             # Serialising costs ~0.1 ms a message: topics nobody listens to are skipped.
-            for shape in updated[source]:
-                publisher = self.module_publishers[(shape.module, source)]
-                if self._subscribers(publisher) > 0:
-                    publisher.publish(
-                        self._module_wires[(shape.module, source)].serialize(shape, stamp_ns)
-                        if self.wire_format else self._message_for(shape, stamp))
-            if self._subscribers(self.robot_publishers[source]) == 0:
+            subscribed = listeners.modules[source]
+            if subscribed:
+                for shape in updated[source]:
+                    publisher = subscribed.get(shape.module)
+                    if publisher is not None:
+                        publisher.publish(
+                            self._module_wires[(shape.module, source)].serialize(shape, stamp_ns)
+                            if self.wire_format else self._message_for(shape, stamp))
+            if not listeners.robot[source]:
                 continue
             shapes, poses = self.predictor.shapes(source), self.predictor.base_poses(source)
             self.robot_publishers[source].publish(
@@ -781,8 +811,9 @@ class ModelNode(SoftSnapNode):
         self._health_reported = health
         self.ros_diagnostics_publisher.publish(diagnostics)
         msg.modules = [m.name for m in self.scene.modules]
-        msg.commanded_lengths = [self.lengths_taken[(m, 'commanded')] for m in msg.modules]
-        msg.measured_lengths = [self.lengths_taken[(m, 'predicted')] for m in msg.modules]
+        taken = dict(zip(self._length_keys, self.lengths_taken))
+        msg.commanded_lengths = [taken[(m, 'commanded')] for m in msg.modules]
+        msg.measured_lengths = [taken[(m, 'predicted')] for m in msg.modules]
         msg.header.stamp = self.get_clock().now().to_msg()
         self._solve_time_reported = (c.solves, c.solve_time_s)
         self.diagnostics_publisher.publish(msg)
