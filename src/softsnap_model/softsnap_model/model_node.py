@@ -737,7 +737,8 @@ class ModelNode(SoftSnapNode):
         self._simulated = msg  # drawn (and checked) at the next marker tick, if watched
 
     def marker_callback(self) -> None:
-        """Publish model/markers if someone subscribes (called from the prediction thread when due)."""
+        """Publish model/markers if someone subscribes (called by the prediction thread when
+        due)."""
         if self._subscribers(self.marker_publisher) == 0:
             return  # nobody watches: build nothing
         try:
