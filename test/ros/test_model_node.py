@@ -198,7 +198,7 @@ def test_published_shapes_follow_a_changing_command(brittle_star_node, ros_node)
 def test_identical_snake_modules_cost_one_solve(start_node, ros_node):
     from softsnap_interfaces.msg import CableLength, ModelDiagnostics, RobotShape
     scene = load_scene('snake')
-    # A slow tick (0.5 s) so that five commands published together land in one tick.
+    # A slow rate (2 Hz): five commands published together land on one period boundary.
     start_node('softsnap_model', 'model_node', '--ros-args', '-r', '__ns:=/snake',
                '-p', 'scene:=snake', '-p', 'rate:=2.0', '-p', 'diagnostics_period:=0.1')
     diagnostics, robots = [], []
@@ -222,7 +222,7 @@ def test_identical_snake_modules_cost_one_solve(start_node, ros_node):
             >= before.solves + before.skipped_duplicate + 5, 5.0)
         return before, diagnostics[-1]
 
-    # A tick boundary may (rarely) split the five messages; then try another length.
+    # A period boundary may (rarely) split the five messages; then try another length.
     for attempt in range(3):
         length = scene.modules[0].straight_length_mm - 30.0 - attempt
         before, after = command_all(length)
@@ -261,29 +261,3 @@ def test_predictions_go_on_during_an_inverse_design(brittle_star_node, ros_node)
         assert future.result().success, future.result().message
         assert len(future.result().alternatives) == 3
     assert len(diagnostics) > n_before  # the diagnostics timer kept running
-
-
-def test_tick_thread_ticks_until_stopped_and_follows_a_new_period():
-    # The model node's predictions run on this thread instead of an executor timer.
-    import threading
-    import time
-
-    from softsnap_model.model_node import TickThread
-
-    ticks = []
-    moved = threading.Event()
-    ticker = TickThread('test_tick', 0.01, lambda: (ticks.append(1), moved.set()))
-    ticker.start()
-    deadline = time.monotonic() + 30.0
-    while len(ticks) < 5 and time.monotonic() < deadline:
-        time.sleep(0.01)
-    assert len(ticks) >= 5
-    ticker.period_s = 3600.0  # a new rate applies from the next tick on
-    time.sleep(0.2)
-    settled = len(ticks)
-    time.sleep(0.5)
-    assert len(ticks) <= settled + 1
-    assert ticker.stop(5.0)  # a pending wait ends at once
-    stopped = len(ticks)
-    time.sleep(0.1)
-    assert len(ticks) == stopped

@@ -31,6 +31,8 @@ All science lives in :mod:`softsnap_model.predictor`, :mod:`.forward`, :mod:`.lo
 from __future__ import annotations
 
 import array
+import contextlib
+import dataclasses
 import gc
 import math
 import os
@@ -46,6 +48,7 @@ from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescr
                                 SetParametersResult)
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.executors import SingleThreadedExecutor
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.qos import QoSProfile
@@ -79,11 +82,19 @@ LENGTH_TOPIC = {'commanded': 'cable_length/command', 'predicted': 'cable_length/
 DESIGN_STOP_WAIT_S = 0.5
 #: Period of DesignThreading feedback while a goal runs (s).
 FEEDBACK_PERIOD_S = 0.1
-#: On shutdown, how long the prediction thread may take to finish its tick (s).
+#: On shutdown, how long the prediction thread may take to finish its prediction (s).
 TICK_STOP_WAIT_S = 0.5
+#: After a length wakes the idle prediction thread, the fraction of a period it waits
+#: for more (lengths published together are solved together).
+GATHER_FRACTION = 0.5
+#: Longest the idle prediction thread blocks without checking the context (s).
+IDLE_WAIT_MAX_S = 1.0
+#: While a long period runs, how often the length queues are taken (s): a queue of depth
+#: 10 then never overflows below 200 messages a second.
+DRAIN_S = 0.05
 #: How long a publisher's subscription count is trusted before DDS is asked again (s).
 SUBSCRIBERS_REFRESH_S = 0.25
-#: Pose messages kept for reuse (fixed module bases hit it every tick).
+#: Pose messages kept for reuse (fixed module bases hit it every prediction).
 POSE_CACHE_SIZE = 1024
 
 
@@ -113,43 +124,169 @@ class DesignWorker:
         return not self._thread.is_alive()
 
 
-class TickThread:
-    """Calls ``tick()`` every ``period_s`` seconds on a daemon thread until :meth:`stop`.
+class PredictionThread:
+    """Takes the length messages and predicts on a daemon thread, woken by the lengths.
 
-    Why not an rclpy timer: every executor wake rebuilds the wait set over all of the
-    node's entities in Python, which cost more than a whole idle tick (0.5 ms against
-    0.04 ms, measured on the development machine); a sleeping thread wakes for a few
-    microseconds. ``tick`` must catch its own exceptions. A tick that overruns its
-    period is followed at once by the next one, and a backlog of more than a period is
-    dropped (no burst of catch-up ticks).
+    Why not an rclpy timer or executor subscriptions: every executor wake rebuilds the
+    wait set over all of the node's entities in Python (0.5 ms against 0.04 ms for a
+    whole idle tick, measured on the development machine), and rclpy's per-message
+    dispatch (~0.2 ms) would dominate at 100 Hz. Why not a fixed tick: an idle node then
+    still wakes ``rate`` times a second to find nothing.
+
+    Two states:
+
+    - idle: the thread blocks in one rcl wait set over the length subscriptions (and a
+      guard condition for :meth:`stop` and :meth:`wake`), until a length arrives or the
+      next chore is due (``chores()`` says when; at most ``IDLE_WAIT_MAX_S``). It takes
+      only from the subscriptions the wait reports ready, then turns active with its
+      next prediction ``GATHER_FRACTION`` of a period later (the mean delay of a fixed
+      tick; lengths published together, such as a gait's five commands, are solved
+      together), and at least a period after the last prediction.
+    - active: predictions follow on a grid of ``period_s`` from there (in phase with the
+      arrivals; at most one prediction per period, a late wake skips to the next
+      boundary). Between two boundaries the thread sleeps without asking DDS: lengths
+      wait in the subscriptions' queues (``depth``) and are taken at the boundary from
+      every subscription (ten takes that find nothing cost a third of one wait-set
+      round, measured), and every ``DRAIN_S`` while a long period runs, so that no queue
+      overflows below 10 / DRAIN_S messages a second. A boundary that finds nothing to
+      solve turns the thread idle.
+
+    ``on_length(index, data)`` gets every message of ``subscriptions[index]`` as bytes,
+    oldest first; ``predict()`` solves what is pending and returns False if nothing was;
+    ``chores()`` does what is due (markers) and returns the monotonic time (s) of the
+    next. None of them may raise: ``on_error(exception)`` reports what escapes, and the
+    loop goes on (never a dead thread). The thread ends on :meth:`stop` or when the
+    context shuts down.
     """
 
-    def __init__(self, name: str, period_s: float, tick):
-        self.period_s = float(period_s)  # read at every tick: a new rate applies at once
-        self._tick = tick
+    def __init__(self, name: str, period_s: float, context, subscriptions, msg_type, *,
+                 on_length, predict, chores, on_error):
+        self._period_s = float(period_s)
+        self._context = context
+        self._handles = [subscription.handle for subscription in subscriptions]
+        self._index = {handle.pointer: i for i, handle in enumerate(self._handles)}
+        self._msg_type = msg_type
+        self._on_length, self._predict, self._chores = on_length, predict, chores
+        self._on_error = on_error
+        self._guard = _rclpy.GuardCondition(context.handle)
+        self._wait_set = _rclpy.WaitSet(len(self._handles), 1, 0, 0, 0, 0, context.handle)
         self._stop = threading.Event()
+        self._wake = threading.Event()  # a new period or a stop, for the active state
         self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+
+    @property
+    def period_s(self) -> float:
+        return self._period_s
+
+    @period_s.setter
+    def period_s(self, value: float) -> None:
+        """A new period applies at once: a sleeping thread wakes and computes again."""
+        self._period_s = float(value)
+        self.wake()
+
+    def wake(self) -> None:
+        """Wake the thread to look again at the period and at when chores are due."""
+        self._wake.set()
+        try:
+            self._guard.trigger_guard_condition()
+        except Exception:  # noqa: BLE001 - the context is gone: the wait ends by itself
+            pass
 
     def start(self) -> None:
         self._thread.start()
 
     def _run(self) -> None:
-        next_at = time.monotonic()
-        while True:
-            next_at += self.period_s
-            delay = next_at - time.monotonic()
-            if delay < -self.period_s:
-                next_at, delay = time.monotonic(), 0.0
-            if self._stop.wait(max(delay, 0.0)):
-                return
-            self._tick()
+        last = time.monotonic()  # the boundary of the last prediction (the grid's origin)
+        active = False
+        drained = last           # when the queues were last taken while active
+        while not self._stop.is_set():
+            try:
+                due = self._chores()
+                now = time.monotonic()
+                if not active:
+                    ready = self._wait(min(due - now, IDLE_WAIT_MAX_S))
+                    if not ready:
+                        if not self._context.ok():
+                            return
+                        continue  # a chore, the guard, or the safety timeout
+                    arrived = time.monotonic()
+                    self._take(ready)
+                    # Half a period after the first arrival (the mean delay of a fixed
+                    # tick), and at least a period after the last prediction: lengths
+                    # published together (a gait's five commands) are solved together.
+                    period = self._period_s
+                    last = max(last, arrived - period * (1.0 - GATHER_FRACTION))
+                    active = True
+                    continue
+                period = self._period_s
+                boundary = last + period  # read again after every wake: a new rate applies
+                if now < boundary:
+                    if now - drained >= DRAIN_S:
+                        self._take(range(len(self._handles)))
+                        drained = now
+                    if self._wake.wait(min(boundary, due, drained + DRAIN_S) - now):
+                        self._wake.clear()
+                    continue
+                self._take(range(len(self._handles)))
+                drained = now
+                if self._predict():
+                    # On the grid (in phase with the lengths' arrivals); after a late
+                    # wake, the next boundary of the grid (no catch-up predictions).
+                    last = boundary + math.floor((now - boundary) / period) * period
+                else:
+                    active = False  # a whole period without a length
+            except Exception as error:  # noqa: BLE001 - report and go on; never die silently
+                if self._stop.is_set() or not self._context.ok():
+                    return  # shutting down: the context or a handle is gone
+                self._on_error(error)
+                self._stop.wait(0.01)  # no busy loop if the error repeats
+
+    def _wait(self, timeout_s: float) -> list[int]:
+        """Block until a length subscription is ready, the guard fires or timeout_s
+        passes; the indices of the ready subscriptions."""
+        with contextlib.ExitStack() as held:  # no handle may be destroyed while waited on
+            for handle in self._handles:
+                held.enter_context(handle)
+            held.enter_context(self._guard)
+            wait_set = self._wait_set
+            # rcl_wait empties the slots of entities that are not ready: refill every time.
+            wait_set.clear_entities()
+            for handle in self._handles:
+                wait_set.add_subscription(handle)
+            wait_set.add_guard_condition(self._guard)
+            wait_set.wait(max(0, int(timeout_s * 1e9)))
+            return [self._index[p] for p in wait_set.get_ready_entities('subscription')]
+
+    def _take(self, indices) -> None:
+        """Every waiting message of the given subscriptions, oldest first, to on_length.
+
+        Taken as bytes: reading the two fields needed costs a quarter of building the
+        message object (see :func:`softsnap_driver.cdr.decode_cable_length`).
+        """
+        msg_type, on_length = self._msg_type, self._on_length
+        for index in indices:
+            handle = self._handles[index]
+            with handle:
+                while (taken := handle.take_message(msg_type, True)) is not None:
+                    on_length(index, taken[0])
 
     def stop(self, timeout: float) -> bool:
-        """Stop after the current tick; True if the thread ended within timeout (s)."""
+        """Stop after the current prediction; True if the thread ended within timeout (s)."""
         self._stop.set()
+        self.wake()
         if self._thread.is_alive():
             self._thread.join(timeout)
         return not self._thread.is_alive()
+
+
+@dataclasses.dataclass(frozen=True)
+class _Listeners:
+    """Who listens to the shape outputs, per source ('commanded', 'predicted')."""
+
+    rib_centers: dict    # source -> whether shapes carry rib centres
+    modules: dict        # source -> {module: its ModuleShape publisher, if subscribed}
+    robot: dict          # source -> RobotShape topic subscribed
+    joint_states: dict   # source -> JointState topic subscribed
 
 
 def _points_m(points_mm) -> list[Point]:
@@ -224,6 +361,8 @@ class ModelNode(SoftSnapNode):
         self._solve_time_reported = (0, 0.0)
         self._subscriber_counts: dict = {}  # publisher -> subscription count (cached)
         self._subscribers_at = -math.inf    # monotonic s of the last refresh
+        self._listeners_cache: _Listeners | None = None  # see _listeners
+        self._listeners_at = -math.inf
         self._pose_msgs: dict[tuple, Pose] = {}
         # Shape messages are published as CDR bytes kept ready and updated in place
         # (shape_wire says why), if rclpy reads those bytes back as the messages the
@@ -239,11 +378,11 @@ class ModelNode(SoftSnapNode):
         # Lengths are a stream where only the newest matters: sensor-data QoS would drop
         # messages under load; keep a small reliable queue so no command is lost silently.
         qos = QoSProfile(depth=10)
-        # Length topics are drained once per tick instead of waking the executor for every
-        # message: only the newest length per module matters for a prediction, and rclpy's
-        # per-message dispatch (~0.2 ms) would otherwise dominate the node's CPU at 100 Hz.
-        # The subscriptions live on an inbox node that no executor spins; up to `depth`
-        # messages per topic wait in DDS between two ticks.
+        # Length topics are taken by the prediction thread instead of waking the executor
+        # for every message: only the newest length per module matters for a prediction,
+        # and rclpy's per-message dispatch (~0.2 ms) would otherwise dominate the node's
+        # CPU at 100 Hz. The subscriptions live on an inbox node that no executor spins; up
+        # to `depth` messages per topic wait in DDS between two period boundaries.
         # A `-r __node:=NAME` on the command line renames every node of the process: the
         # inbox's own (node-local, so winning) remap keeps it from taking the model's name.
         self._inbox = Node('model_node_inbox', namespace=self.get_namespace(),
@@ -251,8 +390,8 @@ class ModelNode(SoftSnapNode):
                            enable_rosout=False,
                            cli_args=['--ros-args', '-r', f'__node:={self.get_name()}_inbox'])
         self._length_subscriptions = []
-        # Length messages taken per (module, source) since start (count), in diagnostics.
-        self.lengths_taken = {(m.name, source): 0 for m in self.scene.modules for source in SOURCES}
+        # Length messages taken per length subscription since start (count), in diagnostics.
+        self.lengths_taken = [0] * (len(self.scene.modules) * len(SOURCES))
         self.module_publishers = {}
         for module in self.scene.modules:
             for source in SOURCES:
@@ -302,18 +441,23 @@ class ModelNode(SoftSnapNode):
             goal_callback=self.design_goal_callback,
             cancel_callback=self.design_cancel_callback,
             callback_group=self._design_group)
-        # Predictions run on their own thread (TickThread says why); only that thread
-        # touches the predictor, the inbox and the shape publishers' caches.
-        self.ticker = TickThread('prediction_tick', 1.0 / self.get_parameter('rate').value,
-                                 self.tick_callback)
         self.diagnostics_timer = self.create_timer(
             self.get_parameter('diagnostics_period').value, self.diagnostics_callback)
         # Markers are built on the prediction thread when due (a 10 Hz executor timer
-        # woke the executor 10 times a second for a subscription count, ~0.05 ms of an
-        # idle 10 ms tick); the period is read at every tick, so a new rate applies at once.
+        # woke the executor 10 times a second for a subscription count); a new
+        # marker_rate applies at once.
         self._marker_period_s = 1.0 / self.get_parameter('marker_rate').value
         self._next_marker_at = time.monotonic()
-        self.ticker.start()  # last: the node is complete
+        # Predictions run on their own thread, woken by the lengths (PredictionThread says
+        # why); only that thread touches the predictor, the inbox's subscriptions and the
+        # shape publishers' caches.
+        self._length_keys = [(module, source) for module, source, _ in self._length_subscriptions]
+        self.prediction_thread = PredictionThread(
+            'prediction', 1.0 / self.get_parameter('rate').value, self.context,
+            [subscription for _, _, subscription in self._length_subscriptions], CableLength,
+            on_length=self.length_callback, predict=self.predict_callback,
+            chores=self.chores_callback, on_error=self.prediction_error_callback)
+        self.prediction_thread.start()  # last: the node is complete
         self.get_logger().info(
             f'scene {self.scene.name!r}: {len(self.scene.modules)} modules '
             f'({", ".join(self.scene.module_names)}), predicting at '
@@ -339,24 +483,30 @@ class ModelNode(SoftSnapNode):
         for param in params:
             if param.name == 'rib_centers':
                 self.rib_centers_mode = param.value
+                self._listeners_cache = None  # built again with the new mode
             elif param.name == 'length_tolerance':
                 self.predictor.length_tol_mm = float(param.value) * MM_PER_M
             elif param.name == 'rate':
-                self.ticker.period_s = 1.0 / float(param.value)
+                self.prediction_thread.period_s = 1.0 / float(param.value)
             elif param.name == 'marker_rate':
                 self._marker_period_s = 1.0 / float(param.value)
+                self._next_marker_at = min(self._next_marker_at,
+                                           time.monotonic() + self._marker_period_s)
+                self.prediction_thread.wake()
         return SetParametersResult(successful=True)
 
     # ------------------------------------------------------------------ topics
-    def length_callback(self, data: bytes, module: str, source: str) -> None:
-        """A serialised CableLength taken from a length topic: submit it to the predictor."""
-        self.lengths_taken[(module, source)] += 1
+    def length_callback(self, index: int, data: bytes) -> None:
+        """A serialised CableLength taken from length subscription ``index`` (see
+        ``_length_keys``): submit it to the predictor."""
+        self.lengths_taken[index] += 1
+        module, source = self._length_keys[index]
         try:
             stamp_ns, length_m = decode_cable_length(data)
         except CdrError:
             try:  # another encoding: let rclpy read it
                 msg = deserialize_message(data, CableLength)
-            except Exception as error:  # undecodable bytes must not stop the tick
+            except Exception as error:  # undecodable bytes must not stop the predictions
                 self.get_logger().warning(f'could not read a {source} length message for '
                                           f'{module!r}: {error!r}', throttle_duration_sec=1.0)
                 return
@@ -372,8 +522,8 @@ class ModelNode(SoftSnapNode):
     def _subscribers(self, publisher) -> int:
         """Subscription count of one of our publishers, refreshed every SUBSCRIBERS_REFRESH_S.
 
-        Asking DDS costs a few microseconds a publisher, and every tick asked it for the
-        robot's and every module's publishers. A new subscriber is served within
+        Asking DDS costs a few microseconds a publisher, and every prediction asked it for
+        the robot's and every module's publishers. A new subscriber is served within
         SUBSCRIBERS_REFRESH_S (discovery itself takes longer).
         """
         now = time.monotonic()
@@ -385,72 +535,87 @@ class ModelNode(SoftSnapNode):
             count = self._subscriber_counts[publisher] = publisher.get_subscription_count()
         return count
 
-    def _want_rib_centers(self, source: str) -> bool:
-        if self.rib_centers_mode != 'auto':
-            return self.rib_centers_mode == 'always'
-        if self._subscribers(self.robot_publishers[source]) > 0:
-            return True
-        return any(self._subscribers(self.module_publishers[(m.name, source)]) > 0
-                   for m in self.scene.modules)
+    def _listeners(self) -> _Listeners:
+        """Who listens to the shape outputs, refreshed with the subscription counts (one
+        look-up a prediction instead of one per topic and shape)."""
+        listeners, now = self._listeners_cache, time.monotonic()
+        if listeners is None or now - self._listeners_at > SUBSCRIBERS_REFRESH_S:
+            self._listeners_at = now
+            modules = {source: {m.name: self.module_publishers[(m.name, source)]
+                                for m in self.scene.modules
+                                if self._subscribers(self.module_publishers[(m.name, source)])}
+                       for source in SOURCES}
+            robot = {source: self._subscribers(self.robot_publishers[source]) > 0
+                     for source in SOURCES}
+            if self.rib_centers_mode == 'auto':
+                rib_centers = {source: robot[source] or bool(modules[source])
+                               for source in SOURCES}
+            else:
+                rib_centers = dict.fromkeys(SOURCES, self.rib_centers_mode == 'always')
+            listeners = self._listeners_cache = _Listeners(
+                rib_centers=rib_centers, modules=modules, robot=robot,
+                joint_states={source: self._subscribers(self.joint_state_publishers[source]) > 0
+                              for source in SOURCES})
+        return listeners
 
-    def tick_callback(self) -> None:
+    def predict_callback(self) -> bool:
+        """Solve and publish what is pending (called on a period boundary by the
+        prediction thread); False if nothing was pending."""
+        if not self.predictor.has_pending:
+            return False
         if not self.context.ok():
-            return  # shutting down: the publishers may be gone
+            return False  # shutting down: the publishers may be gone
         try:
-            self._tick()
-        except Exception as error:  # never let one bad tick stop the predictions
-            self.get_logger().error(f'prediction tick failed: {error!r}', throttle_duration_sec=1.0)
-
-    def _drain_lengths(self) -> None:
-        """Submit every length message that arrived since the last tick, oldest first.
-
-        Taken as bytes: reading the two fields needed costs a quarter of building the
-        message object (see :func:`softsnap_driver.cdr.decode_cable_length`).
-        """
-        for module, source, subscription in self._length_subscriptions:
-            with subscription.handle:
-                while (taken := subscription.handle.take_message(CableLength, True)) is not None:
-                    self.length_callback(taken[0], module, source)
-
-    def _tick(self) -> None:
-        self._drain_lengths()
-        if self.predictor.has_pending:
             self._predict()
-        # else nothing new: no solve, no message (an idle tick costs the drain only)
+        except Exception as error:  # never let one bad prediction stop the predictions
+            self.get_logger().error(f'prediction failed: {error!r}', throttle_duration_sec=1.0)
+        return True
+
+    def chores_callback(self) -> float:
+        """Publish markers when due (on the prediction thread); when the next are due
+        (monotonic s)."""
         now = time.monotonic()
-        if now >= self._next_marker_at:
-            # On schedule, without a burst of catch-up marker arrays after a slow tick.
+        if now >= self._next_marker_at and self.context.ok():
+            # On schedule, without a burst of catch-up marker arrays after a slow prediction.
             self._next_marker_at = max(self._next_marker_at + self._marker_period_s, now)
             self.marker_callback()
+        return self._next_marker_at
+
+    def prediction_error_callback(self, error: Exception) -> None:
+        self.get_logger().error(f'prediction thread: {error!r}', throttle_duration_sec=1.0)
 
     def _predict(self) -> None:
         """Solve the pending lengths and publish the new shapes to whoever subscribes."""
-        want = {source: self._want_rib_centers(source) for source in SOURCES}
-        updated = self.predictor.tick(want)
+        listeners = self._listeners()
+        updated = self.predictor.tick(listeners.rib_centers)
         for module, source, reason in self.predictor.errors:
             self.get_logger().warning(f'could not solve the {source} shape of {module!r}: '
                                       f'{reason}; keeping the last valid shape',
                                       throttle_duration_sec=1.0)
         self.predictor.errors.clear()
-        stamp_ns = self.get_clock().now().nanoseconds
+        clock = self.get_clock().handle  # the node's clock (ROS time, simulated or not)
+        with clock:
+            stamp_ns = clock.get_now().nanoseconds
         stamp = None  # its message, built only for the message-object fallback
         for source in SOURCES:
             if not updated[source]:
                 continue
-            if self._subscribers(self.joint_state_publishers[source]) > 0:
+            if listeners.joint_states[source]:
                 for joint_state in standard.joint_states(updated[source]):
                     self.joint_state_publishers[source].publish(joint_state)
                     self.joint_states_published += 1
             if not self.wire_format and stamp is None:
                 stamp = Time(nanoseconds=stamp_ns).to_msg()
             # Serialising costs ~0.1 ms a message: topics nobody listens to are skipped.
-            for shape in updated[source]:
-                publisher = self.module_publishers[(shape.module, source)]
-                if self._subscribers(publisher) > 0:
-                    publisher.publish(
-                        self._module_wires[(shape.module, source)].serialize(shape, stamp_ns)
-                        if self.wire_format else self._message_for(shape, stamp))
-            if self._subscribers(self.robot_publishers[source]) == 0:
+            subscribed = listeners.modules[source]
+            if subscribed:
+                for shape in updated[source]:
+                    publisher = subscribed.get(shape.module)
+                    if publisher is not None:
+                        publisher.publish(
+                            self._module_wires[(shape.module, source)].serialize(shape, stamp_ns)
+                            if self.wire_format else self._message_for(shape, stamp))
+            if not listeners.robot[source]:
                 continue
             shapes, poses = self.predictor.shapes(source), self.predictor.base_poses(source)
             self.robot_publishers[source].publish(
@@ -572,7 +737,8 @@ class ModelNode(SoftSnapNode):
         self._simulated = msg  # drawn (and checked) at the next marker tick, if watched
 
     def marker_callback(self) -> None:
-        """Publish model/markers if someone subscribes (called from the tick when due)."""
+        """Publish model/markers if someone subscribes (called by the prediction thread when
+        due)."""
         if self._subscribers(self.marker_publisher) == 0:
             return  # nobody watches: build nothing
         try:
@@ -646,8 +812,9 @@ class ModelNode(SoftSnapNode):
         self._health_reported = health
         self.ros_diagnostics_publisher.publish(diagnostics)
         msg.modules = [m.name for m in self.scene.modules]
-        msg.commanded_lengths = [self.lengths_taken[(m, 'commanded')] for m in msg.modules]
-        msg.measured_lengths = [self.lengths_taken[(m, 'predicted')] for m in msg.modules]
+        taken = dict(zip(self._length_keys, self.lengths_taken))
+        msg.commanded_lengths = [taken[(m, 'commanded')] for m in msg.modules]
+        msg.measured_lengths = [taken[(m, 'predicted')] for m in msg.modules]
         msg.header.stamp = self.get_clock().now().to_msg()
         self._solve_time_reported = (c.solves, c.solve_time_s)
         self.diagnostics_publisher.publish(msg)
@@ -942,8 +1109,8 @@ class ModelNode(SoftSnapNode):
         # Stop every design (they poll this between steps), then give the workers a
         # bounded moment: SIGINT must end the node within 2 s whatever it is doing.
         self._stopping.set()
-        if not self.ticker.stop(TICK_STOP_WAIT_S):
-            self.get_logger().warning('the prediction tick did not stop in time')
+        if not self.prediction_thread.stop(TICK_STOP_WAIT_S):
+            self.get_logger().warning('the prediction thread did not stop in time')
         end = time.monotonic() + DESIGN_STOP_WAIT_S
         for worker in (self._service_worker, self._action_worker):
             if not worker.stop(max(0.0, end - time.monotonic())):
@@ -978,7 +1145,7 @@ def main(args=None):
         rclpy.try_shutdown()
         raise SystemExit(2)
     # One thread runs every callback (lower latency than the multi-threaded executor);
-    # predictions run on the node's tick thread and inverse designs on its worker
+    # predictions run on the node's prediction thread and inverse designs on its worker
     # threads, which destroy_node stops within TICK_STOP_WAIT_S and DESIGN_STOP_WAIT_S.
     executor = SingleThreadedExecutor()
     executor.add_node(node)
