@@ -135,41 +135,53 @@ def _pair_profile_array(d1, d2, s, b_max, n_samples=_BRANCH_SAMPLES):
 
 # Per-pair profiles, memoised for the process: a threading's tables are a function of its
 # distinct hole pairs, so threadings (and the inverse design) share them. FIFO-bounded
-# (documented cache; :func:`softsnap_model.forward.clear_caches` empties it).
+# (documented cache; :func:`softsnap_model.forward.clear_caches` empties it). An entry is
+# ``(scalars, tables, kind)``: the floats of :data:`_SCALAR_KEYS`, the (3, M) tables
+# ``b, mu, dmu`` and the end kind, so that a threading's profiles are gathered by two
+# numpy calls (a new threading's first solve is numpy call overhead).
 _PROFILE_CACHE: dict = {}
 _PROFILE_CACHE_MAX = 16384
 _PROFILE_LOCK = threading.Lock()
-_PROFILE_KEYS = ('direction', 'mirror', 'mu_c', 'beta', 'b_end', 'mu_end', 'kind', 'b', 'mu',
-                 'dmu')
+_SCALAR_KEYS = ('direction', 'mirror', 'mu_c', 'beta', 'b_end', 'mu_end', 'end_length')
+_TABLE_KEYS = ('b', 'mu', 'dmu')
 
 
 def _pair_profiles(d1, d2, s: float, b_max: float) -> dict:
     """Profiles of the hole pairs ``(d1[j], d2[j])``, stacked along the first axis.
 
     Each distinct pair is built once per process (pure function of ``(d1, d2, s,
-    b_max)``); the pairs not seen before are built together, vectorised.
+    b_max)``); the pairs not seen before are built together, vectorised. The tables
+    ``b, mu, dmu`` (n, M) are views of ``tables`` (n, 3, M); ``end_length`` is the
+    segment's length at its branch end as the table has it (within rounding of the one
+    :func:`.path._problem` sums for the reachable minimum).
     """
     s, b_max = float(s), float(b_max)
     keys = [(x, y, s, b_max) for x, y in zip(np.asarray(d1, dtype=float).tolist(),
                                                 np.asarray(d2, dtype=float).tolist())]
     with _PROFILE_LOCK:
         found = [_PROFILE_CACHE.get(key) for key in keys]
-    missing = list(dict.fromkeys(key for key, f in zip(keys, found) if f is None))
-    if missing:
+    if None in found:
+        missing = list(dict.fromkeys(key for key, f in zip(keys, found) if f is None))
         built = _pair_profile_array(np.array([key[0] for key in missing]),
                                     np.array([key[1] for key in missing]), float(s),
                                     float(b_max))
-        new = {key: {name: built[name][j] for name in _PROFILE_KEYS}
+        # The length at the branch end (a bound for the threading's minimum length).
+        built['end_length'] = built['length'][:, -1]
+        scalars = np.stack([built[name] for name in _SCALAR_KEYS], axis=1).tolist()
+        tables = np.stack([built[name] for name in _TABLE_KEYS], axis=1)
+        new = {key: (tuple(scalars[j]), tables[j], str(built['kind'][j]))
                for j, key in enumerate(missing)}
         with _PROFILE_LOCK:
             _PROFILE_CACHE.update(new)
             while len(_PROFILE_CACHE) > _PROFILE_CACHE_MAX:
                 del _PROFILE_CACHE[next(iter(_PROFILE_CACHE))]
         found = [f if f is not None else new[key] for key, f in zip(keys, found)]
-    out = {name: np.array([f[name] for f in found]) for name in _PROFILE_KEYS
-           if name not in ('b', 'mu', 'dmu')}
-    for name in ('b', 'mu', 'dmu'):
-        out[name] = np.stack([f[name] for f in found])
+    scalars = np.array([f[0] for f in found]).T
+    tables = np.array([f[1] for f in found])
+    out = dict(zip(_SCALAR_KEYS, scalars))
+    out['mirror'] = scalars[1] != 0.0
+    out['kind'] = np.array([f[2] for f in found])
+    out.update(tables=tables, b=tables[:, 0], mu=tables[:, 1], dmu=tables[:, 2])
     return out
 
 

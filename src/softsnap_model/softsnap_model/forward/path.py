@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import bisect
 import functools
+import math
 import threading
 from dataclasses import dataclass
 
@@ -284,11 +285,24 @@ class _Problem:
     table_mu: np.ndarray     # (n, M) per-unit-stiffness tension along each branch
     table_b: np.ndarray      # (n, M) angle magnitude along each branch
     straight_mm: float
-    min_mm: float            # infimum of reachable lengths (or length at the fold)
     snap: bool               # the path ends at a fold (snap-through), not at contact
     path_lam: np.ndarray     # (P,) increasing tensions along the whole path
     path: '_PathTable'       # samples there and start polynomials, built on demand
     path_columns: np.ndarray  # (n+1,) column of path_poly for each segment, then lambda
+    min_mm_above: float      # a bound above min_mm (a check that need not compute it)
+
+    @property
+    def min_mm(self) -> float:
+        """Infimum of reachable lengths (mm): every segment at its branch end (or the
+        length at the fold). Computed on first read (a first solve whose length is
+        above :attr:`min_mm_above` never needs it) and kept; a pure function of the
+        problem, so concurrent first reads agree."""
+        value = self.__dict__.get('_min_mm')
+        if value is None:
+            end_len, _, _ = _branch_derivs(self.b_end, self.direction, self.d1, self.d2,
+                                           self.s)
+            value = self.__dict__['_min_mm'] = float(end_len.sum())
+        return value
 
     @property
     def path_len(self) -> np.ndarray:
@@ -314,6 +328,19 @@ def _sorted_unique(values):
     return values[np.concatenate(([True], values[1:] != values[:-1]))]
 
 
+@functools.lru_cache(maxsize=64)
+def _thinned(size):
+    """Indices keeping :data:`_PATH_SAMPLES` of ``size`` path tensions, ends included
+    (a pure function of the size, memoised: ``np.linspace`` costs ~10 us a call)."""
+    keep = np.linspace(0, size - 1, _PATH_SAMPLES).astype(int)
+    keep.flags.writeable = False
+    return keep
+
+
+#: Most samples of a path table (before the buckling and end tensions are added back).
+_PATH_SAMPLES = 4 * _BRANCH_SAMPLES
+
+
 @functools.lru_cache(maxsize=_THREADINGS_CACHED)
 def _problem(skeleton: Skeleton, d: tuple) -> _Problem:
     s = skeleton.spacing_mm
@@ -324,28 +351,12 @@ def _problem(skeleton: Skeleton, d: tuple) -> _Problem:
     prof = _pair_profiles(d1, d2, s, b_max)
     direction, mu_c, beta = prof['direction'], prof['mu_c'], prof['beta']
     mu_end, b_end = prof['mu_end'], prof['b_end']
-    kind = tuple(str(x) for x in prof['kind'])
+    kind = tuple(prof['kind'].tolist())
     table_mu, table_b = prof['mu'], prof['b']
     lam_c, lam_end = k * mu_c, k * mu_end
     straight = float(np.sum(np.hypot(s, d2 - d1)))
     folds = [i for i, kd in enumerate(kind) if kd == 'fold']
     snap = bool(folds)
-    # Path table: every tension where some segment's table has a sample, up to where the
-    # path ends (all segments at their ends, or the first fold).
-    lam_all = (k[:, None] * table_mu).ravel()
-    lam_all = lam_all[np.isfinite(lam_all)]
-    if snap:
-        lam_top = float(np.min(lam_end[folds]))
-    else:
-        finite = lam_end[np.isfinite(lam_end)]
-        lam_top = float(finite.max()) if finite.size else float(lam_all.max())
-    lam_path = _sorted_unique(np.concatenate([[0.0], lam_all[lam_all <= lam_top], [lam_top]]))
-    if lam_path.size > 4 * _BRANCH_SAMPLES:
-        # Thin to a bounded table; keep the ends and every buckling tension (the kept
-        # indices are strictly increasing: their step is above 1).
-        keep = np.linspace(0, lam_path.size - 1, 4 * _BRANCH_SAMPLES).astype(int)
-        lam_path = _sorted_unique(np.concatenate([lam_path[keep], lam_c, lam_end, [lam_top]]))
-        lam_path = lam_path[lam_path <= lam_top]
     # Segments with the same holes and stiffness have the same angle at every tension:
     # the path is solved once per distinct segment (5 to 7 of 11 for the paper's
     # threadings; the table build is arithmetic on (samples, segments) arrays) and
@@ -356,26 +367,43 @@ def _problem(skeleton: Skeleton, d: tuple) -> _Problem:
             position[key] = len(position)
             first.append(i)
         inverse.append(position[key])
-    inverse, first = np.array(inverse), np.array(first)
-    seg = dict(d1=d1[first], d2=d2[first], k=k[first], direction=direction[first],
-               table_mu=table_mu[first], table_b=table_b[first], dmu=prof['dmu'][first],
-               lam_c=lam_c[first], lam_end=lam_end[first],
-               count=np.bincount(inverse).astype(float))
-    seg.update(e1=seg['d1'] * seg['direction'], e2=seg['d2'] * seg['direction'],
-               dd2=(seg['d1'] - seg['d2']) ** 2)
-    seg['pre'] = (seg['e1'], seg['e2'], seg['dd2'], 2.0 * seg['e1'] * seg['e2'])
-    table = _PathTable(lam_path, straight, s, seg)
-    columns = np.append(inverse, first.size)     # [b of each segment..., lambda]
+    # Per distinct segment: holes, stiffness, direction, the tensions where it starts
+    # bending and reaches its end (one gather of the stacked rows), its profile tables.
+    rows = np.stack([d1, d2, k, direction, lam_c, lam_end], axis=1)[first].T
+    seg = dict(zip(('d1', 'd2', 'k', 'direction', 'lam_c', 'lam_end'), rows))
+    tables = prof['tables'][first]
+    seg.update(table_b=tables[:, 0], table_mu=tables[:, 1], dmu=tables[:, 2],
+               count=np.array([inverse.count(u) for u in range(len(first))], dtype=float))
+    # Path table: every tension where some segment's table has a sample (the distinct
+    # segments' tables hold them all), up to where the path ends (all segments at their
+    # ends, or the first fold).
+    lam_all = (seg['k'][:, None] * seg['table_mu']).ravel()
+    lam_all = lam_all[np.isfinite(lam_all)]
     if snap:
-        min_mm = table.length_at_tension(lam_path[-1])
+        lam_top = float(np.min(lam_end[folds]))
     else:
-        end_len, _, _ = _branch_derivs(b_end, direction, d1, d2, s)
-        min_mm = float(end_len.sum())
-    return _Problem(d=d_arr, d1=d1, d2=d2, k=k, s=s, direction=direction, lam_c=lam_c,
-                    mu_c=mu_c, beta=beta,
-                    lam_end=lam_end, b_end=b_end, kind=kind, table_mu=table_mu,
-                    table_b=table_b, straight_mm=straight, min_mm=min_mm, snap=snap,
-                    path_lam=lam_path, path=table, path_columns=columns)
+        finite = lam_end[np.isfinite(lam_end)]
+        lam_top = float(finite.max()) if finite.size else float(lam_all.max())
+    lam_path = _sorted_unique(np.concatenate([[0.0], lam_all[lam_all <= lam_top], [lam_top]]))
+    if lam_path.size > _PATH_SAMPLES:
+        # Thin to a bounded table; keep the ends and every buckling tension (the kept
+        # indices are strictly increasing: their step is above 1).
+        lam_path = _sorted_unique(np.concatenate([lam_path[_thinned(lam_path.size)],
+                                                  seg['lam_c'], seg['lam_end'], [lam_top]]))
+        lam_path = lam_path[lam_path <= lam_top]
+    e1, e2 = seg['d1'] * seg['direction'], seg['d2'] * seg['direction']
+    seg.update(e1=e1, e2=e2, dd2=(seg['d1'] - seg['d2']) ** 2)
+    seg['pre'] = (e1, e2, seg['dd2'], 2.0 * e1 * e2)
+    table = _PathTable(lam_path, straight, s, seg)
+    columns = np.array(inverse + [len(first)])     # [b of each segment..., lambda]
+    prob = _Problem(d=d_arr, d1=d1, d2=d2, k=k, s=s, direction=direction, lam_c=lam_c,
+                    mu_c=mu_c, beta=beta, lam_end=lam_end, b_end=b_end, kind=kind,
+                    table_mu=table_mu, table_b=table_b, straight_mm=straight, snap=snap,
+                    path_lam=lam_path, path=table, path_columns=columns,
+                    min_mm_above=math.fsum(prof['end_length'].tolist()) + 1e-9 * straight)
+    if snap:
+        prob.__dict__['_min_mm'] = table.length_at_tension(lam_path[-1])
+    return prob
 
 
 #: Degree of the start polynomials of the path cells (quintic Hermite, :func:`_path_polynomials`).
