@@ -691,6 +691,35 @@ def _q_coefficients(dd2, s, e1, e2):
     return out
 
 
+#: ``Q`` coefficients (:func:`_q_coefficients`) per hole pair ``(d1, d2, s)``, memoised
+#: for the process (a pure function of the pair: its direction is; rows are computed
+#: element-wise, so a threading's stack of them is what one call on its segments gives).
+#: FIFO-bounded; :func:`softsnap_model.forward.clear_caches` empties it.
+_Q_CACHE: dict = {}
+_Q_CACHE_MAX = 16384
+_Q_LOCK = threading.Lock()
+
+
+def _q_stack(d1, d2, direction, s):
+    """(n, _Q_DEGREE + 1, 3) :func:`_q_coefficients` of the segments, from
+    :data:`_Q_CACHE` (the pairs not seen before computed together)."""
+    s = float(s)
+    keys = [(x, y, s) for x, y in zip(d1.tolist(), d2.tolist())]
+    with _Q_LOCK:
+        found = [_Q_CACHE.get(key) for key in keys]
+    missing = [i for i, f in enumerate(found) if f is None]
+    if missing:
+        e1, e2 = (d1 * direction)[missing], (d2 * direction)[missing]
+        rows = _q_coefficients((d1[missing] - d2[missing]) ** 2, s, e1, e2)
+        new = {keys[i]: row for i, row in zip(missing, rows)}
+        with _Q_LOCK:
+            _Q_CACHE.update(new)
+            while len(_Q_CACHE) > _Q_CACHE_MAX:
+                del _Q_CACHE[next(iter(_Q_CACHE))]
+        found = [f if f is not None else new[key] for key, f in zip(keys, found)]
+    return np.array(found)
+
+
 class _SingleLayout(dict):
     """The single-solve layout of one threading (:func:`_single`): a dict of 1-D arrays
     and lists, whose batch-of-one layout ``'P'`` (:func:`_stack`, only read by the rare
@@ -742,7 +771,7 @@ def _single(skeleton: Skeleton, d: tuple):
              # For the single-solve evaluation (single._evaluate): l^2 as polynomials
              # in b; the cell search reads Python floats (cheaper than array items), the
              # table's own lists, filled in as its blocks are built.
-             q_coef=_q_coefficients(dd2, prob.s, e1, e2),
+             q_coef=_q_stack(d1, d2, direction, prob.s),
              two_beta=2.0 * prob.beta, path_len_list=table.len_list,
              path_lam_list=prob.path_lam.tolist(),
              neg_path_len_list=table.neg_len_list,
