@@ -136,14 +136,14 @@ def _pair_profile_array(d1, d2, s, b_max, n_samples=_BRANCH_SAMPLES):
 # Per-pair profiles, memoised for the process: a threading's tables are a function of its
 # distinct hole pairs, so threadings (and the inverse design) share them. FIFO-bounded
 # (documented cache; :func:`softsnap_model.forward.clear_caches` empties it). An entry is
-# ``(scalars, tables, kind)``: the floats of :data:`_SCALAR_KEYS`, the (3, M) tables
-# ``b, mu, dmu`` and the end kind, so that a threading's profiles are gathered by two
+# ``(scalars, tables, kind)``: the floats of :data:`_SCALAR_KEYS`, the (4, M) tables
+# ``b, mu, dmu, length`` and the end kind, so that a threading's profiles are gathered by two
 # numpy calls (a new threading's first solve is numpy call overhead).
 _PROFILE_CACHE: dict = {}
 _PROFILE_CACHE_MAX = 16384
 _PROFILE_LOCK = threading.Lock()
 _SCALAR_KEYS = ('direction', 'mirror', 'mu_c', 'beta', 'b_end', 'mu_end', 'end_length')
-_TABLE_KEYS = ('b', 'mu', 'dmu')
+_TABLE_KEYS = ('b', 'mu', 'dmu', 'length')
 
 
 def _pair_profiles(d1, d2, s: float, b_max: float) -> dict:
@@ -151,7 +151,8 @@ def _pair_profiles(d1, d2, s: float, b_max: float) -> dict:
 
     Each distinct pair is built once per process (pure function of ``(d1, d2, s,
     b_max)``); the pairs not seen before are built together, vectorised. The tables
-    ``b, mu, dmu`` (n, M) are views of ``tables`` (n, 3, M); ``end_length`` is the
+    ``b, mu, dmu`` (n, M) are views of ``tables`` (n, 4, M), whose last row is the
+    segment length at the samples; ``end_length`` is the
     segment's length at its branch end as the table has it (within rounding of the one
     :func:`.path._problem` sums for the reachable minimum).
     """

@@ -115,21 +115,19 @@ class _PathTable:
 
     def _guess(self, length, blocks):
         """The blocks whose approximate boundary lengths bracket ``length``, with a
-        margin (all of them if none does). Approximate: each segment's magnitude
-        interpolated linearly in its profile table (off by up to ~1e-4 rad, some
-        1e-3 mm in the length), no refinement."""
+        margin (all of them if none does). Approximate: each segment's length
+        interpolated linearly in its profile table (off by some 1e-4 mm a segment, a
+        cell's curvature; about as close as its angle interpolated and the exact length
+        of that), no refinement: one interpolation per distinct segment."""
         seg = self.seg
         at = np.minimum(np.arange(blocks[0], blocks[-1] + 2) * _BLOCK, self.n_cells)
         mu = self.lam[at, None] / seg['k']
-        b = np.empty(mu.shape)
-        for i in range(b.shape[1]):
-            b[:, i] = np.interp(mu[:, i], seg['table_mu'][i], seg['table_b'][i])
-        x = (b * b).ravel()
-        g = _series(x, _G_COEF1)[0].reshape(b.shape)
-        approx = _weighted_sum(np.sqrt(seg['dd2'] + g * (self.s + seg['e1'] * b)
-                                       * (self.s + seg['e2'] * b)), seg['count'])
+        approx = 0.0
+        for i, (count, table_mu, table_len) in enumerate(
+                zip(seg['count'].tolist(), seg['table_mu'], seg['table_len'])):
+            approx = approx + count * np.interp(mu[:, i], table_mu, table_len)
         margin = 0.05 + 1e-6 * abs(length)
-        hit = np.flatnonzero((approx[1:] <= length + margin) & (approx[:-1] >= length - margin))
+        hit = ((approx[1:] <= length + margin) & (approx[:-1] >= length - margin)).nonzero()[0]
         if not hit.size:
             return blocks
         return range(blocks[0] + int(hit[0]), blocks[0] + int(hit[-1]) + 1)
@@ -373,6 +371,7 @@ def _problem(skeleton: Skeleton, d: tuple) -> _Problem:
     seg = dict(zip(('d1', 'd2', 'k', 'direction', 'lam_c', 'lam_end'), rows))
     tables = prof['tables'][first]
     seg.update(table_b=tables[:, 0], table_mu=tables[:, 1], dmu=tables[:, 2],
+               table_len=tables[:, 3],
                count=np.array([inverse.count(u) for u in range(len(first))], dtype=float))
     # Path table: every tension where some segment's table has a sample (the distinct
     # segments' tables hold them all), up to where the path ends (all segments at their
