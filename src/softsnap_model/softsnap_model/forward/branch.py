@@ -243,36 +243,37 @@ def _branch_solve(mu, table_mu, table_b, direction, d1, d2, s, iters=30):
     return _branch_refine(mu, cell, direction, d1, d2, s, iters)
 
 
-def _segment_cells(mu, table_mu, table_b, table_dmu):
-    """Table cells and cubic starts for tensions ``mu`` (P, n) on per-segment tables (n, M).
+def _segment_cells(mu, tables):
+    """Table cells and cubic starts for tensions ``mu`` (P, n) on per-segment tables
+    ``tables`` (n, 3 or more, M): rows ``b``, ``mu``, ``dmu`` (the profiles' tables).
 
     The cells of :func:`_branch_solve` (the cell tuple of :func:`_branch_refine`), found by
     one binary search per segment column instead of comparing every tension with every
     table entry (the path-table build of a new threading), and the cubic Hermite
-    interpolant of ``b(mu)`` in the cell (slopes ``1 / table_dmu``; about 1e-10 rad off,
-    against 1e-4 for the linear one). Returns ``(start, cell)``, element-wise.
+    interpolant of ``b(mu)`` in the cell (slopes ``1 / dmu``; about 1e-10 rad off,
+    against 1e-4 for the linear one). Returns ``(start, cell)``, element-wise. A cell of
+    zero width (at a pitchfork) divides 0 by 0: call under ``np.errstate(all='ignore')``.
     """
-    n, m = table_mu.shape
+    n, m = tables.shape[0], tables.shape[2]
+    table_b, table_mu = tables[:, 0], tables[:, 1]
     idx = np.empty(mu.shape, dtype=np.intp)
     for i in range(n):
         idx[:, i] = table_mu[i].searchsorted(mu[:, i], side='left')
     # Clamped to 1 .. m - 1 in place (np.clip of integers costs two type lookups).
     np.maximum(idx, 1, out=idx)
     np.minimum(idx, m - 1, out=idx)
-    below = idx - 1
     cols = np.arange(n)
-    b_lo, b_hi = table_b[cols, below], table_b[cols, idx]
-    mu_lo, mu_hi = table_mu[cols, below], table_mu[cols, idx]
+    # Both ends of every cell, each in one gather: (P, n, 3) of b, mu, dmu.
+    lo, hi = tables[cols, :3, idx - 1], tables[cols, :3, idx]
+    b_lo, mu_lo, b_hi, mu_hi = lo[..., 0], lo[..., 1], hi[..., 0], hi[..., 1]
     cell = (b_lo, b_hi, mu_lo, mu_hi, table_mu[:, 0], table_mu[:, -1], table_b[:, 0],
             table_b[:, -1])
-    with np.errstate(all='ignore'):
-        span = mu_hi - mu_lo
-        t = (mu - mu_lo) / span
-        t2 = t * t
-        t3 = t2 * t
-        start = ((2.0 * t3 - 3.0 * t2 + 1.0) * b_lo + (t3 - 2.0 * t2 + t) * span
-                 / table_dmu[cols, below] + (3.0 * t2 - 2.0 * t3) * b_hi
-                 + (t3 - t2) * span / table_dmu[cols, idx])
+    span = mu_hi - mu_lo
+    t = (mu - mu_lo) / span
+    t2 = t * t
+    t3 = t2 * t
+    start = ((2.0 * t3 - 3.0 * t2 + 1.0) * b_lo + (t3 - 2.0 * t2 + t) * span
+             / lo[..., 2] + (3.0 * t2 - 2.0 * t3) * b_hi + (t3 - t2) * span / hi[..., 2])
     return start, cell
 
 

@@ -82,7 +82,10 @@ class _PathTable:
         self.b = np.empty((n_samples, n_cols))
         self._derivs = np.empty((3, n_samples, n_cols))      # l', l'', l''' at the samples
         self.poly = np.empty((n_samples - 1, _START_DEGREE + 1, n_cols + 1))
-        self._sample_built = np.zeros(n_samples, dtype=bool)
+        # Which samples are built: bytes (a reverse search for the last built one is one
+        # call) seen by numpy as a bool array (masks), the same memory.
+        self._built = bytearray(n_samples)
+        self._sample_built = np.frombuffer(self._built, dtype=bool)
         self._cell_built = [False] * self.n_cells            # a list: one cheap lookup
         self.len = np.full(n_samples, np.inf)
         self.len_list = self.len.tolist()
@@ -105,8 +108,7 @@ class _PathTable:
                     return
                 # Sample j is built (or this is the first build); the exact cell is
                 # after the last built sample before it: cells p .. j - 1.
-                before = np.flatnonzero(self._sample_built[:j])
-                p = int(before[-1]) if before.size else 0
+                p = max(self._built.rfind(1, 0, j), 0)
                 blocks = range(p // _BLOCK, (j - 1) // _BLOCK + 1)
                 if len(blocks) > 2:
                     blocks = self._guess(length, blocks)
@@ -137,7 +139,8 @@ class _PathTable:
         first = blocks[0] * _BLOCK
         last = min((blocks[-1] + 1) * _BLOCK, self.n_cells)
         self._build_samples(np.arange(first, last + 1))
-        if np.any(np.diff(self._exact[self._sample_built]) > 0):
+        built = self._exact[self._sample_built]
+        if (built[1:] > built[:-1]).any():
             self._complete()
             return
         self._build_cells(first, last)
@@ -228,13 +231,12 @@ def _path_samples(mu, seg, s):
     before buckling, at contact) take its end values. Everything is per entry.
     """
     direction, d1, d2 = seg['direction'], seg['d1'], seg['d2']
-    start, cell = _segment_cells(mu, seg['table_mu'], seg['table_b'], seg['dmu'])
-    b_lo, b_hi = cell[:2]
-    out = mu <= seg['table_mu'][:, 0]
-    above = mu >= seg['table_mu'][:, -1]
-    ends = np.where(out, seg['table_b'][:, 0], seg['table_b'][:, -1])
-    out |= above
-    with np.errstate(all='ignore'):
+    with np.errstate(all='ignore'):     # 0/0 in cells of zero width (a pitchfork)
+        start, cell = _segment_cells(mu, seg['tables'])
+        b_lo, b_hi, _, _, mu_first, mu_last, b_first, b_last = cell
+        out = mu <= mu_first
+        ends = np.where(out, b_first, b_last)
+        out |= mu >= mu_last
         b = np.fmin(np.fmax(start, b_lo), b_hi)
         _, lp, lpp = _branch_eval(b, direction, d1, d2, s, seg['pre'])
         b = np.where(out, ends, np.fmin(np.fmax(b - (2.0 * b + mu * lp) / (2.0 + mu * lpp),
@@ -371,7 +373,7 @@ def _problem(skeleton: Skeleton, d: tuple) -> _Problem:
     seg = dict(zip(('d1', 'd2', 'k', 'direction', 'lam_c', 'lam_end'), rows))
     tables = prof['tables'][first]
     seg.update(table_b=tables[:, 0], table_mu=tables[:, 1], dmu=tables[:, 2],
-               table_len=tables[:, 3],
+               table_len=tables[:, 3], tables=tables,
                count=np.array([inverse.count(u) for u in range(len(first))], dtype=float))
     # Path table: every tension where some segment's table has a sample (the distinct
     # segments' tables hold them all), up to where the path ends (all segments at their
