@@ -92,6 +92,7 @@ class _PathTable:
         self.len_list = [math.inf] * n_samples
         self.neg_len_list = [-math.inf] * n_samples
         self.complete_ = False
+        self._unpublished = False   # built samples not yet in the searchable lengths
         self._lock = threading.RLock()
 
     def ensure(self, length):
@@ -147,7 +148,10 @@ class _PathTable:
         self._build_cells(first, last)
         # Lists first, then the flags: a solve that sees a cell built without the lock
         # (ensure's fast path) must find the exact lengths when it searches.
-        self._publish()
+        if self._unpublished:
+            self._publish()
+        else:
+            self._publish_block(first, last)
         self._cell_built[first:last] = [True] * (last - first)
 
     def _publish(self):
@@ -158,6 +162,24 @@ class _PathTable:
         self.len[:] = np.where(last >= 0, self._exact[last], np.inf)
         self.len_list[:] = self.len.tolist()
         self.neg_len_list[:] = (-self.len).tolist()
+        self._unpublished = False
+
+    def _publish_block(self, first, last):
+        """:meth:`_publish` after samples ``first .. last`` were built, every other built
+        sample being published already: only the entries from ``first`` up to the next
+        built sample change (to the new exact lengths, then the last of them), so only
+        those are written. Each write leaves the arrays non-increasing and never below
+        the exact lengths (the tail first, then the block; each list in one slice
+        assignment), for a solve searching them without the lock."""
+        nxt = self._built.find(1, last + 1)
+        nxt = self.len.size if nxt < 0 else nxt
+        exact = self._exact[first:last + 1]
+        self.len[last + 1:nxt] = exact[-1]
+        self.len[first:last + 1] = exact
+        values = exact.tolist()
+        tail = nxt - last - 1
+        self.len_list[first:nxt] = values + [values[-1]] * tail
+        self.neg_len_list[first:nxt] = [-x for x in values] + [-values[-1]] * tail
 
     def _build_samples(self, idx):
         """Refine the samples ``idx`` (sorted indices) not built yet."""
@@ -217,6 +239,7 @@ class _PathTable:
         near = np.arange(max(j - 1, 0), min(j + 2, self.lam.size))
         with self._lock:
             self._build_samples(near)
+            self._unpublished = True    # the next publish must be a full one
         return float(np.interp(lam, self.lam[near], self._exact[near]))
 
 
