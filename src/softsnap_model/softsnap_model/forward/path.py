@@ -290,6 +290,15 @@ def _weighted_sum(values, weights):
     return out
 
 
+def _weighted_rows(values, weights):
+    """:func:`_weighted_sum` of (U, ...) values, the segments on the leading axis (each
+    term a contiguous row: cheaper to slice), the same sums in the same order."""
+    out = values[0] * weights[0]
+    for j in range(1, weights.size):
+        out += values[j] * weights[j]
+    return out
+
+
 @dataclass(frozen=True)
 class _Problem:
     """Everything about one (skeleton, threading) that does not depend on the length."""
@@ -514,6 +523,14 @@ def _path_derivatives(b, direction, d1, d2, s, third=True, pre=None):
     return length, lp, lpp, l3
 
 
+@functools.lru_cache(maxsize=64)
+def _cell_ends(n_cells):
+    """(2, n_cells) indices of the start and end sample of each cell (memoised by size)."""
+    ends = np.arange(n_cells) + np.array([[0], [1]])
+    ends.flags.writeable = False
+    return ends
+
+
 # Powers of the interior points t = 1/4, 1/2, 3/4 where the start polynomials are checked.
 _HULL_POWERS = np.array([0.25, 0.5, 0.75])[:, None] ** np.arange(_START_DEGREE + 1)
 
@@ -539,6 +556,7 @@ def _path_polynomials(lam, length, b, lp, lpp, l3, k, lam_c, lam_end, count):
     vals = np.concatenate([b, lam[:, None]], axis=1)               # (P, n+1)
     p0, p1 = vals[:-1], vals[1:]
     h = (length[1:] - length[:-1])[:, None]                        # < 0 in a moving cell
+    n_cells, n_cols = p0.shape
     with np.errstate(all='ignore'):
         lp2 = lp * lp
         phi1 = 2.0 * (b * lpp - lp) / lp2                          # phi'(b)
@@ -548,14 +566,20 @@ def _path_polynomials(lam, length, b, lp, lpp, l3, k, lam_c, lam_end, count):
         # Segments moving across the whole cell (bent, not yet at their branch end).
         free = (lam[:-1, None] >= lam_c) & (lam[1:, None] <= lam_end)
         # Both cell ends at once (leading axis: cell start, cell end).
-        ends = np.arange(lam.size - 1) + np.array([[0], [1]])
+        ends = _cell_ends(n_cells)
         lp_e = lp[ends]
         u = np.where(free, u_all[ends], 0.0)
         v = np.where(free, v_all[ends], 0.0)
-        t1 = _weighted_sum(u * lp_e, count)[..., None]                        # T'
-        t2 = _weighted_sum(u * u * lpp[ends] + v * lp_e, count)[..., None]    # T''
-        du = np.concatenate([u, np.ones_like(t1)], axis=2)   # d/dlambda of [b, lambda]
-        dv = np.concatenate([v, np.zeros_like(t1)], axis=2)  # d2/dlambda2
+        # T' and T'' summed together, segments on the leading axis (contiguous rows).
+        sums = np.empty((count.size, 2) + u.shape[:-1])
+        rows = sums.transpose(1, 2, 3, 0)      # (2, 2, P-1, U) view of it
+        np.multiply(u, lp_e, out=rows[0])
+        np.add(u * u * lpp[ends], v * lp_e, out=rows[1])
+        t1, t2 = _weighted_rows(sums, count)[..., None]
+        # d/dlambda and d2/dlambda2 of [b, lambda]: (1, 0) for lambda.
+        du, dv = np.empty(u.shape[:-1] + (n_cols,)), np.empty(u.shape[:-1] + (n_cols,))
+        du[..., :-1], du[..., -1] = u, 1.0
+        dv[..., :-1], dv[..., -1] = v, 0.0
         # In t: d/dt = h d/dL and d/dL = (d/dlambda) / T'.
         d0, d1 = h * du / t1
         s0, s1 = h * h * (dv / (t1 * t1) - du * t2 / t1 ** 3)
@@ -563,10 +587,12 @@ def _path_polynomials(lam, length, b, lp, lpp, l3, k, lam_c, lam_end, count):
         e_val = p1 - p0 - d0 - 0.5 * s0
         e_slope = d1 - d0 - s0
         e_curv = s1 - s0
-        c = np.stack([p0, d0, 0.5 * s0,
-                      10.0 * e_val - 4.0 * e_slope + 0.5 * e_curv,
-                      -15.0 * e_val + 7.0 * e_slope - e_curv,
-                      6.0 * e_val - 3.0 * e_slope + 0.5 * e_curv], axis=1)
+        c = np.empty((n_cells, _START_DEGREE + 1, n_cols))
+        c[:, 0], c[:, 1] = p0, d0
+        np.multiply(0.5, s0, out=c[:, 2])
+        c[:, 3] = 10.0 * e_val - 4.0 * e_slope + 0.5 * e_curv
+        c[:, 4] = -15.0 * e_val + 7.0 * e_slope - e_curv
+        c[:, 5] = 6.0 * e_val - 3.0 * e_slope + 0.5 * e_curv
         # Check the quintic on a few interior points: it must stay in the cell's hull.
         inner = np.matmul(_HULL_POWERS, c)                      # (P-1, 3, n+1)
         lo, hi = np.minimum(p0, p1)[:, None], np.maximum(p0, p1)[:, None]
