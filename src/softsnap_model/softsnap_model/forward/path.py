@@ -461,19 +461,30 @@ def _g_series_coefficients():
 
 
 _G_COEF4 = _g_series_coefficients()
-_G_COEF3 = np.ascontiguousarray(_G_COEF4[:, :3])
-_G_COEF1 = np.ascontiguousarray(_G_COEF4[:, :1])
 
 
-def _series(x, coef):
-    """Columns ``sum_j coef[j, c] x^j`` (C, N) for flat ``x`` (N,) by Estrin's scheme.
+def _series_pairs(coef):
+    """``coef`` (terms, C) split into its even and odd rows, shaped (terms/2, C, 1) to
+    multiply flat ``x`` (constants of :func:`_series`)."""
+    return (np.ascontiguousarray(coef[0::2, :, None]),
+            np.ascontiguousarray(coef[1::2, :, None]))
+
+
+_G_PAIRS4 = _series_pairs(_G_COEF4)
+_G_PAIRS3 = _series_pairs(_G_COEF4[:, :3])
+
+
+def _series(x, pairs):
+    """Columns ``sum_j coef[j, c] x^j`` (C, N) for flat ``x`` (N,) by Estrin's scheme,
+    ``pairs`` the even and odd rows of ``coef`` (:func:`_series_pairs`).
 
     Pairs of terms, then pairs of pairs with ``x^2``, ``x^4``, ...: about 11 numpy calls
     for 16 terms (Horner takes 30), each element-wise, so an entry's rounding does not
     depend on how many are evaluated together (``geometry._power_series`` picks its
     algorithm by size). ``coef`` has a power-of-two number of rows.
     """
-    p = coef[0::2, :, None] + coef[1::2, :, None] * x
+    even, odd = pairs
+    p = even + odd * x
     power = x
     while p.shape[0] > 1:
         power = power * power
@@ -501,8 +512,8 @@ def _path_derivatives(b, direction, d1, d2, s, third=True, pre=None):
     same values this computes otherwise.
     """
     x = (b * b).ravel()
-    series = _series(x, _G_COEF4 if third else _G_COEF3)
-    g, g1_over_b, g2 = (col.reshape(b.shape) for col in series[:3])
+    series = _series(x, _G_PAIRS4 if third else _G_PAIRS3).reshape((-1,) + b.shape)
+    g, g1_over_b, g2 = series[:3]
     g1 = b * g1_over_b
     if pre is None:
         e1, e2 = d1 * direction, d2 * direction
@@ -518,7 +529,7 @@ def _path_derivatives(b, direction, d1, d2, s, third=True, pre=None):
     lpp = (g2 * p + 2.0 * g1 * p_b + g * p_bb - 2.0 * lp * lp) * half_inv
     if not third:
         return length, lp, lpp
-    g3 = b * series[3].reshape(b.shape)
+    g3 = b * series[3]
     l3 = (g3 * p + 3.0 * g2 * p_b + 3.0 * g1 * p_bb - 6.0 * lp * lpp) * half_inv
     return length, lp, lpp, l3
 
