@@ -824,13 +824,13 @@ def _single(skeleton: Skeleton, d: tuple):
     lam_1 = k * prob.table_mu[:, 1]
     e1, e2 = d1 * direction, d2 * direction
     dd2 = (d1 - d2) ** 2
-    mirror_idx = np.flatnonzero(mirror)
+    mirror_idx = mirror.nonzero()[0]       # np.flatnonzero, without its wrapper
     S = _SingleLayout(prob)
     S.update(k=k, d=prob.d, d1=d1, d2=d2, direction=direction, lam_c=prob.lam_c,
              lam_end=prob.lam_end, b_end=prob.b_end, mirror=mirror, lam_1=lam_1,
              e1=e1, e2=e2, dd2=dd2, two_k=2.0 * k, inv_two_k=0.5 / k, s=prob.s,
-             has_mirror=bool(mirror.any()),
-             lam_end_min=float(prob.lam_end.min()), path=table,
+             has_mirror=bool(mirror_idx.size),
+             lam_end_min=float(np.minimum.reduce(prob.lam_end)), path=table,
              path_lam=prob.path_lam, path_poly=table.poly,
              path_columns=prob.path_columns,
              straight=prob.straight_mm, n_path=prob.path_lam.size,
@@ -839,7 +839,6 @@ def _single(skeleton: Skeleton, d: tuple):
              # table's own lists, filled in as its blocks are built.
              q_coef=_q_stack(d1, d2, direction, prob.s),
              two_beta=2.0 * prob.beta, path_len_list=table.len_list,
-             path_lam_list=prob.path_lam.tolist(),
              neg_path_len_list=table.neg_len_list,
              minus_i_d=-1j * prob.d,
              # Mirror segments (index array) and their first table cells in tension,
