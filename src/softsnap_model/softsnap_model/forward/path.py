@@ -27,6 +27,12 @@ from .branch import (_BRANCH_SAMPLES, _branch_derivs, _branch_refine, _pair_prof
 from .results import InfeasibleLengthError, SnapThroughError
 
 
+try:    # np.interp without its Python wrapper (a check for complex values)
+    from numpy._core.multiarray import interp as _interp
+except ImportError:     # pragma: no cover - another numpy layout
+    _interp = np.interp
+
+
 #: Threadings whose problem data and path tables stay cached (least recently used
 #: first out; about 0.3 MB each, so a full cache holds about 0.7 GB). Large enough that a
 #: loop over every threading of 7 ribs with 3 holes (3^7 = 2187) or a robot's modules
@@ -125,11 +131,10 @@ class _PathTable:
         of that), no refinement: one interpolation per distinct segment."""
         seg = self.seg
         at = np.minimum(np.arange(blocks[0], blocks[-1] + 2) * _BLOCK, self.n_cells)
-        mu = self.lam[at, None] / seg['k']
-        approx = 0.0
-        for i, (count, table_mu, table_len) in enumerate(
-                zip(seg['count'].tolist(), seg['table_mu'], seg['table_len'])):
-            approx = approx + count * np.interp(mu[:, i], table_mu, table_len)
+        mu = self.lam[at] / seg['k'][:, None]          # (U, blocks + 1)
+        approx = seg['count'] @ np.array([
+            _interp(m, table_mu, table_len)
+            for m, table_mu, table_len in zip(mu, seg['table_mu'], seg['table_len'])])
         margin = 0.05 + 1e-6 * abs(length)
         hit = ((approx[1:] <= length + margin) & (approx[:-1] >= length - margin)).nonzero()[0]
         if not hit.size:
@@ -183,20 +188,26 @@ class _PathTable:
 
     def _build_samples(self, idx):
         """Refine the samples ``idx`` (sorted indices) not built yet."""
-        idx = idx[~self._sample_built[idx]]
         if not idx.size:
             return
+        if self._built.find(1, int(idx[0]), int(idx[-1]) + 1) >= 0:
+            idx = idx[~self._sample_built[idx]]
+            if not idx.size:
+                return
+        # A run of consecutive samples (a block) is written through slices.
+        at = slice(int(idx[0]), int(idx[-1]) + 1) if idx[-1] - idx[0] == idx.size - 1 else idx
         seg = self.seg
-        b, (lengths, lp, lpp, l3) = _path_samples(self.lam[idx, None] / seg['k'], seg,
+        b, (lengths, lp, lpp, l3) = _path_samples(self.lam[at, None] / seg['k'], seg,
                                                   self.s)
         total = _weighted_sum(lengths, seg['count'])
         # Every segment straight (the start of the path, before a mirror segment
         # buckles): the straight length, exactly.
-        total[(b == 0.0).all(axis=1)] = self.straight
-        self._exact[idx] = total
-        self.b[idx] = b
-        self._derivs[:, idx] = (lp, lpp, l3)
-        self._sample_built[idx] = True
+        total[np.logical_and.reduce(b == 0.0, axis=1)] = self.straight
+        self._exact[at] = total
+        self.b[at] = b
+        derivs = self._derivs
+        derivs[0, at], derivs[1, at], derivs[2, at] = lp, lpp, l3
+        self._sample_built[at] = True
 
     def _build_cells(self, first, last):
         """Start polynomials of cells ``first .. last - 1`` (their samples built)."""
