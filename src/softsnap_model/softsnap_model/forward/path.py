@@ -294,19 +294,22 @@ def _path_samples(mu, seg, s):
 
 def _weighted_sum(values, weights):
     """``values @ weights`` for (..., U) values, summed column by column in a fixed order
-    (a BLAS product may round differently with the number of rows)."""
-    out = values[..., 0] * weights[0]
+    (a BLAS product may round differently with the number of rows): the products in
+    one call, then added up in place, ``((v0 w0 + v1 w1) + v2 w2) + ...``."""
+    terms = values * weights
+    out = terms[..., 0]
     for j in range(1, weights.size):
-        out += values[..., j] * weights[j]
+        out += terms[..., j]
     return out
 
 
 def _weighted_rows(values, weights):
     """:func:`_weighted_sum` of (U, ...) values, the segments on the leading axis (each
-    term a contiguous row: cheaper to slice), the same sums in the same order."""
-    out = values[0] * weights[0]
+    term a contiguous row: cheaper to add), the same sums in the same order."""
+    terms = values * weights.reshape((-1,) + (1,) * (values.ndim - 1))
+    out = terms[0]
     for j in range(1, weights.size):
-        out += values[j] * weights[j]
+        out += terms[j]
     return out
 
 
