@@ -136,7 +136,7 @@ def _pair_profile_array(d1, d2, s, b_max, n_samples=_BRANCH_SAMPLES):
 # Per-pair profiles, memoised for the process: a threading's tables are a function of its
 # distinct hole pairs, so threadings (and the inverse design) share them. FIFO-bounded
 # (documented cache; :func:`softsnap_model.forward.clear_caches` empties it). An entry is
-# ``(scalars, tables, kind)``: the floats of :data:`_SCALAR_KEYS`, the (4, M) tables
+# ``(scalars, tables, kind)``: the (7,) values of :data:`_SCALAR_KEYS`, the (4, M) tables
 # ``b, mu, dmu, length`` and the end kind, so that a threading's profiles are gathered by two
 # numpy calls (a new threading's first solve is numpy call overhead).
 _PROFILE_CACHE: dict = {}
@@ -152,9 +152,9 @@ def _pair_profiles(d1, d2, s: float, b_max: float) -> dict:
     Each distinct pair is built once per process (pure function of ``(d1, d2, s,
     b_max)``); the pairs not seen before are built together, vectorised. The tables
     ``b, mu, dmu`` (n, M) are views of ``tables`` (n, 4, M), whose last row is the
-    segment length at the samples; ``end_length`` is the
-    segment's length at its branch end as the table has it (within rounding of the one
-    :func:`.path._problem` sums for the reachable minimum).
+    segment length at the samples; ``end_length`` is the segment's length at its branch
+    end as the table has it (within rounding of the one :func:`.path._problem` sums for
+    the reachable minimum); ``kinds`` the tuple of end kinds.
     """
     s, b_max = float(s), float(b_max)
     keys = [(x, y, s, b_max) for x, y in zip(np.asarray(d1, dtype=float).tolist(),
@@ -168,9 +168,9 @@ def _pair_profiles(d1, d2, s: float, b_max: float) -> dict:
                                     float(b_max))
         # The length at the branch end (a bound for the threading's minimum length).
         built['end_length'] = built['length'][:, -1]
-        scalars = np.stack([built[name] for name in _SCALAR_KEYS], axis=1).tolist()
+        scalars = np.stack([built[name] for name in _SCALAR_KEYS], axis=1)
         tables = np.stack([built[name] for name in _TABLE_KEYS], axis=1)
-        new = {key: (tuple(scalars[j]), tables[j], str(built['kind'][j]))
+        new = {key: (scalars[j], tables[j], str(built['kind'][j]))
                for j, key in enumerate(missing)}
         with _PROFILE_LOCK:
             _PROFILE_CACHE.update(new)
@@ -181,7 +181,7 @@ def _pair_profiles(d1, d2, s: float, b_max: float) -> dict:
     tables = np.array([f[1] for f in found])
     out = dict(zip(_SCALAR_KEYS, scalars))
     out['mirror'] = scalars[1] != 0.0
-    out['kind'] = np.array([f[2] for f in found])
+    out['kinds'] = tuple([f[2] for f in found])     # end kinds (str)
     out.update(tables=tables, b=tables[:, 0], mu=tables[:, 1], dmu=tables[:, 2])
     return out
 
@@ -212,7 +212,7 @@ def segment_branch(d1_mm, d2_mm, spacing_mm, max_angle_rad=None) -> SegmentBranc
         buckling_tension=p['mu_c'].reshape(shape),
         end_angle_rad=p['b_end'].reshape(shape),
         end_tension=p['mu_end'].reshape(shape),
-        end_kind=p['kind'].reshape(shape))
+        end_kind=np.array(p['kinds']).reshape(shape))
 
 
 def _default_max_angle(spacing_mm, max_angle_rad):

@@ -402,7 +402,7 @@ def _problem(skeleton: Skeleton, d: tuple) -> _Problem:
     prof = _pair_profiles(d1, d2, s, b_max)
     direction, mu_c, beta = prof['direction'], prof['mu_c'], prof['beta']
     mu_end, b_end = prof['mu_end'], prof['b_end']
-    kind = tuple(prof['kind'].tolist())
+    kind = prof['kinds']
     table_mu, table_b = prof['mu'], prof['b']
     lam_c, lam_end = k * mu_c, k * mu_end
     straight = float(np.add.reduce(np.hypot(s, d2 - d1)))   # np.sum, without its wrapper
