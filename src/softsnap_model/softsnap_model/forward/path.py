@@ -109,7 +109,9 @@ class _PathTable:
         j = min(max(bisect.bisect_left(self.neg_len_list, -length), 1), self.n_cells)
         if self._cell_built[j - 1]:
             return
-        with self._lock:
+        # One errstate for the whole build (the path arithmetic divides 0 by 0 where a
+        # cell has zero width or nothing moves; those entries are handled).
+        with self._lock, np.errstate(all='ignore'):
             for _ in range(4):
                 j = min(max(bisect.bisect_left(self.neg_len_list, -length), 1), self.n_cells)
                 if self._cell_built[j - 1]:
@@ -221,7 +223,7 @@ class _PathTable:
     def complete(self):
         """Build every sample and cell (the batch solver and the full views use them)."""
         if not self.complete_:
-            with self._lock:
+            with self._lock, np.errstate(all='ignore'):
                 self._complete()
         return self
 
@@ -248,7 +250,7 @@ class _PathTable:
         samples next to ``lam`` are read, so only those are built)."""
         j = int(np.searchsorted(self.lam, lam))
         near = np.arange(max(j - 1, 0), min(j + 2, self.lam.size))
-        with self._lock:
+        with self._lock, np.errstate(all='ignore'):
             self._build_samples(near)
             self._unpublished = True    # the next publish must be a full one
         return float(np.interp(lam, self.lam[near], self._exact[near]))
@@ -263,24 +265,24 @@ def _path_samples(mu, seg, s):
     table needs anyway, gives the next step, and the entry is kept where that step is at
     rounding level too. The rest (near a pitchfork, a start outside its cell; a few per
     table) take the safeguarded refinement. Entries outside a segment's table (straight
-    before buckling, at contact) take its end values. Everything is per entry.
+    before buckling, at contact) take its end values. Everything is per entry. Called
+    under ``np.errstate(all='ignore')`` (0/0 in cells of zero width, at a pitchfork).
     """
     direction, d1, d2 = seg['direction'], seg['d1'], seg['d2']
-    with np.errstate(all='ignore'):     # 0/0 in cells of zero width (a pitchfork)
-        start, cell = _segment_cells(mu, seg['tables'])
-        b_lo, b_hi, _, _, mu_first, mu_last, b_first, b_last = cell
-        out = mu <= mu_first
-        ends = np.where(out, b_first, b_last)
-        out |= mu >= mu_last
-        b = np.fmin(np.fmax(start, b_lo), b_hi)
-        _, lp, lpp = _branch_eval(b, direction, d1, d2, s, seg['pre'])
-        b = np.where(out, ends, np.fmin(np.fmax(b - (2.0 * b + mu * lp) / (2.0 + mu * lpp),
-                                                b_lo), b_hi))
-        ev = _path_derivatives(b, direction, d1, d2, s, pre=seg['pre'])
-        step = (2.0 * b + mu * ev[1]) / (2.0 + mu * ev[2])
-        # The root is inside the cell (mu_lo < mu), never at b_lo: this also turns away
-        # the straight root b = 0 of a mirror segment just past its pitchfork.
-        ok = out | ((np.abs(step) <= 1e-15 * (1.0 + np.abs(b))) & (b > b_lo))
+    start, cell = _segment_cells(mu, seg['tables'])
+    b_lo, b_hi, _, _, mu_first, mu_last, b_first, b_last = cell
+    out = mu <= mu_first
+    ends = np.where(out, b_first, b_last)
+    out |= mu >= mu_last
+    b = np.fmin(np.fmax(start, b_lo), b_hi)
+    _, lp, lpp = _branch_eval(b, direction, d1, d2, s, seg['pre'])
+    b = np.where(out, ends, np.fmin(np.fmax(b - (2.0 * b + mu * lp) / (2.0 + mu * lpp),
+                                            b_lo), b_hi))
+    ev = _path_derivatives(b, direction, d1, d2, s, pre=seg['pre'])
+    step = (2.0 * b + mu * ev[1]) / (2.0 + mu * ev[2])
+    # The root is inside the cell (mu_lo < mu), never at b_lo: this also turns away
+    # the straight root b = 0 of a mirror segment just past its pitchfork.
+    ok = out | ((np.abs(step) <= 1e-15 * (1.0 + np.abs(b))) & (b > b_lo))
     if not ok.all():
         rest = ~ok
         shape = mu.shape
@@ -577,53 +579,53 @@ def _path_polynomials(lam, length, b, lp, lpp, l3, k, lam_c, lam_end, count):
     Returns ``c`` (P-1, 6, n+1): ``[b, lambda](t) = sum_p t^p c[j, p]``. Cells where a
     derivative is not finite (a pitchfork starts, nothing moves) or where the quintic
     would leave the cell's hull keep the linear interpolant; constant entries stay exact.
+    Called under ``np.errstate(all='ignore')`` (those cells divide by zero).
     """
     vals = np.concatenate([b, lam[:, None]], axis=1)               # (P, n+1)
     p0, p1 = vals[:-1], vals[1:]
     h = (length[1:] - length[:-1])[:, None]                        # < 0 in a moving cell
     n_cells, n_cols = p0.shape
-    with np.errstate(all='ignore'):
-        lp2 = lp * lp
-        phi1 = 2.0 * (b * lpp - lp) / lp2                          # phi'(b)
-        phi2 = 2.0 * (b * l3 * lp - 2.0 * lpp * (b * lpp - lp)) / (lp2 * lp)
-        u_all = 1.0 / (k * phi1)
-        v_all = -k * phi2 * u_all ** 3
-        # Segments moving across the whole cell (bent, not yet at their branch end).
-        free = (lam[:-1, None] >= lam_c) & (lam[1:, None] <= lam_end)
-        # Both cell ends at once (leading axis: cell start, cell end).
-        ends = _cell_ends(n_cells)
-        lp_e = lp[ends]
-        u = np.where(free, u_all[ends], 0.0)
-        v = np.where(free, v_all[ends], 0.0)
-        # T' and T'' summed together, segments on the leading axis (contiguous rows).
-        sums = np.empty((count.size, 2) + u.shape[:-1])
-        rows = sums.transpose(1, 2, 3, 0)      # (2, 2, P-1, U) view of it
-        np.multiply(u, lp_e, out=rows[0])
-        np.add(u * u * lpp[ends], v * lp_e, out=rows[1])
-        t1, t2 = _weighted_rows(sums, count)[..., None]
-        # d/dlambda and d2/dlambda2 of [b, lambda]: (1, 0) for lambda.
-        du, dv = np.empty(u.shape[:-1] + (n_cols,)), np.empty(u.shape[:-1] + (n_cols,))
-        du[..., :-1], du[..., -1] = u, 1.0
-        dv[..., :-1], dv[..., -1] = v, 0.0
-        # In t: d/dt = h d/dL and d/dL = (d/dlambda) / T'.
-        d0, d1 = h * du / t1
-        s0, s1 = h * h * (dv / (t1 * t1) - du * t2 / t1 ** 3)
-        # Quintic with the values, slopes d and second derivatives s (in t) at both ends.
-        e_val = p1 - p0 - d0 - 0.5 * s0
-        e_slope = d1 - d0 - s0
-        e_curv = s1 - s0
-        c = np.empty((n_cells, _START_DEGREE + 1, n_cols))
-        c[:, 0], c[:, 1] = p0, d0
-        np.multiply(0.5, s0, out=c[:, 2])
-        c[:, 3] = 10.0 * e_val - 4.0 * e_slope + 0.5 * e_curv
-        c[:, 4] = -15.0 * e_val + 7.0 * e_slope - e_curv
-        c[:, 5] = 6.0 * e_val - 3.0 * e_slope + 0.5 * e_curv
-        # Check the quintic on a few interior points: it must stay in the cell's hull.
-        inner = np.matmul(_HULL_POWERS, c)                      # (P-1, 3, n+1)
-        lo, hi = np.minimum(p0, p1)[:, None], np.maximum(p0, p1)[:, None]
-        tol = 1e-12 * (1.0 + np.abs(hi))
-        smooth = (np.isfinite(c).all(axis=(1, 2)) & (h[:, 0] < 0)
-                  & ((inner >= lo - tol) & (inner <= hi + tol)).all(axis=(1, 2)))
+    lp2 = lp * lp
+    phi1 = 2.0 * (b * lpp - lp) / lp2                          # phi'(b)
+    phi2 = 2.0 * (b * l3 * lp - 2.0 * lpp * (b * lpp - lp)) / (lp2 * lp)
+    u_all = 1.0 / (k * phi1)
+    v_all = -k * phi2 * u_all ** 3
+    # Segments moving across the whole cell (bent, not yet at their branch end).
+    free = (lam[:-1, None] >= lam_c) & (lam[1:, None] <= lam_end)
+    # Both cell ends at once (leading axis: cell start, cell end).
+    ends = _cell_ends(n_cells)
+    lp_e = lp[ends]
+    u = np.where(free, u_all[ends], 0.0)
+    v = np.where(free, v_all[ends], 0.0)
+    # T' and T'' summed together, segments on the leading axis (contiguous rows).
+    sums = np.empty((count.size, 2) + u.shape[:-1])
+    rows = sums.transpose(1, 2, 3, 0)      # (2, 2, P-1, U) view of it
+    np.multiply(u, lp_e, out=rows[0])
+    np.add(u * u * lpp[ends], v * lp_e, out=rows[1])
+    t1, t2 = _weighted_rows(sums, count)[..., None]
+    # d/dlambda and d2/dlambda2 of [b, lambda]: (1, 0) for lambda.
+    du, dv = np.empty(u.shape[:-1] + (n_cols,)), np.empty(u.shape[:-1] + (n_cols,))
+    du[..., :-1], du[..., -1] = u, 1.0
+    dv[..., :-1], dv[..., -1] = v, 0.0
+    # In t: d/dt = h d/dL and d/dL = (d/dlambda) / T'.
+    d0, d1 = h * du / t1
+    s0, s1 = h * h * (dv / (t1 * t1) - du * t2 / t1 ** 3)
+    # Quintic with the values, slopes d and second derivatives s (in t) at both ends.
+    e_val = p1 - p0 - d0 - 0.5 * s0
+    e_slope = d1 - d0 - s0
+    e_curv = s1 - s0
+    c = np.empty((n_cells, _START_DEGREE + 1, n_cols))
+    c[:, 0], c[:, 1] = p0, d0
+    np.multiply(0.5, s0, out=c[:, 2])
+    c[:, 3] = 10.0 * e_val - 4.0 * e_slope + 0.5 * e_curv
+    c[:, 4] = -15.0 * e_val + 7.0 * e_slope - e_curv
+    c[:, 5] = 6.0 * e_val - 3.0 * e_slope + 0.5 * e_curv
+    # Check the quintic on a few interior points: it must stay in the cell's hull.
+    inner = np.matmul(_HULL_POWERS, c)                      # (P-1, 3, n+1)
+    lo, hi = np.minimum(p0, p1)[:, None], np.maximum(p0, p1)[:, None]
+    tol = 1e-12 * (1.0 + np.abs(hi))
+    smooth = (np.isfinite(c).all(axis=(1, 2)) & (h[:, 0] < 0)
+              & ((inner >= lo - tol) & (inner <= hi + tol)).all(axis=(1, 2)))
     rough = ~smooth
     if rough.any():
         c[rough] = 0.0
