@@ -134,9 +134,9 @@ class _PathTable:
         seg = self.seg
         at = np.minimum(np.arange(blocks[0], blocks[-1] + 2) * _BLOCK, self.n_cells)
         mu = self.lam[at] / seg['k'][:, None]          # (U, blocks + 1)
-        approx = seg['count'] @ np.array([
+        approx = np.dot(seg['count'], np.array([
             _interp(m, table_mu, table_len)
-            for m, table_mu, table_len in zip(mu, seg['table_mu'], seg['table_len'])])
+            for m, table_mu, table_len in zip(mu, seg['table_mu'], seg['table_len'])]))
         margin = 0.05 + 1e-6 * abs(length)
         hit = ((approx[1:] <= length + margin) & (approx[:-1] >= length - margin)).nonzero()[0]
         if not hit.size:
@@ -408,7 +408,7 @@ def _problem(skeleton: Skeleton, d: tuple) -> _Problem:
     table_mu, table_b = prof['mu'], prof['b']
     lam_c, lam_end = k * mu_c, k * mu_end
     straight = float(np.add.reduce(np.hypot(s, d2 - d1)))   # np.sum, without its wrapper
-    folds = [i for i, kd in enumerate(kind) if kd == 'fold']
+    folds = [i for i, kd in enumerate(kind) if kd == 'fold'] if 'fold' in kind else []
     snap = bool(folds)
     # Segments with the same holes and stiffness have the same angle at every tension:
     # the path is solved once per distinct segment (5 to 7 of 11 for the paper's
@@ -436,8 +436,8 @@ def _problem(skeleton: Skeleton, d: tuple) -> _Problem:
     if snap:
         lam_top = float(np.min(lam_end[folds]))
     else:
-        finite = lam_end[np.isfinite(lam_end)]
-        lam_top = float(finite.max()) if finite.size else float(lam_all.max())
+        finite = [x for x in lam_end.tolist() if math.isfinite(x)]
+        lam_top = max(finite) if finite else float(lam_all.max())
     lam_path = _sorted_unique(np.concatenate([[0.0], lam_all[lam_all <= lam_top], [lam_top]]))
     if lam_path.size > _PATH_SAMPLES:
         # Thin to a bounded table; keep the ends and every buckling tension (the kept
