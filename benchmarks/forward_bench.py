@@ -246,19 +246,24 @@ def load_before(rev):
     return module
 
 
-def first_solve_cpu(mod):
-    """Median CPU time (s) of the first solve of each benchmark threading in solver module
-    ``mod``, its per-threading tables forgotten before each (pair profiles kept)."""
-    out = []
-    for text in THREADINGS.values():
-        for name in ('_problem', '_single', '_single_named', '_threading_cached'):
-            cached = getattr(mod, name, None)
-            if cached is not None:
-                cached.cache_clear()
-        t = text.split()
-        out.append(timed(lambda: mod.solve_forward(SK, t, SK.straight_length_mm(t) - 30.0),
-                         1, time.thread_time)[0])
-    return statistics.median(out)
+def first_solve_cpu(mods, reps=5):
+    """Median CPU time (s) of the first solve of each benchmark threading, per solver
+    module of ``mods``, its per-threading tables forgotten before each (pair profiles
+    kept). The modules take turns solve by solve, ``reps`` times over the threadings
+    (a load burst then hits both, not one module's whole round)."""
+    out = [[] for _ in mods]
+    for _ in range(reps):
+        for text in THREADINGS.values():
+            t = text.split()
+            length = SK.straight_length_mm(t) - 30.0
+            for mod, times in zip(mods, out):
+                for name in ('_problem', '_single', '_single_named', '_threading_cached'):
+                    cached = getattr(mod, name, None)
+                    if cached is not None:
+                        cached.cache_clear()
+                times.append(timed(lambda: mod.solve_forward(SK, t, length), 1,
+                                   time.thread_time)[0])
+    return [statistics.median(times) for times in out]
 
 
 def certified_starts(mod, n_lengths):
@@ -290,8 +295,9 @@ def side_by_side(before, probs, reps, rounds):
                'batch, mixed (20,000)': [], 'first solve of a threading': []}
     for _ in range(rounds):
         times = {}
+        firsts = dict(zip(('before', 'now'), first_solve_cpu((before, fwd))))
         for label, mod in (('before', before), ('now', fwd)):
-            first = first_solve_cpu(mod)
+            first = firsts[label]
             # Tables back for the timed solves (built in full by a batch: since issue
             # 17 a single solve or reachable_range builds only what it reads).
             mod.solve_forward_batch(SK, [p[1] for p in probs], [p[2] for p in probs])
@@ -473,9 +479,12 @@ def main():
         for key, pairs in figures.items():
             ratio = [b / n for b, n in pairs]
             scale, unit = (1e3, 'ms') if 'first' in key else (1e6, 'us')
+            note = (f' (each round the median of {5 * len(THREADINGS)} first solves per '
+                    f'solver, the two taking turns solve by solve)' if 'first' in key else '')
             print(f'  {key}: ratio before/now {fmt_spread(ratio, 1, 2)}x; before '
                   f'{fmt_spread([b for b, _ in pairs], scale, 1 + ("first" in key))} {unit}, '
-                  f'now {fmt_spread([n for _, n in pairs], scale, 1 + ("first" in key))} {unit}')
+                  f'now {fmt_spread([n for _, n in pairs], scale, 1 + ("first" in key))} {unit}'
+                  f'{note}')
         zero_b, total_b = certified_starts(before, n_cert)
         print(f'  cold solves with a certified start (no Newton step): before {zero_b} of '
               f'{total_b} ({100.0 * zero_b / total_b:.1f} %), now {zero} of {total} '

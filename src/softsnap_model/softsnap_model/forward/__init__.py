@@ -53,15 +53,15 @@ Layout of this subpackage
   (tables of a robot's threadings stacked once, for repeated small batches).
 
 Caches (the only process-wide state; each is a pure function of its key, so it changes
-the cost, never an answer): per hole-pair profiles (``branch._PROFILE_CACHE``), and
-per threading the problem and path tables (``path._problem``, ``path._single``,
-``path._single_named``; the single solve keeps its per-threading lists in the
-``path._single`` entry) and the hole offsets of a threading given by name
-(``path._threading_cached``), least recently used out beyond
-``path._THREADINGS_CACHED`` (2560) threadings, about 0.3 MB each. A path table is built
-lazily: a single solve builds the block of it around its length (a first solve about
-a twentieth of the table), a batch the whole table; entries are computed one by one,
-so a partly built table answers exactly like a full one.
+the cost, never an answer): per hole-pair profiles (``branch._PROFILE_CACHE``) and
+single-solve length coefficients (``path._Q_CACHE``), and per threading the problem
+and path tables (``path._problem``, ``path._single``, ``path._single_named``; the
+single solve keeps its per-threading lists in the ``path._single`` entry) and the hole
+offsets of a threading given by name (``path._threading_cached``), least recently used
+out beyond ``path._THREADINGS_CACHED`` (2560) threadings, about 0.3 MB each. A path
+table is built lazily: a single solve builds the block of it around its length (a
+first solve about a twentieth of the table), a batch the whole table; entries are
+computed one by one, so a partly built table answers exactly like a full one.
 :func:`clear_caches` empties them all (benchmarks use it to time a first solve).
 """
 from __future__ import annotations
@@ -70,7 +70,7 @@ from .api import reachable_range, solve_forward
 from .batch import PreparedBatch, solve_forward_batch, sweep
 from .branch import (_PROFILE_CACHE, _PROFILE_LOCK, SegmentBranch, _branch_derivs, _branch_solve,
                      _pair_profile_array, segment_angle_at_tension, segment_branch)
-from .path import _problem, _single, _single_named, _threading_cached
+from .path import _Q_CACHE, _Q_LOCK, _problem, _single, _single_named, _threading_cached
 from .results import (CONSTRAINT_TOL_MM, MAX_ITER, STATIONARITY_TOL_RAD, BatchResult,
                       ForwardResult, InfeasibleLengthError, PreparedBatchResult,
                       SnapThroughError, SweepResult)
@@ -95,3 +95,5 @@ def clear_caches() -> None:
         cached.cache_clear()
     with _PROFILE_LOCK:
         _PROFILE_CACHE.clear()
+    with _Q_LOCK:
+        _Q_CACHE.clear()

@@ -188,7 +188,8 @@ def solve_forward(skeleton: Skeleton, threading, cable_length_mm, initial=None, 
             or max_iter < 0:
         raise ValueError(f'max_iter must be an integer >= 0, got {max_iter!r}')
     flip = _mirror_flip_indices(mirror_flip, S['mirror'])
-    if not (math.isfinite(L) and L > prob.min_mm):
+    # The bound first: the exact minimum is computed only for a length near it.
+    if not (math.isfinite(L) and (L > prob.min_mm_above or L > prob.min_mm)):
         _check_length(prob, np.array([L]), skeleton, prob.d)
     lam0 = a0 = None
     if initial is not None:

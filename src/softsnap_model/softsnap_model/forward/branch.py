@@ -135,41 +135,54 @@ def _pair_profile_array(d1, d2, s, b_max, n_samples=_BRANCH_SAMPLES):
 
 # Per-pair profiles, memoised for the process: a threading's tables are a function of its
 # distinct hole pairs, so threadings (and the inverse design) share them. FIFO-bounded
-# (documented cache; :func:`softsnap_model.forward.clear_caches` empties it).
+# (documented cache; :func:`softsnap_model.forward.clear_caches` empties it). An entry is
+# ``(scalars, tables, kind)``: the (7,) values of :data:`_SCALAR_KEYS`, the (4, M) tables
+# ``b, mu, dmu, length`` and the end kind, so that a threading's profiles are gathered by two
+# numpy calls (a new threading's first solve is numpy call overhead).
 _PROFILE_CACHE: dict = {}
 _PROFILE_CACHE_MAX = 16384
 _PROFILE_LOCK = threading.Lock()
-_PROFILE_KEYS = ('direction', 'mirror', 'mu_c', 'beta', 'b_end', 'mu_end', 'kind', 'b', 'mu',
-                 'dmu')
+_SCALAR_KEYS = ('direction', 'mirror', 'mu_c', 'beta', 'b_end', 'mu_end', 'end_length')
+_TABLE_KEYS = ('b', 'mu', 'dmu', 'length')
 
 
 def _pair_profiles(d1, d2, s: float, b_max: float) -> dict:
     """Profiles of the hole pairs ``(d1[j], d2[j])``, stacked along the first axis.
 
     Each distinct pair is built once per process (pure function of ``(d1, d2, s,
-    b_max)``); the pairs not seen before are built together, vectorised.
+    b_max)``); the pairs not seen before are built together, vectorised. The tables
+    ``b, mu, dmu`` (n, M) are views of ``tables`` (n, 4, M), whose last row is the
+    segment length at the samples; ``end_length`` is the segment's length at its branch
+    end as the table has it (within rounding of the one :func:`.path._problem` sums for
+    the reachable minimum); ``kinds`` the tuple of end kinds.
     """
     s, b_max = float(s), float(b_max)
     keys = [(x, y, s, b_max) for x, y in zip(np.asarray(d1, dtype=float).tolist(),
                                                 np.asarray(d2, dtype=float).tolist())]
     with _PROFILE_LOCK:
         found = [_PROFILE_CACHE.get(key) for key in keys]
-    missing = list(dict.fromkeys(key for key, f in zip(keys, found) if f is None))
-    if missing:
+    if None in found:
+        missing = list(dict.fromkeys(key for key, f in zip(keys, found) if f is None))
         built = _pair_profile_array(np.array([key[0] for key in missing]),
                                     np.array([key[1] for key in missing]), float(s),
                                     float(b_max))
-        new = {key: {name: built[name][j] for name in _PROFILE_KEYS}
+        # The length at the branch end (a bound for the threading's minimum length).
+        built['end_length'] = built['length'][:, -1]
+        scalars = np.stack([built[name] for name in _SCALAR_KEYS], axis=1)
+        tables = np.stack([built[name] for name in _TABLE_KEYS], axis=1)
+        new = {key: (scalars[j], tables[j], str(built['kind'][j]))
                for j, key in enumerate(missing)}
         with _PROFILE_LOCK:
             _PROFILE_CACHE.update(new)
             while len(_PROFILE_CACHE) > _PROFILE_CACHE_MAX:
                 del _PROFILE_CACHE[next(iter(_PROFILE_CACHE))]
         found = [f if f is not None else new[key] for key, f in zip(keys, found)]
-    out = {name: np.array([f[name] for f in found]) for name in _PROFILE_KEYS
-           if name not in ('b', 'mu', 'dmu')}
-    for name in ('b', 'mu', 'dmu'):
-        out[name] = np.stack([f[name] for f in found])
+    scalars = np.array([f[0] for f in found]).T
+    tables = np.array([f[1] for f in found])
+    out = dict(zip(_SCALAR_KEYS, scalars))
+    out['mirror'] = scalars[1] != 0.0
+    out['kinds'] = tuple([f[2] for f in found])     # end kinds (str)
+    out.update(tables=tables, b=tables[:, 0], mu=tables[:, 1], dmu=tables[:, 2])
     return out
 
 
@@ -199,7 +212,7 @@ def segment_branch(d1_mm, d2_mm, spacing_mm, max_angle_rad=None) -> SegmentBranc
         buckling_tension=p['mu_c'].reshape(shape),
         end_angle_rad=p['b_end'].reshape(shape),
         end_tension=p['mu_end'].reshape(shape),
-        end_kind=p['kind'].reshape(shape))
+        end_kind=np.array(p['kinds']).reshape(shape))
 
 
 def _default_max_angle(spacing_mm, max_angle_rad):
@@ -230,36 +243,37 @@ def _branch_solve(mu, table_mu, table_b, direction, d1, d2, s, iters=30):
     return _branch_refine(mu, cell, direction, d1, d2, s, iters)
 
 
-def _segment_cells(mu, table_mu, table_b, table_dmu):
-    """Table cells and cubic starts for tensions ``mu`` (P, n) on per-segment tables (n, M).
+def _segment_cells(mu, tables):
+    """Table cells and cubic starts for tensions ``mu`` (P, n) on per-segment tables
+    ``tables`` (n, 3 or more, M): rows ``b``, ``mu``, ``dmu`` (the profiles' tables).
 
     The cells of :func:`_branch_solve` (the cell tuple of :func:`_branch_refine`), found by
     one binary search per segment column instead of comparing every tension with every
     table entry (the path-table build of a new threading), and the cubic Hermite
-    interpolant of ``b(mu)`` in the cell (slopes ``1 / table_dmu``; about 1e-10 rad off,
-    against 1e-4 for the linear one). Returns ``(start, cell)``, element-wise.
+    interpolant of ``b(mu)`` in the cell (slopes ``1 / dmu``; about 1e-10 rad off,
+    against 1e-4 for the linear one). Returns ``(start, cell)``, element-wise. A cell of
+    zero width (at a pitchfork) divides 0 by 0: call under ``np.errstate(all='ignore')``.
     """
-    n, m = table_mu.shape
+    n, m = tables.shape[0], tables.shape[2]
+    table_b, table_mu = tables[:, 0], tables[:, 1]
     idx = np.empty(mu.shape, dtype=np.intp)
     for i in range(n):
         idx[:, i] = table_mu[i].searchsorted(mu[:, i], side='left')
     # Clamped to 1 .. m - 1 in place (np.clip of integers costs two type lookups).
     np.maximum(idx, 1, out=idx)
     np.minimum(idx, m - 1, out=idx)
-    below = idx - 1
     cols = np.arange(n)
-    b_lo, b_hi = table_b[cols, below], table_b[cols, idx]
-    mu_lo, mu_hi = table_mu[cols, below], table_mu[cols, idx]
+    # Both ends of every cell, each in one gather: (P, n, 3) of b, mu, dmu.
+    lo, hi = tables[cols, :3, idx - 1], tables[cols, :3, idx]
+    b_lo, mu_lo, b_hi, mu_hi = lo[..., 0], lo[..., 1], hi[..., 0], hi[..., 1]
     cell = (b_lo, b_hi, mu_lo, mu_hi, table_mu[:, 0], table_mu[:, -1], table_b[:, 0],
             table_b[:, -1])
-    with np.errstate(all='ignore'):
-        span = mu_hi - mu_lo
-        t = (mu - mu_lo) / span
-        t2 = t * t
-        t3 = t2 * t
-        start = ((2.0 * t3 - 3.0 * t2 + 1.0) * b_lo + (t3 - 2.0 * t2 + t) * span
-                 / table_dmu[cols, below] + (3.0 * t2 - 2.0 * t3) * b_hi
-                 + (t3 - t2) * span / table_dmu[cols, idx])
+    span = mu_hi - mu_lo
+    t = (mu - mu_lo) / span
+    t2 = t * t
+    t3 = t2 * t
+    start = ((2.0 * t3 - 3.0 * t2 + 1.0) * b_lo + (t3 - 2.0 * t2 + t) * span
+             / lo[..., 2] + (3.0 * t2 - 2.0 * t3) * b_hi + (t3 - t2) * span / hi[..., 2])
     return start, cell
 
 

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import bisect
 import functools
+import math
 import threading
 from dataclasses import dataclass
 
@@ -24,6 +25,12 @@ from ..skeleton import Skeleton
 from .branch import (_BRANCH_SAMPLES, _branch_derivs, _branch_refine, _pair_profiles,
                      _segment_cells)
 from .results import InfeasibleLengthError, SnapThroughError
+
+
+try:    # np.interp without its Python wrapper (a check for complex values)
+    from numpy._core.multiarray import interp as _interp
+except ImportError:     # pragma: no cover - another numpy layout
+    _interp = np.interp
 
 
 #: Threadings whose problem data and path tables stay cached (least recently used
@@ -81,12 +88,17 @@ class _PathTable:
         self.b = np.empty((n_samples, n_cols))
         self._derivs = np.empty((3, n_samples, n_cols))      # l', l'', l''' at the samples
         self.poly = np.empty((n_samples - 1, _START_DEGREE + 1, n_cols + 1))
-        self._sample_built = np.zeros(n_samples, dtype=bool)
+        # Which samples are built: bytes (a reverse search for the last built one is one
+        # call) seen by numpy as a bool array (masks), the same memory.
+        self._built = bytearray(n_samples)
+        self._sample_built = np.frombuffer(self._built, dtype=bool)
         self._cell_built = [False] * self.n_cells            # a list: one cheap lookup
-        self.len = np.full(n_samples, np.inf)
-        self.len_list = self.len.tolist()
-        self.neg_len_list = (-self.len).tolist()
+        self.len = np.empty(n_samples)
+        self.len.fill(math.inf)
+        self.len_list = [math.inf] * n_samples
+        self.neg_len_list = [-math.inf] * n_samples
         self.complete_ = False
+        self._unpublished = False   # built samples not yet in the searchable lengths
         self._lock = threading.RLock()
 
     def ensure(self, length):
@@ -97,15 +109,16 @@ class _PathTable:
         j = min(max(bisect.bisect_left(self.neg_len_list, -length), 1), self.n_cells)
         if self._cell_built[j - 1]:
             return
-        with self._lock:
+        # One errstate for the whole build (the path arithmetic divides 0 by 0 where a
+        # cell has zero width or nothing moves; those entries are handled).
+        with self._lock, np.errstate(all='ignore'):
             for _ in range(4):
                 j = min(max(bisect.bisect_left(self.neg_len_list, -length), 1), self.n_cells)
                 if self._cell_built[j - 1]:
                     return
                 # Sample j is built (or this is the first build); the exact cell is
                 # after the last built sample before it: cells p .. j - 1.
-                before = np.flatnonzero(self._sample_built[:j])
-                p = int(before[-1]) if before.size else 0
+                p = max(self._built.rfind(1, 0, j), 0)
                 blocks = range(p // _BLOCK, (j - 1) // _BLOCK + 1)
                 if len(blocks) > 2:
                     blocks = self._guess(length, blocks)
@@ -114,21 +127,18 @@ class _PathTable:
 
     def _guess(self, length, blocks):
         """The blocks whose approximate boundary lengths bracket ``length``, with a
-        margin (all of them if none does). Approximate: each segment's magnitude
-        interpolated linearly in its profile table (off by up to ~1e-4 rad, some
-        1e-3 mm in the length), no refinement."""
+        margin (all of them if none does). Approximate: each segment's length
+        interpolated linearly in its profile table (off by some 1e-4 mm a segment, a
+        cell's curvature; about as close as its angle interpolated and the exact length
+        of that), no refinement: one interpolation per distinct segment."""
         seg = self.seg
         at = np.minimum(np.arange(blocks[0], blocks[-1] + 2) * _BLOCK, self.n_cells)
-        mu = self.lam[at, None] / seg['k']
-        b = np.empty(mu.shape)
-        for i in range(b.shape[1]):
-            b[:, i] = np.interp(mu[:, i], seg['table_mu'][i], seg['table_b'][i])
-        x = (b * b).ravel()
-        g = _series(x, _G_COEF1)[0].reshape(b.shape)
-        approx = _weighted_sum(np.sqrt(seg['dd2'] + g * (self.s + seg['e1'] * b)
-                                       * (self.s + seg['e2'] * b)), seg['count'])
+        mu = self.lam[at] / seg['k'][:, None]          # (U, blocks + 1)
+        approx = np.dot(seg['count'], np.array([
+            _interp(m, table_mu, table_len)
+            for m, table_mu, table_len in zip(mu, seg['table_mu'], seg['table_len'])]))
         margin = 0.05 + 1e-6 * abs(length)
-        hit = np.flatnonzero((approx[1:] <= length + margin) & (approx[:-1] >= length - margin))
+        hit = ((approx[1:] <= length + margin) & (approx[:-1] >= length - margin)).nonzero()[0]
         if not hit.size:
             return blocks
         return range(blocks[0] + int(hit[0]), blocks[0] + int(hit[-1]) + 1)
@@ -138,13 +148,17 @@ class _PathTable:
         first = blocks[0] * _BLOCK
         last = min((blocks[-1] + 1) * _BLOCK, self.n_cells)
         self._build_samples(np.arange(first, last + 1))
-        if np.any(np.diff(self._exact[self._sample_built]) > 0):
+        built = self._exact[self._sample_built]
+        if (built[1:] > built[:-1]).any():
             self._complete()
             return
         self._build_cells(first, last)
         # Lists first, then the flags: a solve that sees a cell built without the lock
         # (ensure's fast path) must find the exact lengths when it searches.
-        self._publish()
+        if self._unpublished:
+            self._publish()
+        else:
+            self._publish_block(first, last)
         self._cell_built[first:last] = [True] * (last - first)
 
     def _publish(self):
@@ -155,23 +169,47 @@ class _PathTable:
         self.len[:] = np.where(last >= 0, self._exact[last], np.inf)
         self.len_list[:] = self.len.tolist()
         self.neg_len_list[:] = (-self.len).tolist()
+        self._unpublished = False
+
+    def _publish_block(self, first, last):
+        """:meth:`_publish` after samples ``first .. last`` were built, every other built
+        sample being published already: only the entries from ``first`` up to the next
+        built sample change (to the new exact lengths, then the last of them), so only
+        those are written. Each write leaves the arrays non-increasing and never below
+        the exact lengths (the tail first, then the block; each list in one slice
+        assignment), for a solve searching them without the lock."""
+        nxt = self._built.find(1, last + 1)
+        nxt = self.len.size if nxt < 0 else nxt
+        exact = self._exact[first:last + 1]
+        self.len[last + 1:nxt] = exact[-1]
+        self.len[first:last + 1] = exact
+        values = exact.tolist()
+        tail = nxt - last - 1
+        self.len_list[first:nxt] = values + [values[-1]] * tail
+        self.neg_len_list[first:nxt] = [-x for x in values] + [-values[-1]] * tail
 
     def _build_samples(self, idx):
         """Refine the samples ``idx`` (sorted indices) not built yet."""
-        idx = idx[~self._sample_built[idx]]
         if not idx.size:
             return
+        if self._built.find(1, int(idx[0]), int(idx[-1]) + 1) >= 0:
+            idx = idx[~self._sample_built[idx]]
+            if not idx.size:
+                return
+        # A run of consecutive samples (a block) is written through slices.
+        at = slice(int(idx[0]), int(idx[-1]) + 1) if idx[-1] - idx[0] == idx.size - 1 else idx
         seg = self.seg
-        b, (lengths, lp, lpp, l3) = _path_samples(self.lam[idx, None] / seg['k'], seg,
+        b, (lengths, lp, lpp, l3) = _path_samples(self.lam[at, None] / seg['k'], seg,
                                                   self.s)
         total = _weighted_sum(lengths, seg['count'])
         # Every segment straight (the start of the path, before a mirror segment
         # buckles): the straight length, exactly.
-        total[(b == 0.0).all(axis=1)] = self.straight
-        self._exact[idx] = total
-        self.b[idx] = b
-        self._derivs[:, idx] = (lp, lpp, l3)
-        self._sample_built[idx] = True
+        total[np.logical_and.reduce(b == 0.0, axis=1)] = self.straight
+        self._exact[at] = total
+        self.b[at] = b
+        derivs = self._derivs
+        derivs[0, at], derivs[1, at], derivs[2, at] = lp, lpp, l3
+        self._sample_built[at] = True
 
     def _build_cells(self, first, last):
         """Start polynomials of cells ``first .. last - 1`` (their samples built)."""
@@ -185,7 +223,7 @@ class _PathTable:
     def complete(self):
         """Build every sample and cell (the batch solver and the full views use them)."""
         if not self.complete_:
-            with self._lock:
+            with self._lock, np.errstate(all='ignore'):
                 self._complete()
         return self
 
@@ -212,8 +250,9 @@ class _PathTable:
         samples next to ``lam`` are read, so only those are built)."""
         j = int(np.searchsorted(self.lam, lam))
         near = np.arange(max(j - 1, 0), min(j + 2, self.lam.size))
-        with self._lock:
+        with self._lock, np.errstate(all='ignore'):
             self._build_samples(near)
+            self._unpublished = True    # the next publish must be a full one
         return float(np.interp(lam, self.lam[near], self._exact[near]))
 
 
@@ -226,25 +265,24 @@ def _path_samples(mu, seg, s):
     table needs anyway, gives the next step, and the entry is kept where that step is at
     rounding level too. The rest (near a pitchfork, a start outside its cell; a few per
     table) take the safeguarded refinement. Entries outside a segment's table (straight
-    before buckling, at contact) take its end values. Everything is per entry.
+    before buckling, at contact) take its end values. Everything is per entry. Called
+    under ``np.errstate(all='ignore')`` (0/0 in cells of zero width, at a pitchfork).
     """
     direction, d1, d2 = seg['direction'], seg['d1'], seg['d2']
-    start, cell = _segment_cells(mu, seg['table_mu'], seg['table_b'], seg['dmu'])
-    b_lo, b_hi = cell[:2]
-    out = mu <= seg['table_mu'][:, 0]
-    above = mu >= seg['table_mu'][:, -1]
-    ends = np.where(out, seg['table_b'][:, 0], seg['table_b'][:, -1])
-    out |= above
-    with np.errstate(all='ignore'):
-        b = np.fmin(np.fmax(start, b_lo), b_hi)
-        _, lp, lpp = _branch_eval(b, direction, d1, d2, s, seg['pre'])
-        b = np.where(out, ends, np.fmin(np.fmax(b - (2.0 * b + mu * lp) / (2.0 + mu * lpp),
-                                                b_lo), b_hi))
-        ev = _path_derivatives(b, direction, d1, d2, s, pre=seg['pre'])
-        step = (2.0 * b + mu * ev[1]) / (2.0 + mu * ev[2])
-        # The root is inside the cell (mu_lo < mu), never at b_lo: this also turns away
-        # the straight root b = 0 of a mirror segment just past its pitchfork.
-        ok = out | ((np.abs(step) <= 1e-15 * (1.0 + np.abs(b))) & (b > b_lo))
+    start, cell = _segment_cells(mu, seg['tables'])
+    b_lo, b_hi, _, _, mu_first, mu_last, b_first, b_last = cell
+    out = mu <= mu_first
+    ends = np.where(out, b_first, b_last)
+    out |= mu >= mu_last
+    b = np.fmin(np.fmax(start, b_lo), b_hi)
+    _, lp, lpp = _branch_eval(b, direction, d1, d2, s, seg['pre'])
+    b = np.where(out, ends, np.fmin(np.fmax(b - (2.0 * b + mu * lp) / (2.0 + mu * lpp),
+                                            b_lo), b_hi))
+    ev = _path_derivatives(b, direction, d1, d2, s, pre=seg['pre'])
+    step = (2.0 * b + mu * ev[1]) / (2.0 + mu * ev[2])
+    # The root is inside the cell (mu_lo < mu), never at b_lo: this also turns away
+    # the straight root b = 0 of a mirror segment just past its pitchfork.
+    ok = out | ((np.abs(step) <= 1e-15 * (1.0 + np.abs(b))) & (b > b_lo))
     if not ok.all():
         rest = ~ok
         shape = mu.shape
@@ -258,10 +296,22 @@ def _path_samples(mu, seg, s):
 
 def _weighted_sum(values, weights):
     """``values @ weights`` for (..., U) values, summed column by column in a fixed order
-    (a BLAS product may round differently with the number of rows)."""
-    out = values[..., 0] * weights[0]
+    (a BLAS product may round differently with the number of rows): the products in
+    one call, then added up in place, ``((v0 w0 + v1 w1) + v2 w2) + ...``."""
+    terms = values * weights
+    out = terms[..., 0]
     for j in range(1, weights.size):
-        out += values[..., j] * weights[j]
+        out += terms[..., j]
+    return out
+
+
+def _weighted_rows(values, weights):
+    """:func:`_weighted_sum` of (U, ...) values, the segments on the leading axis (each
+    term a contiguous row: cheaper to add), the same sums in the same order."""
+    terms = values * weights.reshape((-1,) + (1,) * (values.ndim - 1))
+    out = terms[0]
+    for j in range(1, weights.size):
+        out += terms[j]
     return out
 
 
@@ -284,11 +334,24 @@ class _Problem:
     table_mu: np.ndarray     # (n, M) per-unit-stiffness tension along each branch
     table_b: np.ndarray      # (n, M) angle magnitude along each branch
     straight_mm: float
-    min_mm: float            # infimum of reachable lengths (or length at the fold)
     snap: bool               # the path ends at a fold (snap-through), not at contact
     path_lam: np.ndarray     # (P,) increasing tensions along the whole path
     path: '_PathTable'       # samples there and start polynomials, built on demand
     path_columns: np.ndarray  # (n+1,) column of path_poly for each segment, then lambda
+    min_mm_above: float      # a bound above min_mm (a check that need not compute it)
+
+    @property
+    def min_mm(self) -> float:
+        """Infimum of reachable lengths (mm): every segment at its branch end (or the
+        length at the fold). Computed on first read (a first solve whose length is
+        above :attr:`min_mm_above` never needs it) and kept; a pure function of the
+        problem, so concurrent first reads agree."""
+        value = self.__dict__.get('_min_mm')
+        if value is None:
+            end_len, _, _ = _branch_derivs(self.b_end, self.direction, self.d1, self.d2,
+                                           self.s)
+            value = self.__dict__['_min_mm'] = float(end_len.sum())
+        return value
 
     @property
     def path_len(self) -> np.ndarray:
@@ -308,10 +371,27 @@ class _Problem:
 
 
 def _sorted_unique(values):
-    """``np.unique`` of finite numbers: a sort and one comparison (cheaper for ~1000, and
-    numpy 2.4's ``unique`` imports ``numpy.ma`` on first use, 70 ms)."""
-    values = np.sort(values)
-    return values[np.concatenate(([True], values[1:] != values[:-1]))]
+    """``np.unique`` of finite numbers: a sort in place and one comparison (cheaper for
+    ~1000, and numpy 2.4's ``unique`` imports ``numpy.ma`` on first use, 70 ms).
+    ``values`` is a new array (it is sorted in place)."""
+    values.sort(kind='stable')    # merges the sorted runs of the segments' tables
+    keep = np.empty(values.size, dtype=bool)
+    keep[0] = True
+    np.not_equal(values[1:], values[:-1], out=keep[1:])
+    return values[keep]
+
+
+@functools.lru_cache(maxsize=64)
+def _thinned(size):
+    """Indices keeping :data:`_PATH_SAMPLES` of ``size`` path tensions, ends included
+    (a pure function of the size, memoised: ``np.linspace`` costs ~10 us a call)."""
+    keep = np.linspace(0, size - 1, _PATH_SAMPLES).astype(int)
+    keep.flags.writeable = False
+    return keep
+
+
+#: Most samples of a path table (before the buckling and end tensions are added back).
+_PATH_SAMPLES = 4 * _BRANCH_SAMPLES
 
 
 @functools.lru_cache(maxsize=_THREADINGS_CACHED)
@@ -324,28 +404,12 @@ def _problem(skeleton: Skeleton, d: tuple) -> _Problem:
     prof = _pair_profiles(d1, d2, s, b_max)
     direction, mu_c, beta = prof['direction'], prof['mu_c'], prof['beta']
     mu_end, b_end = prof['mu_end'], prof['b_end']
-    kind = tuple(str(x) for x in prof['kind'])
+    kind = prof['kinds']
     table_mu, table_b = prof['mu'], prof['b']
     lam_c, lam_end = k * mu_c, k * mu_end
-    straight = float(np.sum(np.hypot(s, d2 - d1)))
-    folds = [i for i, kd in enumerate(kind) if kd == 'fold']
+    straight = float(np.add.reduce(np.hypot(s, d2 - d1)))   # np.sum, without its wrapper
+    folds = [i for i, kd in enumerate(kind) if kd == 'fold'] if 'fold' in kind else []
     snap = bool(folds)
-    # Path table: every tension where some segment's table has a sample, up to where the
-    # path ends (all segments at their ends, or the first fold).
-    lam_all = (k[:, None] * table_mu).ravel()
-    lam_all = lam_all[np.isfinite(lam_all)]
-    if snap:
-        lam_top = float(np.min(lam_end[folds]))
-    else:
-        finite = lam_end[np.isfinite(lam_end)]
-        lam_top = float(finite.max()) if finite.size else float(lam_all.max())
-    lam_path = _sorted_unique(np.concatenate([[0.0], lam_all[lam_all <= lam_top], [lam_top]]))
-    if lam_path.size > 4 * _BRANCH_SAMPLES:
-        # Thin to a bounded table; keep the ends and every buckling tension (the kept
-        # indices are strictly increasing: their step is above 1).
-        keep = np.linspace(0, lam_path.size - 1, 4 * _BRANCH_SAMPLES).astype(int)
-        lam_path = _sorted_unique(np.concatenate([lam_path[keep], lam_c, lam_end, [lam_top]]))
-        lam_path = lam_path[lam_path <= lam_top]
     # Segments with the same holes and stiffness have the same angle at every tension:
     # the path is solved once per distinct segment (5 to 7 of 11 for the paper's
     # threadings; the table build is arithmetic on (samples, segments) arrays) and
@@ -356,26 +420,44 @@ def _problem(skeleton: Skeleton, d: tuple) -> _Problem:
             position[key] = len(position)
             first.append(i)
         inverse.append(position[key])
-    inverse, first = np.array(inverse), np.array(first)
-    seg = dict(d1=d1[first], d2=d2[first], k=k[first], direction=direction[first],
-               table_mu=table_mu[first], table_b=table_b[first], dmu=prof['dmu'][first],
-               lam_c=lam_c[first], lam_end=lam_end[first],
-               count=np.bincount(inverse).astype(float))
-    seg.update(e1=seg['d1'] * seg['direction'], e2=seg['d2'] * seg['direction'],
-               dd2=(seg['d1'] - seg['d2']) ** 2)
-    seg['pre'] = (seg['e1'], seg['e2'], seg['dd2'], 2.0 * seg['e1'] * seg['e2'])
-    table = _PathTable(lam_path, straight, s, seg)
-    columns = np.append(inverse, first.size)     # [b of each segment..., lambda]
+    # Per distinct segment: holes, stiffness, direction, the tensions where it starts
+    # bending and reaches its end (one gather of the stacked rows), its profile tables.
+    rows = np.array([d1, d2, k, direction, lam_c, lam_end])[:, first]
+    seg = dict(zip(('d1', 'd2', 'k', 'direction', 'lam_c', 'lam_end'), rows))
+    tables = prof['tables'][first]
+    seg.update(table_b=tables[:, 0], table_mu=tables[:, 1], dmu=tables[:, 2],
+               table_len=tables[:, 3], tables=tables,
+               count=np.array([inverse.count(u) for u in range(len(first))], dtype=float))
+    # Path table: every tension where some segment's table has a sample (the distinct
+    # segments' tables hold them all), up to where the path ends (all segments at their
+    # ends, or the first fold).
+    lam_all = (seg['k'][:, None] * seg['table_mu']).ravel()
+    lam_all = lam_all[np.isfinite(lam_all)]
     if snap:
-        min_mm = table.length_at_tension(lam_path[-1])
+        lam_top = float(np.min(lam_end[folds]))
     else:
-        end_len, _, _ = _branch_derivs(b_end, direction, d1, d2, s)
-        min_mm = float(end_len.sum())
-    return _Problem(d=d_arr, d1=d1, d2=d2, k=k, s=s, direction=direction, lam_c=lam_c,
-                    mu_c=mu_c, beta=beta,
-                    lam_end=lam_end, b_end=b_end, kind=kind, table_mu=table_mu,
-                    table_b=table_b, straight_mm=straight, min_mm=min_mm, snap=snap,
-                    path_lam=lam_path, path=table, path_columns=columns)
+        finite = [x for x in lam_end.tolist() if math.isfinite(x)]
+        lam_top = max(finite) if finite else float(lam_all.max())
+    lam_path = _sorted_unique(np.concatenate([[0.0], lam_all[lam_all <= lam_top], [lam_top]]))
+    if lam_path.size > _PATH_SAMPLES:
+        # Thin to a bounded table; keep the ends and every buckling tension (the kept
+        # indices are strictly increasing: their step is above 1).
+        lam_path = _sorted_unique(np.concatenate([lam_path[_thinned(lam_path.size)],
+                                                  seg['lam_c'], seg['lam_end'], [lam_top]]))
+        lam_path = lam_path[lam_path <= lam_top]
+    e1, e2 = seg['d1'] * seg['direction'], seg['d2'] * seg['direction']
+    seg.update(e1=e1, e2=e2, dd2=(seg['d1'] - seg['d2']) ** 2)
+    seg['pre'] = (e1, e2, seg['dd2'], 2.0 * e1 * e2)
+    table = _PathTable(lam_path, straight, s, seg)
+    columns = np.array(inverse + [len(first)])     # [b of each segment..., lambda]
+    prob = _Problem(d=d_arr, d1=d1, d2=d2, k=k, s=s, direction=direction, lam_c=lam_c,
+                    mu_c=mu_c, beta=beta, lam_end=lam_end, b_end=b_end, kind=kind,
+                    table_mu=table_mu, table_b=table_b, straight_mm=straight, snap=snap,
+                    path_lam=lam_path, path=table, path_columns=columns,
+                    min_mm_above=math.fsum(prof['end_length'].tolist()) + 1e-9 * straight)
+    if snap:
+        prob.__dict__['_min_mm'] = table.length_at_tension(lam_path[-1])
+    return prob
 
 
 #: Degree of the start polynomials of the path cells (quintic Hermite, :func:`_path_polynomials`).
@@ -395,19 +477,30 @@ def _g_series_coefficients():
 
 
 _G_COEF4 = _g_series_coefficients()
-_G_COEF3 = np.ascontiguousarray(_G_COEF4[:, :3])
-_G_COEF1 = np.ascontiguousarray(_G_COEF4[:, :1])
 
 
-def _series(x, coef):
-    """Columns ``sum_j coef[j, c] x^j`` (C, N) for flat ``x`` (N,) by Estrin's scheme.
+def _series_pairs(coef):
+    """``coef`` (terms, C) split into its even and odd rows, shaped (terms/2, C, 1) to
+    multiply flat ``x`` (constants of :func:`_series`)."""
+    return (np.ascontiguousarray(coef[0::2, :, None]),
+            np.ascontiguousarray(coef[1::2, :, None]))
+
+
+_G_PAIRS4 = _series_pairs(_G_COEF4)
+_G_PAIRS3 = _series_pairs(_G_COEF4[:, :3])
+
+
+def _series(x, pairs):
+    """Columns ``sum_j coef[j, c] x^j`` (C, N) for flat ``x`` (N,) by Estrin's scheme,
+    ``pairs`` the even and odd rows of ``coef`` (:func:`_series_pairs`).
 
     Pairs of terms, then pairs of pairs with ``x^2``, ``x^4``, ...: about 11 numpy calls
     for 16 terms (Horner takes 30), each element-wise, so an entry's rounding does not
     depend on how many are evaluated together (``geometry._power_series`` picks its
     algorithm by size). ``coef`` has a power-of-two number of rows.
     """
-    p = coef[0::2, :, None] + coef[1::2, :, None] * x
+    even, odd = pairs
+    p = even + odd * x
     power = x
     while p.shape[0] > 1:
         power = power * power
@@ -435,8 +528,8 @@ def _path_derivatives(b, direction, d1, d2, s, third=True, pre=None):
     same values this computes otherwise.
     """
     x = (b * b).ravel()
-    series = _series(x, _G_COEF4 if third else _G_COEF3)
-    g, g1_over_b, g2 = (col.reshape(b.shape) for col in series[:3])
+    series = _series(x, _G_PAIRS4 if third else _G_PAIRS3).reshape((-1,) + b.shape)
+    g, g1_over_b, g2 = series[:3]
     g1 = b * g1_over_b
     if pre is None:
         e1, e2 = d1 * direction, d2 * direction
@@ -452,9 +545,17 @@ def _path_derivatives(b, direction, d1, d2, s, third=True, pre=None):
     lpp = (g2 * p + 2.0 * g1 * p_b + g * p_bb - 2.0 * lp * lp) * half_inv
     if not third:
         return length, lp, lpp
-    g3 = b * series[3].reshape(b.shape)
+    g3 = b * series[3]
     l3 = (g3 * p + 3.0 * g2 * p_b + 3.0 * g1 * p_bb - 6.0 * lp * lpp) * half_inv
     return length, lp, lpp, l3
+
+
+@functools.lru_cache(maxsize=64)
+def _cell_ends(n_cells):
+    """(2, n_cells) indices of the start and end sample of each cell (memoised by size)."""
+    ends = np.arange(n_cells) + np.array([[0], [1]])
+    ends.flags.writeable = False
+    return ends
 
 
 # Powers of the interior points t = 1/4, 1/2, 3/4 where the start polynomials are checked.
@@ -478,44 +579,53 @@ def _path_polynomials(lam, length, b, lp, lpp, l3, k, lam_c, lam_end, count):
     Returns ``c`` (P-1, 6, n+1): ``[b, lambda](t) = sum_p t^p c[j, p]``. Cells where a
     derivative is not finite (a pitchfork starts, nothing moves) or where the quintic
     would leave the cell's hull keep the linear interpolant; constant entries stay exact.
+    Called under ``np.errstate(all='ignore')`` (those cells divide by zero).
     """
     vals = np.concatenate([b, lam[:, None]], axis=1)               # (P, n+1)
     p0, p1 = vals[:-1], vals[1:]
     h = (length[1:] - length[:-1])[:, None]                        # < 0 in a moving cell
-    with np.errstate(all='ignore'):
-        lp2 = lp * lp
-        phi1 = 2.0 * (b * lpp - lp) / lp2                          # phi'(b)
-        phi2 = 2.0 * (b * l3 * lp - 2.0 * lpp * (b * lpp - lp)) / (lp2 * lp)
-        u_all = 1.0 / (k * phi1)
-        v_all = -k * phi2 * u_all ** 3
-        # Segments moving across the whole cell (bent, not yet at their branch end).
-        free = (lam[:-1, None] >= lam_c) & (lam[1:, None] <= lam_end)
-        # Both cell ends at once (leading axis: cell start, cell end).
-        ends = np.arange(lam.size - 1) + np.array([[0], [1]])
-        lp_e = lp[ends]
-        u = np.where(free, u_all[ends], 0.0)
-        v = np.where(free, v_all[ends], 0.0)
-        t1 = _weighted_sum(u * lp_e, count)[..., None]                        # T'
-        t2 = _weighted_sum(u * u * lpp[ends] + v * lp_e, count)[..., None]    # T''
-        du = np.concatenate([u, np.ones_like(t1)], axis=2)   # d/dlambda of [b, lambda]
-        dv = np.concatenate([v, np.zeros_like(t1)], axis=2)  # d2/dlambda2
-        # In t: d/dt = h d/dL and d/dL = (d/dlambda) / T'.
-        d0, d1 = h * du / t1
-        s0, s1 = h * h * (dv / (t1 * t1) - du * t2 / t1 ** 3)
-        # Quintic with the values, slopes d and second derivatives s (in t) at both ends.
-        e_val = p1 - p0 - d0 - 0.5 * s0
-        e_slope = d1 - d0 - s0
-        e_curv = s1 - s0
-        c = np.stack([p0, d0, 0.5 * s0,
-                      10.0 * e_val - 4.0 * e_slope + 0.5 * e_curv,
-                      -15.0 * e_val + 7.0 * e_slope - e_curv,
-                      6.0 * e_val - 3.0 * e_slope + 0.5 * e_curv], axis=1)
-        # Check the quintic on a few interior points: it must stay in the cell's hull.
-        inner = np.matmul(_HULL_POWERS, c)                      # (P-1, 3, n+1)
-        lo, hi = np.minimum(p0, p1)[:, None], np.maximum(p0, p1)[:, None]
-        tol = 1e-12 * (1.0 + np.abs(hi))
-        smooth = (np.isfinite(c).all(axis=(1, 2)) & (h[:, 0] < 0)
-                  & ((inner >= lo - tol) & (inner <= hi + tol)).all(axis=(1, 2)))
+    n_cells, n_cols = p0.shape
+    lp2 = lp * lp
+    phi1 = 2.0 * (b * lpp - lp) / lp2                          # phi'(b)
+    phi2 = 2.0 * (b * l3 * lp - 2.0 * lpp * (b * lpp - lp)) / (lp2 * lp)
+    u_all = 1.0 / (k * phi1)
+    v_all = -k * phi2 * u_all ** 3
+    # Segments moving across the whole cell (bent, not yet at their branch end).
+    free = (lam[:-1, None] >= lam_c) & (lam[1:, None] <= lam_end)
+    # Both cell ends at once (leading axis: cell start, cell end).
+    ends = _cell_ends(n_cells)
+    lp_e = lp[ends]
+    u = np.where(free, u_all[ends], 0.0)
+    v = np.where(free, v_all[ends], 0.0)
+    # T' and T'' summed together, segments on the leading axis (contiguous rows).
+    sums = np.empty((count.size, 2) + u.shape[:-1])
+    rows = sums.transpose(1, 2, 3, 0)      # (2, 2, P-1, U) view of it
+    np.multiply(u, lp_e, out=rows[0])
+    np.add(u * u * lpp[ends], v * lp_e, out=rows[1])
+    t1, t2 = _weighted_rows(sums, count)[..., None]
+    # d/dlambda and d2/dlambda2 of [b, lambda]: (1, 0) for lambda.
+    du, dv = np.empty(u.shape[:-1] + (n_cols,)), np.empty(u.shape[:-1] + (n_cols,))
+    du[..., :-1], du[..., -1] = u, 1.0
+    dv[..., :-1], dv[..., -1] = v, 0.0
+    # In t: d/dt = h d/dL and d/dL = (d/dlambda) / T'.
+    d0, d1 = h * du / t1
+    s0, s1 = h * h * (dv / (t1 * t1) - du * t2 / t1 ** 3)
+    # Quintic with the values, slopes d and second derivatives s (in t) at both ends.
+    e_val = p1 - p0 - d0 - 0.5 * s0
+    e_slope = d1 - d0 - s0
+    e_curv = s1 - s0
+    c = np.empty((n_cells, _START_DEGREE + 1, n_cols))
+    c[:, 0], c[:, 1] = p0, d0
+    np.multiply(0.5, s0, out=c[:, 2])
+    c[:, 3] = 10.0 * e_val - 4.0 * e_slope + 0.5 * e_curv
+    c[:, 4] = -15.0 * e_val + 7.0 * e_slope - e_curv
+    c[:, 5] = 6.0 * e_val - 3.0 * e_slope + 0.5 * e_curv
+    # Check the quintic on a few interior points: it must stay in the cell's hull.
+    inner = np.matmul(_HULL_POWERS, c)                      # (P-1, 3, n+1)
+    lo, hi = np.minimum(p0, p1)[:, None], np.maximum(p0, p1)[:, None]
+    tol = 1e-12 * (1.0 + np.abs(hi))
+    smooth = (np.isfinite(c).all(axis=(1, 2)) & (h[:, 0] < 0)
+              & ((inner >= lo - tol) & (inner <= hi + tol)).all(axis=(1, 2)))
     rough = ~smooth
     if rough.any():
         c[rough] = 0.0
@@ -663,6 +773,35 @@ def _q_coefficients(dd2, s, e1, e2):
     return out
 
 
+#: ``Q`` coefficients (:func:`_q_coefficients`) per hole pair ``(d1, d2, s)``, memoised
+#: for the process (a pure function of the pair: its direction is; rows are computed
+#: element-wise, so a threading's stack of them is what one call on its segments gives).
+#: FIFO-bounded; :func:`softsnap_model.forward.clear_caches` empties it.
+_Q_CACHE: dict = {}
+_Q_CACHE_MAX = 16384
+_Q_LOCK = threading.Lock()
+
+
+def _q_stack(d1, d2, direction, s):
+    """(n, _Q_DEGREE + 1, 3) :func:`_q_coefficients` of the segments, from
+    :data:`_Q_CACHE` (the pairs not seen before computed together)."""
+    s = float(s)
+    keys = [(x, y, s) for x, y in zip(d1.tolist(), d2.tolist())]
+    with _Q_LOCK:
+        found = [_Q_CACHE.get(key) for key in keys]
+    missing = [i for i, f in enumerate(found) if f is None]
+    if missing:
+        e1, e2 = (d1 * direction)[missing], (d2 * direction)[missing]
+        rows = _q_coefficients((d1[missing] - d2[missing]) ** 2, s, e1, e2)
+        new = {keys[i]: row for i, row in zip(missing, rows)}
+        with _Q_LOCK:
+            _Q_CACHE.update(new)
+            while len(_Q_CACHE) > _Q_CACHE_MAX:
+                del _Q_CACHE[next(iter(_Q_CACHE))]
+        found = [f if f is not None else new[key] for key, f in zip(keys, found)]
+    return np.array(found)
+
+
 class _SingleLayout(dict):
     """The single-solve layout of one threading (:func:`_single`): a dict of 1-D arrays
     and lists, whose batch-of-one layout ``'P'`` (:func:`_stack`, only read by the rare
@@ -701,22 +840,21 @@ def _single(skeleton: Skeleton, d: tuple):
     lam_1 = k * prob.table_mu[:, 1]
     e1, e2 = d1 * direction, d2 * direction
     dd2 = (d1 - d2) ** 2
-    mirror_idx = np.flatnonzero(mirror)
+    mirror_idx = mirror.nonzero()[0]       # np.flatnonzero, without its wrapper
     S = _SingleLayout(prob)
     S.update(k=k, d=prob.d, d1=d1, d2=d2, direction=direction, lam_c=prob.lam_c,
              lam_end=prob.lam_end, b_end=prob.b_end, mirror=mirror, lam_1=lam_1,
              e1=e1, e2=e2, dd2=dd2, two_k=2.0 * k, inv_two_k=0.5 / k, s=prob.s,
-             has_mirror=bool(mirror.any()),
-             lam_end_min=float(prob.lam_end.min()), path=table,
+             has_mirror=bool(mirror_idx.size),
+             lam_end_min=float(np.minimum.reduce(prob.lam_end)), path=table,
              path_lam=prob.path_lam, path_poly=table.poly,
              path_columns=prob.path_columns,
              straight=prob.straight_mm, n_path=prob.path_lam.size,
              # For the single-solve evaluation (single._evaluate): l^2 as polynomials
              # in b; the cell search reads Python floats (cheaper than array items), the
              # table's own lists, filled in as its blocks are built.
-             q_coef=_q_coefficients(dd2, prob.s, e1, e2),
+             q_coef=_q_stack(d1, d2, direction, prob.s),
              two_beta=2.0 * prob.beta, path_len_list=table.len_list,
-             path_lam_list=prob.path_lam.tolist(),
              neg_path_len_list=table.neg_len_list,
              minus_i_d=-1j * prob.d,
              # Mirror segments (index array) and their first table cells in tension,

@@ -279,7 +279,8 @@ def _solve_single(S, L, lam0=None, a0=None, max_iter=MAX_ITER, fallback=True):
     # Python list, cheaper than a numpy search for one value).
     j = min(max(bisect.bisect_left(S['neg_path_len_list'], -L), 1), S['n_path'] - 1)
     len_lo, len_hi = S['path_len_list'][j - 1], S['path_len_list'][j]
-    lam_lo, lam_hi = S['path_lam_list'][j - 1], S['path_lam_list'][j]
+    path_lam = S['path_lam']    # two items of the array (a list of it: ~5 us a new threading)
+    lam_lo, lam_hi = float(path_lam[j - 1]), float(path_lam[j])
     w = (len_lo - L) / (len_lo - len_hi) if len_lo > len_hi else 0.5
     w2 = w * w
     # The polynomials are stored once per distinct segment: gather them per segment.
