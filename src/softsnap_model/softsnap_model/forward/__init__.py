@@ -66,6 +66,8 @@ computed one by one, so a partly built table answers exactly like a full one.
 """
 from __future__ import annotations
 
+# The private names imported here are the package's internal face: inverse.py, the tests
+# and the benchmarks reach them as ``forward._name``.
 from .api import reachable_range, solve_forward
 from .batch import PreparedBatch, solve_forward_batch, sweep
 from .branch import (_PROFILE_CACHE, _PROFILE_LOCK, SegmentBranch, _branch_derivs, _branch_solve,
