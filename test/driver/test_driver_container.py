@@ -109,6 +109,10 @@ def test_bursts_to_every_module_reach_each_its_own_and_bad_bytes_disturb_none(
                            '-p', f'modules:=[{",".join(FIVE)}]',
                            '-p', f'ports:=[{",".join(str(s.port) for s in servers.values())}]')
     probes = {m: ModuleProbe(ros_node, m) for m in FIVE}
+    from diagnostic_msgs.msg import DiagnosticArray
+    health = {}   # one status per module and message, from the container's shared timer
+    ros_node.create_subscription(DiagnosticArray, '/diagnostics', lambda a: health.update(
+        {s.name: s for s in a.status}), 50)
     for probe in probes.values():
         probe.wait_ready(30.0)
 
@@ -148,6 +152,12 @@ def test_bursts_to_every_module_reach_each_its_own_and_bad_bytes_disturb_none(
         assert 3.0 < state.battery_voltage < 4.5, state
         assert state.commands_refused == state.commands_clamped == state.request_failures == 0
         assert state.last_error == '' and state.last_error_time.sec == 0
+
+    names = {f'softsnap/robot/{m}/driver' for m in FIVE}
+    assert ros_node.spin_until(lambda: names <= set(health), 15.0), set(health)
+    for m in FIVE:
+        status = health[f'softsnap/robot/{m}/driver']
+        assert status.level == status.OK and status.message == 'ok', (m, status)
 
     # Unreadable bytes on m2's topic (not CDR, and truncated CDR): skipped with a warning,
     # in the middle of a burst; m2's next command and the others' go through.

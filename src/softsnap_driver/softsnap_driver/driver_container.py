@@ -5,7 +5,9 @@ Each module gets the same :class:`~softsnap_driver.driver_node.DriverNode` as a
 ``driver_node`` process: node ``<module>_driver``, the same parameters, topics,
 services, link worker thread and safety behaviour (docs/safety.md). What they share is
 what an rclpy process costs whatever it does: the DDS participant and its threads, one
-executor for the services, parameters and the diagnostics timers, and one command
+executor for the services and parameters, one diagnostics timer per distinct
+``diagnostics_period_s`` (each executor wake costs milliseconds here: it rebuilds a wait
+set over every node's services), and one command
 thread (:class:`~softsnap_driver.driver_node.CommandInbox`, on node
 ``driver_container_inbox``) that waits on every module's command topic at once and hands
 each command to its own module's driver. With
@@ -39,7 +41,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from softsnap_driver.driver_node import (_NAME, COMMAND_WAIT_S, CommandInbox, DriverNode,
-                                         inbox_node)
+                                         inbox_node, steady_timer)
 from softsnap_driver.link import SHUTDOWN_BUDGET_S
 from softsnap_driver.spinning import run_nodes_main
 
@@ -108,8 +110,20 @@ class DriverContainer(Node):
             name = f'{module}_driver'
             # A node-local remap: a process-wide `-r __node:=X` must not rename them all.
             self.drivers.append(DriverNode(
-                name, inbox=self.commands, parameter_overrides=parameters,
-                cli_args=['--ros-args', '-r', f'__node:={name}']))
+                name, inbox=self.commands, diagnostics_timer=False,
+                parameter_overrides=parameters, cli_args=['--ros-args', '-r', f'__node:={name}']))
+        periods: dict[float, list[DriverNode]] = {}
+        for driver in self.drivers:
+            periods.setdefault(driver.diagnostics_period_s, []).append(driver)
+        self.diagnostics_timers = [
+            steady_timer(self, period, lambda group=group: self.diagnostics_callback(group))
+            for period, group in periods.items()]
+
+    @staticmethod
+    def diagnostics_callback(drivers: list[DriverNode]) -> None:
+        """Each driver's own diagnostics and battery messages (each catches its errors)."""
+        for driver in drivers:
+            driver.diagnostics_callback()
 
     def stop_drivers(self) -> None:
         """Stop every link at once (each within its own budget), then destroy the nodes.

@@ -259,12 +259,15 @@ class CommandInbox:
 class DriverNode(SoftSnapNode):
     """One module: parameters and ROS interfaces around a :class:`ModuleLink`.
 
-    ``inbox``: a :class:`CommandInbox` shared with other drivers of the process (the
-    container's), which then owns its thread; by default the node makes its own.
+    Shared with other drivers of the process (``driver_container``): ``inbox``, a
+    :class:`CommandInbox` whose owner runs its thread (by default the node makes its
+    own), and with ``diagnostics_timer=False`` the owner calls
+    :meth:`diagnostics_callback` every ``diagnostics_period_s`` instead of a timer of
+    this node.
     """
 
     def __init__(self, node_name: str = 'driver_node', inbox: CommandInbox | None = None,
-                 **kwargs):
+                 diagnostics_timer: bool = True, **kwargs):
         super().__init__(node_name, **kwargs)
         for name, (default, descriptor) in PARAMETERS.items():
             self.declare_parameter(name, default, descriptor)
@@ -300,10 +303,10 @@ class DriverNode(SoftSnapNode):
                                    f'{config.host}:{config.port}')
         self.battery_publisher = self.create_publisher(BatteryState, f'{m}/battery', 10)
         self.diagnostics_publisher = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
-        # The steady clock: health must be reported while a simulated time stands still.
-        self.diagnostics_timer = self.create_timer(
-            self.get_parameter('diagnostics_period_s').value, self.diagnostics_callback,
-            clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self.diagnostics_period_s = self.get_parameter('diagnostics_period_s').value
+        self.diagnostics_timer = (steady_timer(self, self.diagnostics_period_s,
+                                               self.diagnostics_callback)
+                                  if diagnostics_timer else None)
         # State and measured length go out as ready CDR bytes (state_wire says why) if
         # rclpy reads them back as the messages; else as message objects, filled in place.
         self._state_wire = ModuleStateWire(m, m)
@@ -529,6 +532,12 @@ class DriverNode(SoftSnapNode):
         if self._inbox is not None:
             self._inbox.destroy_node()
         super().destroy_node()
+
+
+def steady_timer(node: Node, period_s: float, callback):
+    """A timer on the steady clock: health must be reported while a simulated time
+    stands still."""
+    return node.create_timer(period_s, callback, clock=Clock(clock_type=ClockType.STEADY_TIME))
 
 
 def inbox_node(name: str, namespace: str, context) -> Node:
