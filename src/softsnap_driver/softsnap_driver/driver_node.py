@@ -121,13 +121,15 @@ COMMAND_WAIT_S = 0.05
 
 
 class _Route:
-    """One command topic of a :class:`CommandInbox`: its subscription and its module's
-    handler and logger. ``open`` is read and cleared under the inbox's lock."""
+    """One command topic of a :class:`CommandInbox`: its subscription (and the rclpy
+    handle of it, read once: ``Subscription.handle`` is a Python property), its
+    module's handler and logger. ``open`` is read and cleared under the inbox's lock."""
 
-    __slots__ = ('subscription', 'handle', 'logger', 'open')
+    __slots__ = ('subscription', 'rcl', 'handle', 'logger', 'open')
 
     def __init__(self, subscription, handle, logger):
-        self.subscription, self.handle, self.logger = subscription, handle, logger
+        self.subscription, self.rcl = subscription, subscription.handle
+        self.handle, self.logger = handle, logger
         self.open = True
 
 
@@ -182,6 +184,7 @@ class CommandInbox:
         context = self._node.context
         timeout_ns = int(COMMAND_WAIT_S * 1e9)
         routes: tuple[_Route, ...] = ()
+        handles = ()
         by_pointer: dict[int, _Route] = {}
         wait_set = None
         # Every subscription taken from is held (``__enter__``) until the thread ends:
@@ -193,11 +196,12 @@ class CommandInbox:
                 try:
                     if self._routes is not routes:
                         routes = self._routes
-                        for route in routes:
-                            if route.subscription.handle not in held:
-                                route.subscription.handle.__enter__()
-                                held.append(route.subscription.handle)
-                        by_pointer = {r.subscription.handle.pointer: r for r in routes}
+                        handles = tuple(route.rcl for route in routes)
+                        for handle in handles:
+                            if handle not in held:
+                                handle.__enter__()
+                                held.append(handle)
+                        by_pointer = {route.rcl.pointer: route for route in routes}
                         wait_set = (_rclpy.WaitSet(len(routes), 0, 0, 0, 0, 0, context.handle)
                                     if routes else None)
                     if wait_set is None:      # nothing to wait on (yet, or any more)
@@ -207,8 +211,8 @@ class CommandInbox:
                     # rcl_wait empties the set's slots of entities that are not ready:
                     # the subscriptions are added again for every wait.
                     wait_set.clear_entities()
-                    for route in routes:
-                        wait_set.add_subscription(route.subscription.handle)
+                    for handle in handles:
+                        wait_set.add_subscription(handle)
                     wait_set.wait(timeout_ns)
                     ready = wait_set.get_ready_entities('subscription')
                     # The context is asked only after a wake without a message (rclpy
@@ -221,7 +225,7 @@ class CommandInbox:
                         # and a take that finds none costs half a wait; if more are
                         # queued the next wait returns at once.
                         route = by_pointer[pointer]
-                        taken = route.subscription.handle.take_message(CableLength, True)
+                        taken = route.rcl.take_message(CableLength, True)
                         if taken is not None:
                             self._deliver(route, taken[0])
                 except Exception as exc:  # noqa: BLE001 - report and go on; never die silently
