@@ -144,8 +144,9 @@ class CommandInbox:
 
     Why one thread for several modules (``driver_container``): a gait publishes every
     module's command at nearly the same instant. One wait set over all the modules'
-    subscriptions, taking from every ready one per wake, wakes about once per burst
-    instead of once per module and command. A ``driver_node`` has one route.
+    subscriptions, taking from every ready one per wake, wakes once or a few times per
+    burst instead of once per command (five modules at 50 Hz: ~85 wakes a second
+    instead of 250). A ``driver_node`` has one route.
 
     Each message is taken serialised, decoded (:func:`softsnap_driver.cdr.decode_cable_length`,
     rclpy's deserialisation for another encoding) and goes straight to its own route's
