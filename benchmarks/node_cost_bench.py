@@ -24,7 +24,7 @@ measuring window after a warm-up. Cases:
   serving the five simulated modules, one publishing the five command streams, as the
   gait does), by five ``driver_node`` processes or by one ``driver_container`` process;
   the CPU is the sum over the driver processes, the table divides it by five. The
-  container needs the current code (not run for ``--before``).
+  container runs for ``--before`` only if that revision has it.
 - ``rerun``: rerun_logger recording the 5-module robot: both RobotShape topics at 50 Hz
   (commanded shapes change every message, predicted ones at 20 Hz: in between the
   model node re-sends them unchanged), commands at 50 Hz, measured lengths and states at
@@ -73,6 +73,8 @@ MAIN = {  # node -> (module with main(), what main needs in argv)
     'driver_container': 'softsnap_driver.driver_container',
     'rerun_logger': 'softsnap_gaits.rerun_logger',
 }
+#: The container's source in a checkout (revisions before it have none).
+CONTAINER_SOURCE = 'src/softsnap_driver/softsnap_driver/driver_container.py'
 CASES = ('baseline', 'model5', 'model_idle', 'model50', 'driver', 'drivers5', 'container5', 'rerun')
 
 BASELINE_NODE = '''
@@ -592,8 +594,10 @@ def main() -> int:
     for repeat in range(args.repeats):
         for case in args.cases:
             for label, code_dir in versions.items():
-                if case in ('baseline', 'container5') and label == 'before':
-                    continue   # the container is new: no old code to compare
+                if label == 'before' and (case == 'baseline' or (
+                        case == 'container5'
+                        and not (code_dir / CONTAINER_SOURCE).exists())):
+                    continue   # no old code to compare (the container is new since cf2cb37)
                 run_dir = work / f'{case}-{label}-{repeat}'
                 run_dir.mkdir()
                 os.environ['NODE_COST_WORK'] = str(run_dir)

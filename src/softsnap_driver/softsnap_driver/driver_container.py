@@ -3,9 +3,14 @@ processes would run them).
 
 Each module gets the same :class:`~softsnap_driver.driver_node.DriverNode` as a
 ``driver_node`` process: node ``<module>_driver``, the same parameters, topics,
-services, link worker thread, command thread and safety behaviour (docs/safety.md). What
-they share is what an rclpy process costs whatever it does: the DDS participant and its
-threads, and one executor for the services, parameters and the diagnostics timers. With
+services, link worker thread and safety behaviour (docs/safety.md). What they share is
+what an rclpy process costs whatever it does: the DDS participant and its threads, one
+executor for the services and parameters, one diagnostics timer per distinct
+``diagnostics_period_s`` (each executor wake costs milliseconds here: it rebuilds a wait
+set over every node's services), and one command
+thread (:class:`~softsnap_driver.driver_node.CommandInbox`, on node
+``driver_container_inbox``) that waits on every module's command topic at once and hands
+each command to its own module's driver. With
 several modules on one machine (the simulated robot, or one computer driving a robot's
 modules over Wi-Fi) that fixed cost is paid once (docs/driver.md, "Several modules in
 one process").
@@ -35,7 +40,8 @@ from rclpy.exceptions import ParameterUninitializedException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from softsnap_driver.driver_node import _NAME, COMMAND_WAIT_S, DriverNode
+from softsnap_driver.driver_node import (_NAME, COMMAND_WAIT_S, CommandInbox, DriverNode,
+                                         inbox_node, steady_timer)
 from softsnap_driver.link import SHUTDOWN_BUDGET_S
 from softsnap_driver.spinning import run_nodes_main
 
@@ -58,6 +64,8 @@ class DriverContainer(Node):
             ParameterType.PARAMETER_STRING_ARRAY,
             'Address of each module, in the order of modules (optional)'))
         self.drivers: list[DriverNode] = []
+        self._inbox_node: Node | None = None
+        self.commands: CommandInbox | None = None
 
     def _array(self, name: str) -> list:
         """An array parameter's value; [] when it was not given."""
@@ -93,15 +101,37 @@ class DriverContainer(Node):
 
     def start_drivers(self) -> None:
         """One driver per module; ValueError (the drivers built so far are stopped)."""
-        for module, parameters in self.module_overrides():
+        modules = self.module_overrides()
+        # One command thread for every module (CommandInbox says why).
+        self._inbox_node = inbox_node(f'{self.get_name()}_inbox', self.get_namespace(),
+                                      self.context)
+        self.commands = CommandInbox(self._inbox_node)
+        for module, parameters in modules:
             name = f'{module}_driver'
             # A node-local remap: a process-wide `-r __node:=X` must not rename them all.
             self.drivers.append(DriverNode(
-                name, parameter_overrides=parameters,
-                cli_args=['--ros-args', '-r', f'__node:={name}']))
+                name, inbox=self.commands, diagnostics_timer=False,
+                parameter_overrides=parameters, cli_args=['--ros-args', '-r', f'__node:={name}']))
+        periods: dict[float, list[DriverNode]] = {}
+        for driver in self.drivers:
+            periods.setdefault(driver.diagnostics_period_s, []).append(driver)
+        self.diagnostics_timers = [
+            steady_timer(self, period, lambda group=group: self.diagnostics_callback(group))
+            for period, group in periods.items()]
+
+    @staticmethod
+    def diagnostics_callback(drivers: list[DriverNode]) -> None:
+        """Each driver's own diagnostics and battery messages (each catches its errors)."""
+        for driver in drivers:
+            driver.diagnostics_callback()
 
     def stop_drivers(self) -> None:
-        """Stop every link at once (each within its own budget), then destroy the nodes."""
+        """Stop every link at once (each within its own budget), then destroy the nodes.
+
+        Each driver's stop_link closes its command route at once; the shared command
+        thread is told to end now and joined before its node is destroyed."""
+        if self.commands is not None:
+            self.commands.stop(0.0)
         threads = [threading.Thread(target=d.stop_link, name=f'stop:{d.module}')
                    for d in self.drivers]
         for thread in threads:
@@ -111,6 +141,10 @@ class DriverContainer(Node):
         for driver in self.drivers:
             driver.destroy_node()   # links already stopped: returns at once
         self.drivers = []
+        if self._inbox_node is not None:
+            self.commands.stop(2 * COMMAND_WAIT_S)
+            self._inbox_node.destroy_node()
+            self._inbox_node = None
 
 
 def main(args=None):

@@ -33,14 +33,13 @@ import sys
 import threading
 import time
 
-from builtin_interfaces.msg import Time
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 SetParametersResult)
 from rclpy.clock import Clock, ClockType
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.serialization import deserialize_message
+from rclpy.serialization import deserialize_message, serialize_message
 from diagnostic_msgs.msg import DiagnosticArray
 from sensor_msgs.msg import BatteryState
 from softsnap_interfaces.msg import CableLength, ModuleState
@@ -53,6 +52,8 @@ from softsnap_driver.link import LinkConfig, LinkReport, ModuleLink
 from softsnap_driver.protocol import FIRMWARE_DEADBAND_COUNTS
 from softsnap_driver.ros_parameters import SoftSnapNode
 from softsnap_driver.spinning import run_nodes_main
+from softsnap_driver.state_wire import (CableLengthWire, ModuleStateFields, ModuleStateWire,
+                                        fill_module_state)
 
 #: Default winch: 2800 counts per output revolution (N20 encoder, 7 PPR x4, 1:100) on a
 #: 10 mm diameter spool. Calibrate it per module (docs/driver.md).
@@ -118,65 +119,142 @@ PARAMETERS = {
 #: Longest the command thread blocks in one wait (s): it notices a stop this fast.
 COMMAND_WAIT_S = 0.05
 
+
+class _Route:
+    """One command topic of a :class:`CommandInbox`: its subscription (and the rclpy
+    handle of it, read once: ``Subscription.handle`` is a Python property), its
+    module's handler and logger. ``open`` is read and cleared under the inbox's lock."""
+
+    __slots__ = ('subscription', 'rcl', 'handle', 'logger', 'open')
+
+    def __init__(self, subscription, handle, logger):
+        self.subscription, self.rcl = subscription, subscription.handle
+        self.handle, self.logger = handle, logger
+        self.open = True
+
+
 class CommandInbox:
-    """Takes the command topic's messages on a thread of its own, blocked in ``rcl_wait``.
+    """Takes the command topics' messages on one thread, blocked in ``rcl_wait``.
 
     Why not an executor subscription: every executor wake rebuilds its wait set over all
     of the node's entities (parameter and trigger services...) in Python, about 0.5 ms a
     message on the loaded development machine, so 50 Hz commands alone cost 2-3% of a
-    core. Here one wait set holds the one subscription, on an inbox node no executor
-    spins; each message is taken serialised, decoded (:func:`softsnap_driver.cdr.decode_cable_length`) and
-    goes straight to ``handle(cable_length_m, stamp_ns)`` (which must not raise).
-    The thread never dies silently: an unexpected error is logged (throttled) and the
-    loop goes on; it ends on :meth:`stop` or when the context shuts down.
+    core. Here one wait set holds the command subscriptions only, on an inbox node no
+    executor spins.
+
+    Why one thread for several modules (``driver_container``): a gait publishes every
+    module's command at nearly the same instant. One wait set over all the modules'
+    subscriptions, taking from every ready one per wake, wakes once or a few times per
+    burst instead of once per command (five modules at 50 Hz: ~85 wakes a second
+    instead of 250). A ``driver_node`` has one route.
+
+    Each message is taken serialised, decoded (:func:`softsnap_driver.cdr.decode_cable_length`,
+    rclpy's deserialisation for another encoding) and goes straight to its own route's
+    ``handle(cable_length_m, stamp_ns)``, in the order the topic delivered them. A
+    message that cannot be read is logged (throttled, on the route's logger) and
+    skipped; the other routes are not disturbed. The thread never dies silently: an
+    unexpected error is logged (throttled) and the loop goes on; it ends on :meth:`stop`
+    or when the context shuts down.
     """
 
-    def __init__(self, node: Node, topic: str, depth: int, handle):
+    def __init__(self, node: Node):
         self._node = node
-        self._handle = handle
-        self._subscription = node.create_subscription(CableLength, topic, lambda msg: None, depth)
+        self._lock = threading.Lock()       # guards _routes and every route's ``open``
+        self._routes: tuple[_Route, ...] = ()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name='commands', daemon=True)
         self._thread.start()
 
+    def subscribe(self, topic: str, depth: int, handle, logger) -> _Route:
+        """Deliver the CableLength messages of ``topic`` to ``handle`` (which must not
+        raise); the thread waits on it from its next wake (queued messages are kept)."""
+        route = _Route(self._node.create_subscription(CableLength, topic, lambda msg: None,
+                                                      depth), handle, logger)
+        with self._lock:
+            self._routes = (*self._routes, route)
+        return route
+
+    def close(self, route: _Route) -> None:
+        """No call of ``route``'s handler once this returns (a call in progress ends
+        first). Its subscription lives on with the inbox node, untaken."""
+        with self._lock:
+            route.open = False
+            self._routes = tuple(r for r in self._routes if r is not route)
+
     def _run(self) -> None:
         context = self._node.context
-        wait_set = _rclpy.WaitSet(1, 0, 0, 0, 0, 0, context.handle)
-        handle = self._subscription.handle
         timeout_ns = int(COMMAND_WAIT_S * 1e9)
-        # The context is asked only after a wake without a message (rclpy takes a lock
-        # for it): a shut-down context ends the thread within one wait.
-        while not self._stop.is_set():
-            try:
-                with handle:
-                    # rcl_wait empties the set's slots of entities that are not ready:
-                    # the subscription is added again for every wait.
-                    wait_set.clear_entities()
-                    wait_set.add_subscription(handle)
-                    wait_set.wait(timeout_ns)
-                    # One message per wake: at 50 Hz there is one, and a take that finds
-                    # none costs half a wait; if more are queued the next wait returns
-                    # at once.
-                    taken = handle.take_message(CableLength, True)
-                if taken is not None:
-                    self._take(taken[0])
-                elif not context.ok():
-                    return
-            except Exception as exc:  # noqa: BLE001 - report and go on; never die silently
-                if self._stop.is_set() or not context.ok():
-                    return  # shutting down: the context or the handle is gone
-                self._node.get_logger().error(f'command thread: {exc!r}',
-                                              throttle_duration_sec=1.0)
-                time.sleep(COMMAND_WAIT_S)
-
-    def _take(self, raw: bytes) -> None:
+        routes: tuple[_Route, ...] = ()
+        handles = ()
+        by_pointer: dict[int, _Route] = {}
+        wait_set = None
+        # Every subscription taken from is held (``__enter__``) until the thread ends:
+        # destroying the inbox node while a wait is in progress is then deferred by
+        # rclpy until the thread lets go.
+        held = []
         try:
-            stamp_ns, length_m = decode_cable_length(raw)
-        except CdrError:  # another encoding: rclpy reads it
-            msg = deserialize_message(raw, CableLength)
-            stamp = msg.header.stamp
-            stamp_ns, length_m = stamp.sec * 1_000_000_000 + stamp.nanosec, msg.cable_length
-        self._handle(length_m, stamp_ns)
+            while not self._stop.is_set():
+                try:
+                    if self._routes is not routes:
+                        routes = self._routes
+                        handles = tuple(route.rcl for route in routes)
+                        for handle in handles:
+                            if handle not in held:
+                                handle.__enter__()
+                                held.append(handle)
+                        by_pointer = {route.rcl.pointer: route for route in routes}
+                        wait_set = (_rclpy.WaitSet(len(routes), 0, 0, 0, 0, 0, context.handle)
+                                    if routes else None)
+                    if wait_set is None:      # nothing to wait on (yet, or any more)
+                        if self._stop.wait(COMMAND_WAIT_S) or not context.ok():
+                            return
+                        continue
+                    # rcl_wait empties the set's slots of entities that are not ready:
+                    # the subscriptions are added again for every wait.
+                    wait_set.clear_entities()
+                    for handle in handles:
+                        wait_set.add_subscription(handle)
+                    wait_set.wait(timeout_ns)
+                    ready = wait_set.get_ready_entities('subscription')
+                    # The context is asked only after a wake without a message (rclpy
+                    # takes a lock for it): a shut-down context ends the thread within
+                    # one wait.
+                    if not ready and not context.ok():
+                        return
+                    for pointer in ready:
+                        # One message per ready route and wake: at 50 Hz there is one,
+                        # and a take that finds none costs half a wait; if more are
+                        # queued the next wait returns at once.
+                        route = by_pointer[pointer]
+                        taken = route.rcl.take_message(CableLength, True)
+                        if taken is not None:
+                            self._deliver(route, taken[0])
+                except Exception as exc:  # noqa: BLE001 - report and go on; never die silently
+                    if self._stop.is_set() or not context.ok():
+                        return  # shutting down: the context or a handle is gone
+                    self._node.get_logger().error(f'command thread: {exc!r}',
+                                                  throttle_duration_sec=1.0)
+                    time.sleep(COMMAND_WAIT_S)
+        finally:
+            for handle in held:
+                handle.__exit__(None, None, None)
+
+    def _deliver(self, route: _Route, raw: bytes) -> None:
+        try:
+            try:
+                stamp_ns, length_m = decode_cable_length(raw)
+            except CdrError:  # another encoding: rclpy reads it
+                msg = deserialize_message(raw, CableLength)
+                stamp = msg.header.stamp
+                stamp_ns, length_m = stamp.sec * 1_000_000_000 + stamp.nanosec, msg.cable_length
+        except Exception as exc:  # noqa: BLE001 - one unreadable message is skipped
+            route.logger.warning(
+                f'{route.subscription.topic_name}: unreadable command skipped '
+                f'({len(raw)} bytes): {exc!r}', throttle_duration_sec=1.0)
+            return
+        with self._lock:
+            if route.open:
+                route.handle(length_m, stamp_ns)
 
     def stop(self, timeout: float) -> None:
         self._stop.set()
@@ -184,9 +262,17 @@ class CommandInbox:
 
 
 class DriverNode(SoftSnapNode):
-    """One module: parameters and ROS interfaces around a :class:`ModuleLink`."""
+    """One module: parameters and ROS interfaces around a :class:`ModuleLink`.
 
-    def __init__(self, node_name: str = 'driver_node', **kwargs):
+    Shared with other drivers of the process (``driver_container``): ``inbox``, a
+    :class:`CommandInbox` whose owner runs its thread (by default the node makes its
+    own), and with ``diagnostics_timer=False`` the owner calls
+    :meth:`diagnostics_callback` every ``diagnostics_period_s`` instead of a timer of
+    this node.
+    """
+
+    def __init__(self, node_name: str = 'driver_node', inbox: CommandInbox | None = None,
+                 diagnostics_timer: bool = True, **kwargs):
         super().__init__(node_name, **kwargs)
         for name, (default, descriptor) in PARAMETERS.items():
             self.declare_parameter(name, default, descriptor)
@@ -205,16 +291,16 @@ class DriverNode(SoftSnapNode):
         # Depth 100 (2 s of 50 Hz commands): a driver starved by a busy machine takes the
         # queued commands late instead of having them overwritten (commands_received
         # tells the sender what arrived). Commands arrive on their own thread
-        # (CommandInbox says why), through a node of their own that no executor spins;
-        # its node-local remap keeps a `-r __node:=NAME` from giving it this node's name.
-        self._inbox = Node(f'{self.get_name()}_inbox', namespace=self.get_namespace(),
-                           context=self.context, start_parameter_services=False,
-                           enable_rosout=False,
-                           cli_args=['--ros-args', '-r', f'__node:={self.get_name()}_inbox'])
+        # (CommandInbox says why), through a node of their own that no executor spins.
+        self._inbox = None
+        if inbox is None:
+            self._inbox = inbox_node(f'{self.get_name()}_inbox', self.get_namespace(),
+                                     self.context)
         self.trigger_services = [
             self.create_service(Trigger, f'{m}/{kind}', self._trigger_callback(kind))
             for kind in ('calibrate', 'pause', 'resume', 'stop')]
-        self._error_stamp = (math.nan, None)   # (link clock, ROS time) of the latest error
+        # (link clock, ROS time as (sec, nanosec)) of the latest error
+        self._error_stamp = (math.nan, (0, 0))
         # Standard health outputs, from the link's latest report (set by its worker thread;
         # one reference assignment, read by the timer).
         self._latest_report: LinkReport | None = None
@@ -222,15 +308,20 @@ class DriverNode(SoftSnapNode):
                                    f'{config.host}:{config.port}')
         self.battery_publisher = self.create_publisher(BatteryState, f'{m}/battery', 10)
         self.diagnostics_publisher = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
-        # The steady clock: health must be reported while a simulated time stands still.
-        self.diagnostics_timer = self.create_timer(
-            self.get_parameter('diagnostics_period_s').value, self.diagnostics_callback,
-            clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self.diagnostics_period_s = self.get_parameter('diagnostics_period_s').value
+        self.diagnostics_timer = (steady_timer(self, self.diagnostics_period_s,
+                                               self.diagnostics_callback)
+                                  if diagnostics_timer else None)
+        # State and measured length go out as ready CDR bytes (state_wire says why) if
+        # rclpy reads them back as the messages; else as message objects, filled in place.
+        self._state_wire = ModuleStateWire(m, m)
+        self._measured_wire = CableLengthWire(m)
         self._measured_msg = CableLength()
         self._measured_msg.header.frame_id = m
         self._state_msg = ModuleState()
         self._state_msg.header.frame_id = m
         self._state_msg.module = m
+        self.wire_format = self._wire_matches_rclpy()
         # Publishing throttle (report_callback): link-clock time the next report is due
         # anyway, and the event fields of the last state published.
         self._publish_due = -math.inf
@@ -241,8 +332,9 @@ class DriverNode(SoftSnapNode):
         self.link = ModuleLink(config, self.report_callback, self.get_logger(),
                                motion_clock=motion_clock)
         self.link.start()
-        self.commands = CommandInbox(self._inbox, f'{m}/cable_length/command', 100,
-                                     self.command_callback)
+        self.commands = inbox if inbox is not None else CommandInbox(self._inbox)
+        self._command_route = self.commands.subscribe(
+            f'{m}/cable_length/command', 100, self.command_callback, self.get_logger())
         low, high = config.calibration.length_range_m
         self.get_logger().info(
             f'driving module {m!r} at {config.host}:{config.port}; cable length range '
@@ -328,55 +420,90 @@ class DriverNode(SoftSnapNode):
         # Due again a little before the next poll's report: jitter must not skip a poll.
         self._publish_due = report.stamp + 0.9 * self.link.config.poll_period_s
         self._published_events = events
-        # One message object per topic, filled in place: only the link's worker thread
-        # calls this, and publish() serialises the message before it returns.
-        sec, nanosec = divmod(self.get_clock().now().nanoseconds, 1_000_000_000)
+        stamp = divmod(self.get_clock().now().nanoseconds, 1_000_000_000)
         if report.fresh and math.isfinite(report.measured_length_m):
-            measured = self._measured_msg
-            measured.header.stamp.sec, measured.header.stamp.nanosec = sec, nanosec
-            measured.cable_length = report.measured_length_m
-            self.measured_publisher.publish(measured)
+            self.measured_publisher.publish(self._measured_out(stamp, report.measured_length_m))
+        if math.isfinite(report.last_error_stamp) and report.last_error_stamp != self._error_stamp[0]:
+            # The link stamps on its monotonic clock: shift to ROS time by the error's
+            # age, once per error (so the field only changes when a new error happens).
+            # Floored at 0: a simulated time (use_sim_time) can be younger than the
+            # error's wall age, or 0 before the first /clock (a negative time raised
+            # here and no state was ever published).
+            age_ns = int(max(report.stamp - report.last_error_stamp, 0.0) * 1e9)
+            error_ns = max(self.get_clock().now().nanoseconds - age_ns, 0)
+            self._error_stamp = (report.last_error_stamp, divmod(error_ns, 1_000_000_000))
+        # Before the first reply (status None) the module's own fields are zero.
+        self.state_publisher.publish(self._state_out(stamp, ModuleStateFields(
+            online=report.online,
+            paused=status is not None and status.paused,
+            measured_cable_length=report.measured_length_m,
+            target_cable_length=report.target_length_m,
+            encoder_count=status.encoder_count if status is not None else 0,
+            encoder_target=report.encoder_target,
+            motor_power=status.motor_power if status is not None else report.pwm_power,
+            battery_voltage=status.battery_voltage if status is not None else 0.0,
+            power=status.power_w if status is not None else 0.0,
+            encoder_errors=status.encoder_errors if status is not None else 0,
+            request_failures=c.request_failures,
+            commands_received=c.commands_received,
+            targets_sent=c.targets_sent,
+            last_command_stamp=divmod(report.last_command_stamp_ns, 1_000_000_000),
+            commands_clamped=c.commands_clamped,
+            commands_refused=c.commands_refused,
+            reboots_detected=c.reboots_detected,
+            stale_stops=c.stale_stops,
+            stalls_detected=c.stalls_detected,
+            internal_errors=c.internal_errors,
+            stops_unconfirmed=c.stops_unconfirmed,
+            last_error=report.last_error,
+            last_error_time=self._error_stamp[1])))
+
+    # Only the link's worker thread calls these (report_callback), so one message object
+    # per topic is filled in place: publish() serialises it before it returns.
+    def _state_out(self, stamp: tuple[int, int], fields: ModuleStateFields):
+        """The state to publish: CDR bytes, or the message object (the fallback)."""
+        if self.wire_format:
+            return self._state_wire.serialize(stamp, fields)
         state = self._state_msg
-        state.header.stamp.sec, state.header.stamp.nanosec = sec, nanosec
-        state.online = report.online
-        state.measured_cable_length = report.measured_length_m
-        state.target_cable_length = report.target_length_m
-        state.encoder_target = report.encoder_target
-        if status is not None:
-            state.paused = status.paused
-            state.encoder_count = status.encoder_count
-            state.motor_power = status.motor_power
-            state.battery_voltage = status.battery_voltage
-            state.power = status.power_w
-            state.encoder_errors = status.encoder_errors
-        else:
-            state.motor_power = report.pwm_power
-        state.request_failures = c.request_failures
-        state.commands_received = c.commands_received
-        state.targets_sent = c.targets_sent
-        state.last_command_stamp.sec, state.last_command_stamp.nanosec = divmod(
-            report.last_command_stamp_ns, 1_000_000_000)
-        state.commands_clamped = c.commands_clamped
-        state.commands_refused = c.commands_refused
-        state.reboots_detected = c.reboots_detected
-        state.stale_stops = c.stale_stops
-        state.stalls_detected = c.stalls_detected
-        state.internal_errors = c.internal_errors
-        state.stops_unconfirmed = c.stops_unconfirmed
-        state.last_error = report.last_error
-        if math.isfinite(report.last_error_stamp):
-            if report.last_error_stamp != self._error_stamp[0]:
-                # The link stamps on its monotonic clock: shift to ROS time by the error's
-                # age, once per error (so the field only changes when a new error happens).
-                # Floored at 0: a simulated time (use_sim_time) can be younger than the
-                # error's wall age, or 0 before the first /clock (a negative time raised
-                # here and no state was ever published).
-                age_ns = int(max(report.stamp - report.last_error_stamp, 0.0) * 1e9)
-                error_ns = max(self.get_clock().now().nanoseconds - age_ns, 0)
-                sec, nanosec = divmod(error_ns, 1_000_000_000)
-                self._error_stamp = (report.last_error_stamp, Time(sec=sec, nanosec=nanosec))
-            state.last_error_time = self._error_stamp[1]
-        self.state_publisher.publish(state)
+        state.header.stamp.sec, state.header.stamp.nanosec = stamp
+        return fill_module_state(state, fields)
+
+    def _measured_out(self, stamp: tuple[int, int], cable_length_m: float):
+        if self.wire_format:
+            return self._measured_wire.serialize(stamp, cable_length_m)
+        measured = self._measured_msg
+        measured.header.stamp.sec, measured.header.stamp.nanosec = stamp
+        measured.cable_length = cable_length_m
+        return measured
+
+    def _wire_matches_rclpy(self) -> bool:
+        """True if rclpy reads the bytes of a sample state and length back as the same
+        messages built as objects; else False, with a warning. Run once at start: a
+        middleware with another encoding then costs CPU, not correctness."""
+        try:
+            for error in ('', 'command refused: \u00e9 -1.0 m'):
+                fields = ModuleStateFields(
+                    True, False, 0.1875, 0.15, -123456, 7890, 200, 3.875, 1.5, 1, 2, 3, 4,
+                    (1_700_000_000, 123_456_789), 5, 6, 7, 8, 9, 10, 11, error, (12, 13))
+                want = ModuleState(module=self.module)
+                want.header.frame_id = self.module
+                want.header.stamp.sec, want.header.stamp.nanosec = 1_800_000_000, 42
+                fill_module_state(want, fields)
+                got = deserialize_message(self._state_wire.serialize((1_800_000_000, 42), fields),
+                                          ModuleState)
+                if got != deserialize_message(serialize_message(want), ModuleState):
+                    raise ValueError(f'ModuleState read back as {got}')
+            got = deserialize_message(self._measured_wire.serialize((17, 42), 0.1234567),
+                                      CableLength)
+            if (got.header.frame_id, got.header.stamp.sec, got.header.stamp.nanosec,
+                    got.cable_length) != (self.module, 17, 42, 0.1234567):
+                raise ValueError(f'CableLength read back as {got}')
+        except Exception as error:  # noqa: BLE001 - fall back, never fail the start
+            self.get_logger().warning(
+                'publishing state and measured length as message objects (costs more CPU): '
+                f'the wire format does not match this middleware\'s: {error!r}')
+            return False
+        return True
 
     def diagnostics_callback(self) -> None:
         # The link stamps reports on time.monotonic (its default clock).
@@ -395,16 +522,34 @@ class DriverNode(SoftSnapNode):
         self.battery_publisher.publish(battery)
 
     def stop_link(self) -> None:
-        """No new command after this (within COMMAND_WAIT_S); then the link's stop, bounded
-        (link.SHUTDOWN_BUDGET_S) to fit the 2 s SIGINT budget. A second call returns at once."""
-        if hasattr(self, 'commands'):
-            self.commands.stop(2 * COMMAND_WAIT_S)
+        """No new command after this (its own command thread stopped within
+        COMMAND_WAIT_S, or its route of a shared one closed at once); then the link's
+        stop, bounded (link.SHUTDOWN_BUDGET_S) to fit the 2 s SIGINT budget. A second
+        call returns at once."""
+        if hasattr(self, '_command_route'):
+            self.commands.close(self._command_route)
+            if self._inbox is not None:
+                self.commands.stop(2 * COMMAND_WAIT_S)
         self.link.stop()
 
     def destroy_node(self) -> None:
         self.stop_link()
-        self._inbox.destroy_node()
+        if self._inbox is not None:
+            self._inbox.destroy_node()
         super().destroy_node()
+
+
+def steady_timer(node: Node, period_s: float, callback):
+    """A timer on the steady clock: health must be reported while a simulated time
+    stands still."""
+    return node.create_timer(period_s, callback, clock=Clock(clock_type=ClockType.STEADY_TIME))
+
+
+def inbox_node(name: str, namespace: str, context) -> Node:
+    """A node for command subscriptions only, which no executor spins (CommandInbox); its
+    node-local remap keeps a process-wide `-r __node:=NAME` from giving it another name."""
+    return Node(name, namespace=namespace, context=context, start_parameter_services=False,
+                enable_rosout=False, cli_args=['--ros-args', '-r', f'__node:={name}'])
 
 
 def _module_argument(args: list[str]) -> str | None:
