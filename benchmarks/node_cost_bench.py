@@ -52,7 +52,6 @@ import math
 import os
 import random
 import re
-import signal
 import statistics
 import subprocess
 import sys
@@ -114,13 +113,9 @@ def start_ros_node(node: str, ros_args: list[str], code_dir: Path | None, log: P
 
 
 def stop(proc: subprocess.Popen) -> None:
-    if proc.poll() is None:
-        os.killpg(proc.pid, signal.SIGINT)
-    try:
-        proc.wait(15)
-    except subprocess.TimeoutExpired:
-        os.killpg(proc.pid, signal.SIGKILL)
-        proc.wait()
+    """SIGINT the child's process group, SIGKILL after 15 s (process_group says how)."""
+    from process_group import stop_process_group  # here: children import this file from elsewhere
+    stop_process_group(proc, 15.0)
 
 
 def cpu_seconds(ps: psutil.Process) -> float:
