@@ -3,7 +3,7 @@ message-object path's messages, for any field values (NaN, extremes, any text)."
 import math
 import struct
 
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from softsnap_driver.state_wire import (CableLengthWire, ModuleStateFields, ModuleStateWire,
@@ -65,3 +65,23 @@ def test_cable_length_bytes_read_back_as_the_message_object(frame_id, stamp, len
     stamp_ns, value = decode_cable_length(raw)
     assert stamp_ns == stamp[0] * 10**9 + stamp[1]
     assert struct.pack('<d', value) == struct.pack('<d', length)
+
+
+@FUZZ
+@given(sec=st.integers(-2**31, 2**31 - 1), nanosec=U32)
+@example(sec=2**31 - 1, nanosec=2**32 - 1)
+@example(sec=-2**31, nanosec=0)
+def test_any_command_header_stamp_echoes_as_a_time_rclpy_accepts(sec, nanosec):
+    """A command's header (int32 sec, uint32 nanosec, possibly >= 1e9) is echoed in
+    ModuleState.last_command_stamp: normalised, and held at the latest representable
+    time when it would overflow int32 seconds (it used to make every state publish fail)."""
+    from builtin_interfaces.msg import Time
+    from softsnap_driver.driver_node import TIME_SEC_MAX, stamp_sec_nanosec
+    stamp_ns = sec * 10**9 + nanosec
+    got = stamp_sec_nanosec(stamp_ns)
+    Time(sec=got[0], nanosec=got[1])   # raises if either is out of its type's range
+    assert 0 <= got[1] < 10**9
+    if stamp_ns <= TIME_SEC_MAX * 10**9 + 999_999_999:
+        assert got[0] * 10**9 + got[1] == stamp_ns
+    else:
+        assert got == (TIME_SEC_MAX, 999_999_999)

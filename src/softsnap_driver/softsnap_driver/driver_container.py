@@ -121,9 +121,14 @@ class DriverContainer(Node):
 
     @staticmethod
     def diagnostics_callback(drivers: list[DriverNode]) -> None:
-        """Each driver's own diagnostics and battery messages (each catches its errors)."""
+        """Each driver's own diagnostics and battery messages; one driver's failure is
+        logged on its own logger and does not skip the others (each had its own timer)."""
         for driver in drivers:
-            driver.diagnostics_callback()
+            try:
+                driver.diagnostics_callback()
+            except Exception as exc:  # noqa: BLE001 - report it and go on to the next module
+                driver.get_logger().error(f'diagnostics failed: {exc!r}',
+                                          throttle_duration_sec=1.0)
 
     def stop_drivers(self) -> None:
         """Stop every link at once (each within its own budget), then destroy the nodes.

@@ -120,6 +120,24 @@ PARAMETERS = {
 COMMAND_WAIT_S = 0.05
 
 
+#: Largest second a builtin_interfaces/Time holds (int32).
+TIME_SEC_MAX = 2**31 - 1
+
+
+def stamp_sec_nanosec(stamp_ns: int) -> tuple[int, int]:
+    """A stamp in ns as (sec, nanosec) of a builtin_interfaces/Time, nanosec < 1e9.
+
+    A command's stamp is echoed back in ``ModuleState``; a sender's header with
+    ``nanosec`` >= 1e9 near the end of int32 seconds would not fit once normalised,
+    and every state message would then fail to publish: such a stamp is held at the
+    latest representable time.
+    """
+    sec, nanosec = divmod(stamp_ns, 1_000_000_000)
+    if sec > TIME_SEC_MAX:
+        return TIME_SEC_MAX, 999_999_999
+    return sec, nanosec
+
+
 class _Route:
     """One command topic of a :class:`CommandInbox`: its subscription (and the rclpy
     handle of it, read once: ``Subscription.handle`` is a Python property), its
@@ -196,15 +214,19 @@ class CommandInbox:
             while not self._stop.is_set():
                 try:
                     if self._routes is not routes:
-                        routes = self._routes
-                        handles = tuple(route.rcl for route in routes)
-                        for handle in handles:
+                        # Built aside and adopted only when complete: a rebuild that
+                        # raises is tried again at the next pass, never half applied.
+                        new_routes = self._routes
+                        new_handles = tuple(route.rcl for route in new_routes)
+                        for handle in new_handles:
                             if handle not in held:
                                 handle.__enter__()
                                 held.append(handle)
-                        by_pointer = {route.rcl.pointer: route for route in routes}
-                        wait_set = (_rclpy.WaitSet(len(routes), 0, 0, 0, 0, 0, context.handle)
-                                    if routes else None)
+                        new_by_pointer = {route.rcl.pointer: route for route in new_routes}
+                        new_wait_set = (_rclpy.WaitSet(len(new_routes), 0, 0, 0, 0, 0,
+                                                       context.handle) if new_routes else None)
+                        routes, handles, by_pointer, wait_set = (
+                            new_routes, new_handles, new_by_pointer, new_wait_set)
                     if wait_set is None:      # nothing to wait on (yet, or any more)
                         if self._stop.wait(COMMAND_WAIT_S) or not context.ok():
                             return
@@ -226,7 +248,15 @@ class CommandInbox:
                         # and a take that finds none costs half a wait; if more are
                         # queued the next wait returns at once.
                         route = by_pointer[pointer]
-                        taken = route.rcl.take_message(CableLength, True)
+                        try:
+                            taken = route.rcl.take_message(CableLength, True)
+                        except Exception as exc:  # noqa: BLE001 - this module only
+                            # The other ready modules still get their commands this wake.
+                            if self._stop.is_set() or not context.ok():
+                                return
+                            route.logger.error(f'{route.subscription.topic_name}: take '
+                                               f'failed: {exc!r}', throttle_duration_sec=1.0)
+                            continue
                         if taken is not None:
                             self._deliver(route, taken[0])
                 except Exception as exc:  # noqa: BLE001 - report and go on; never die silently
@@ -447,7 +477,7 @@ class DriverNode(SoftSnapNode):
             request_failures=c.request_failures,
             commands_received=c.commands_received,
             targets_sent=c.targets_sent,
-            last_command_stamp=divmod(report.last_command_stamp_ns, 1_000_000_000),
+            last_command_stamp=stamp_sec_nanosec(report.last_command_stamp_ns),
             commands_clamped=c.commands_clamped,
             commands_refused=c.commands_refused,
             reboots_detected=c.reboots_detected,
