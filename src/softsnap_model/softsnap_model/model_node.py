@@ -201,6 +201,8 @@ class PredictionThread:
         drained = last           # when the queues were last taken while active
         while not self._stop.is_set():
             try:
+                if not self._context.ok():
+                    return  # shut down (SIGINT) before stop(): no chores, no spin until it
                 due = self._chores()
                 now = time.monotonic()
                 if not active:
@@ -248,6 +250,7 @@ class PredictionThread:
             for handle in self._handles:
                 held.enter_context(handle)
             held.enter_context(self._guard)
+            held.enter_context(self._wait_set)  # not destroyed while in rcl_wait
             wait_set = self._wait_set
             # rcl_wait empties the slots of entities that are not ready: refill every time.
             wait_set.clear_entities()
@@ -276,7 +279,12 @@ class PredictionThread:
         self.wake()
         if self._thread.is_alive():
             self._thread.join(timeout)
-        return not self._thread.is_alive()
+        if self._thread.is_alive():
+            return False
+        # Both hold the rcl context: left alive, they would keep it from being finalised.
+        for entity in (self._wait_set, self._guard):
+            entity.destroy_when_not_in_use()
+        return True
 
 
 @dataclasses.dataclass(frozen=True)
@@ -576,8 +584,10 @@ class ModelNode(SoftSnapNode):
         (monotonic s)."""
         now = time.monotonic()
         if now >= self._next_marker_at and self.context.ok():
-            # On schedule, without a burst of catch-up marker arrays after a slow prediction.
-            self._next_marker_at = max(self._next_marker_at + self._marker_period_s, now)
+            # On schedule; after a slow prediction the next is a whole period away (no
+            # second array at once, no burst of catch-up arrays).
+            following = self._next_marker_at + self._marker_period_s
+            self._next_marker_at = following if following > now else now + self._marker_period_s
             self.marker_callback()
         return self._next_marker_at
 
