@@ -32,19 +32,28 @@ def stamp_ns(msg) -> int:
     return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
 
 
-def test_a_length_after_a_long_idle_gap_is_predicted(start_node, ros_node):
-    # Regression guard for the event-driven thread: idle, it blocks in a wait set over
-    # the length subscriptions; a length must wake it (not only a fixed tick).
+def yellow_model(start_node, ros_node, rate_hz: float, shape_depth: int):
+    """A model node at ``rate_hz`` and, in the test process, its yellow commanded shapes,
+    its diagnostics and a yellow command publisher, once the node is seen and sees it:
+    (node, yellow module, shapes, diagnostics, publisher)."""
     from softsnap_interfaces.msg import CableLength, ModelDiagnostics, ModuleShape
-    node = start_model(start_node, 'rate:=100.0')
+    node = start_model(start_node, f'rate:={rate_hz}')
     yellow = load_scene('brittle_star').module('yellow')
     shapes, diagnostics = [], []
-    ros_node.create_subscription(ModuleShape, f'{NS}/yellow/shape/commanded', shapes.append, 10)
+    ros_node.create_subscription(ModuleShape, f'{NS}/yellow/shape/commanded', shapes.append,
+                                 shape_depth)
     ros_node.create_subscription(ModelDiagnostics, f'{NS}/model/diagnostics',
                                  diagnostics.append, 50)
     pub = ros_node.create_publisher(CableLength, f'{NS}/yellow/cable_length/command', 10)
     assert ros_node.spin_until(lambda: pub.get_subscription_count() > 0 and diagnostics,
                                20.0), node.output()
+    return node, yellow, shapes, diagnostics, pub
+
+
+def test_a_length_after_a_long_idle_gap_is_predicted(start_node, ros_node):
+    # Regression guard for the event-driven thread: idle, it blocks in a wait set over
+    # the length subscriptions; a length must wake it (not only a fixed tick).
+    node, yellow, shapes, diagnostics, pub = yellow_model(start_node, ros_node, 100.0, 10)
     for gap_s, contraction in ((3.0, 20.0), (2.0, 35.0)):
         # Idle for longer than the thread's longest blind wait (IDLE_WAIT_MAX_S, 1 s).
         n_diagnostics = len(diagnostics)
@@ -109,17 +118,8 @@ def test_a_burst_on_all_ten_length_topics_is_taken_whole(start_node, ros_node):
 
 
 def test_the_rate_limit_holds_with_lengths_faster_than_the_rate(start_node, ros_node):
-    from softsnap_interfaces.msg import CableLength, ModelDiagnostics, ModuleShape
     rate_hz = 5.0
-    node = start_model(start_node, f'rate:={rate_hz}')
-    yellow = load_scene('brittle_star').module('yellow')
-    shapes, diagnostics = [], []
-    ros_node.create_subscription(ModuleShape, f'{NS}/yellow/shape/commanded', shapes.append, 100)
-    ros_node.create_subscription(ModelDiagnostics, f'{NS}/model/diagnostics',
-                                 diagnostics.append, 50)
-    pub = ros_node.create_publisher(CableLength, f'{NS}/yellow/cable_length/command', 10)
-    assert ros_node.spin_until(lambda: pub.get_subscription_count() > 0 and diagnostics,
-                               20.0), node.output()
+    node, yellow, shapes, diagnostics, pub = yellow_model(start_node, ros_node, rate_hz, 100)
     ros_node.spin_until(lambda: False, 1.0)  # the node sees our subscription too
     taken_before = diagnostics[-1].commanded_lengths[0]
     # 50 Hz of new lengths for 3 s of the test's clock: ten times the rate.
