@@ -70,9 +70,9 @@ from __future__ import annotations
 # and the benchmarks reach them as ``forward._name``.
 from .api import reachable_range, solve_forward
 from .batch import PreparedBatch, solve_forward_batch, sweep
-from .branch import (_PROFILE_CACHE, _PROFILE_LOCK, SegmentBranch, _branch_derivs, _branch_solve,
+from .branch import (_PROFILE_CACHE, SegmentBranch, _branch_derivs, _branch_solve,
                      _pair_profile_array, segment_angle_at_tension, segment_branch)
-from .path import _Q_CACHE, _Q_LOCK, _problem, _single, _single_named, _threading_cached
+from .path import _Q_CACHE, _problem, _single, _single_named, _threading_cached
 from .results import (CONSTRAINT_TOL_MM, MAX_ITER, STATIONARITY_TOL_RAD, BatchResult,
                       ForwardResult, InfeasibleLengthError, PreparedBatchResult,
                       SnapThroughError, SweepResult)
@@ -95,7 +95,5 @@ def clear_caches() -> None:
     """
     for cached in (_problem, _single, _single_named, _threading_cached):
         cached.cache_clear()
-    with _PROFILE_LOCK:
-        _PROFILE_CACHE.clear()
-    with _Q_LOCK:
-        _Q_CACHE.clear()
+    _PROFILE_CACHE.clear()
+    _Q_CACHE.clear()

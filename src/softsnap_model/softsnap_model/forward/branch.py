@@ -139,9 +139,42 @@ def _pair_profile_array(d1, d2, s, b_max, n_samples=_BRANCH_SAMPLES):
 # ``(scalars, tables, kind)``: the (7,) values of :data:`_SCALAR_KEYS`, the (4, M) tables
 # ``b, mu, dmu, length`` and the end kind, so that a threading's profiles are gathered by two
 # numpy calls (a new threading's first solve is numpy call overhead).
-_PROFILE_CACHE: dict = {}
-_PROFILE_CACHE_MAX = 16384
-_PROFILE_LOCK = threading.Lock()
+class _PairMemo:
+    """A process-wide memo of a pure function of hole pairs, FIFO-bounded and safe
+    across threads: :meth:`get_many` looks the keys up, has the missing ones built
+    together (one vectorised call), stores them and evicts the oldest beyond
+    ``max_size``. The lock is not held while building: two threads may build the
+    same key, with the same value."""
+
+    def __init__(self, max_size: int):
+        self.max_size = max_size
+        self._entries: dict = {}
+        self._lock = threading.Lock()
+
+    def __len__(self) -> int:
+        return len(self._entries)
+
+    def clear(self) -> None:
+        with self._lock:
+            self._entries.clear()
+
+    def get_many(self, keys: list, build) -> list:
+        """The values of ``keys``, in order; ``build(missing)`` returns the values of
+        the distinct missing keys, in the order given."""
+        with self._lock:
+            found = [self._entries.get(key) for key in keys]
+        missing = list(dict.fromkeys(key for key, f in zip(keys, found) if f is None))
+        if missing:
+            new = dict(zip(missing, build(missing)))
+            with self._lock:
+                self._entries.update(new)
+                while len(self._entries) > self.max_size:
+                    del self._entries[next(iter(self._entries))]
+            found = [f if f is not None else new[key] for key, f in zip(keys, found)]
+        return found
+
+
+_PROFILE_CACHE = _PairMemo(16384)
 _SCALAR_KEYS = ('direction', 'mirror', 'mu_c', 'beta', 'b_end', 'mu_end', 'end_length')
 _TABLE_KEYS = ('b', 'mu', 'dmu', 'length')
 
@@ -159,24 +192,17 @@ def _pair_profiles(d1, d2, s: float, b_max: float) -> dict:
     s, b_max = float(s), float(b_max)
     keys = [(x, y, s, b_max) for x, y in zip(np.asarray(d1, dtype=float).tolist(),
                                                 np.asarray(d2, dtype=float).tolist())]
-    with _PROFILE_LOCK:
-        found = [_PROFILE_CACHE.get(key) for key in keys]
-    if None in found:
-        missing = list(dict.fromkeys(key for key, f in zip(keys, found) if f is None))
+
+    def build(missing):
         built = _pair_profile_array(np.array([key[0] for key in missing]),
-                                    np.array([key[1] for key in missing]), float(s),
-                                    float(b_max))
+                                    np.array([key[1] for key in missing]), s, b_max)
         # The length at the branch end (a bound for the threading's minimum length).
         built['end_length'] = built['length'][:, -1]
         scalars = np.stack([built[name] for name in _SCALAR_KEYS], axis=1)
         tables = np.stack([built[name] for name in _TABLE_KEYS], axis=1)
-        new = {key: (scalars[j], tables[j], str(built['kind'][j]))
-               for j, key in enumerate(missing)}
-        with _PROFILE_LOCK:
-            _PROFILE_CACHE.update(new)
-            while len(_PROFILE_CACHE) > _PROFILE_CACHE_MAX:
-                del _PROFILE_CACHE[next(iter(_PROFILE_CACHE))]
-        found = [f if f is not None else new[key] for key, f in zip(keys, found)]
+        return [(scalars[j], tables[j], str(built['kind'][j])) for j in range(len(missing))]
+
+    found = _PROFILE_CACHE.get_many(keys, build)
     scalars = np.array([f[0] for f in found]).T
     tables = np.array([f[1] for f in found])
     out = dict(zip(_SCALAR_KEYS, scalars))

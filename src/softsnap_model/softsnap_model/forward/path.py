@@ -22,8 +22,8 @@ import numpy as np
 
 from ..geometry import _G_COEF, _G_TERMS
 from ..skeleton import Skeleton
-from .branch import (_BRANCH_SAMPLES, _branch_derivs, _branch_refine, _pair_profiles,
-                     _segment_cells)
+from .branch import (_BRANCH_SAMPLES, _PairMemo, _branch_derivs, _branch_refine,
+                     _pair_profiles, _segment_cells)
 from .results import InfeasibleLengthError, SnapThroughError
 
 
@@ -777,9 +777,7 @@ def _q_coefficients(dd2, s, e1, e2):
 #: for the process (a pure function of the pair: its direction is; rows are computed
 #: element-wise, so a threading's stack of them is what one call on its segments gives).
 #: FIFO-bounded; :func:`softsnap_model.forward.clear_caches` empties it.
-_Q_CACHE: dict = {}
-_Q_CACHE_MAX = 16384
-_Q_LOCK = threading.Lock()
+_Q_CACHE = _PairMemo(16384)
 
 
 def _q_stack(d1, d2, direction, s):
@@ -787,19 +785,16 @@ def _q_stack(d1, d2, direction, s):
     :data:`_Q_CACHE` (the pairs not seen before computed together)."""
     s = float(s)
     keys = [(x, y, s) for x, y in zip(d1.tolist(), d2.tolist())]
-    with _Q_LOCK:
-        found = [_Q_CACHE.get(key) for key in keys]
-    missing = [i for i, f in enumerate(found) if f is None]
-    if missing:
-        e1, e2 = (d1 * direction)[missing], (d2 * direction)[missing]
-        rows = _q_coefficients((d1[missing] - d2[missing]) ** 2, s, e1, e2)
-        new = {keys[i]: row for i, row in zip(missing, rows)}
-        with _Q_LOCK:
-            _Q_CACHE.update(new)
-            while len(_Q_CACHE) > _Q_CACHE_MAX:
-                del _Q_CACHE[next(iter(_Q_CACHE))]
-        found = [f if f is not None else new[key] for key, f in zip(keys, found)]
-    return np.array(found)
+
+    def build(missing):
+        first = {}   # a missing pair's first segment (its direction is the pair's)
+        for i, key in enumerate(keys):
+            first.setdefault(key, i)
+        at = [first[key] for key in missing]
+        e1, e2 = (d1 * direction)[at], (d2 * direction)[at]
+        return list(_q_coefficients((d1[at] - d2[at]) ** 2, s, e1, e2))
+
+    return np.array(_Q_CACHE.get_many(keys, build))
 
 
 class _SingleLayout(dict):
