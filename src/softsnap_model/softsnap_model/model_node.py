@@ -208,9 +208,7 @@ class PredictionThread:
                 if not active:
                     ready = self._wait(min(due - now, IDLE_WAIT_MAX_S))
                     if not ready:
-                        if not self._context.ok():
-                            return
-                        continue  # a chore, the guard, or the safety timeout
+                        continue  # a chore, the guard, the safety timeout or a shutdown
                     arrived = time.monotonic()
                     self._take(ready)
                     # Half a period after the first arrival (the mean delay of a fixed
