@@ -450,7 +450,7 @@ class DriverNode(SoftSnapNode):
         # Due again a little before the next poll's report: jitter must not skip a poll.
         self._publish_due = report.stamp + 0.9 * self.link.config.poll_period_s
         self._published_events = events
-        stamp = divmod(self.get_clock().now().nanoseconds, 1_000_000_000)
+        stamp = stamp_sec_nanosec(self.get_clock().now().nanoseconds)
         if report.fresh and math.isfinite(report.measured_length_m):
             self.measured_publisher.publish(self._measured_out(stamp, report.measured_length_m))
         if math.isfinite(report.last_error_stamp) and report.last_error_stamp != self._error_stamp[0]:
@@ -461,7 +461,7 @@ class DriverNode(SoftSnapNode):
             # here and no state was ever published).
             age_ns = int(max(report.stamp - report.last_error_stamp, 0.0) * 1e9)
             error_ns = max(self.get_clock().now().nanoseconds - age_ns, 0)
-            self._error_stamp = (report.last_error_stamp, divmod(error_ns, 1_000_000_000))
+            self._error_stamp = (report.last_error_stamp, stamp_sec_nanosec(error_ns))
         # Before the first reply (status None) the module's own fields are zero.
         self.state_publisher.publish(self._state_out(stamp, ModuleStateFields(
             online=report.online,

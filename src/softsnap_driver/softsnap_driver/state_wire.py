@@ -19,14 +19,12 @@ from __future__ import annotations
 import struct
 from typing import NamedTuple
 
+from softsnap_driver.cdr import _F64, _STAMP, _U32, CDR_LE, HEADER_SIZE as _HEADER
+
 __all__ = ['CableLengthWire', 'ModuleStateFields', 'ModuleStateWire', 'fill_module_state']
 
-#: Encapsulation header of little-endian plain CDR.
-CDR_LE = b'\x00\x01\x00\x00'
-_HEADER = len(CDR_LE)
-_STAMP = struct.Struct('<iI')     # builtin_interfaces/Time: sec, nanosec
-_F64 = struct.Struct('<d')
-_U32 = struct.Struct('<I')
+#: The whole encapsulation header: little-endian plain CDR, options 0.
+_ENCAPSULATION = CDR_LE + bytes(_HEADER - len(CDR_LE))
 # From measured_cable_length (8-aligned) to stops_unconfirmed: f64 f64 i32 i32 u8, 3 bytes
 # of padding, f32 f32, four u32, a Time, seven u32. Every field sits at its natural
 # alignment once the first float64 does, so the layout is one Struct.
@@ -106,7 +104,7 @@ class ModuleStateWire:
             self._error = (f.last_error, _string(f.last_error, self._body_end))
         command_sec, command_nanosec = f.last_command_stamp
         return b''.join((
-            CDR_LE, _STAMP.pack(*stamp), self._middle,
+            _ENCAPSULATION, _STAMP.pack(*stamp), self._middle,
             b'\x01' if f.online else b'\x00', b'\x01' if f.paused else b'\x00', self._pad,
             _BODY.pack(f.measured_cable_length, f.target_cable_length, f.encoder_count,
                        f.encoder_target, f.motor_power, f.battery_voltage, f.power,
@@ -129,7 +127,8 @@ class CableLengthWire:
 
     def serialize(self, stamp: tuple[int, int], cable_length_m: float) -> bytes:
         """CDR bytes of a length (m) with ``header.stamp`` ``stamp`` (sec, nanosec)."""
-        return b''.join((CDR_LE, _STAMP.pack(*stamp), self._middle, _F64.pack(cable_length_m)))
+        return b''.join((_ENCAPSULATION, _STAMP.pack(*stamp), self._middle,
+                         _F64.pack(cable_length_m)))
 
 
 def fill_module_state(msg, fields: ModuleStateFields):
