@@ -239,8 +239,13 @@ def test_sigint_stops_the_node_within_2_s_during_a_long_design(start_node, ros_n
     # Regression: model_node ignored SIGINT until a running design finished (k=2000:
     # still running 90 s after SIGINT).
     from softsnap_interfaces.srv import InverseDesign
+
+    def ours():
+        return [n for n, ns in ros_node.get_node_names_and_namespaces() if ns == NS]
     proc = start_model(start_node, f'max_alternatives:={LONG_K}', 'design_timeout:=600.0')
     action, service = clients(ros_node, proc)
+    # Twice the names if an earlier test's node is still in the graph (said on failure).
+    before = ours()
     goal = Goal(ros_node, action, target_angles=NOISY, alternatives=LONG_K)
     # A long service design runs at the same time on the other worker.
     service.call_async(InverseDesign.Request(target_angles=NOISY, alternatives=LONG_K))
@@ -259,6 +264,5 @@ def test_sigint_stops_the_node_within_2_s_during_a_long_design(start_node, ros_n
     assert 'Traceback' not in proc.output()
     # It closed ROS before leaving: its nodes leave the graph at once, not after the
     # DDS lease of a killed process (20 s).
-    assert ros_node.spin_until(
-        lambda: not [n for n, ns in ros_node.get_node_names_and_namespaces() if ns == NS],
-        10.0), ros_node.get_node_names_and_namespaces()
+    assert ros_node.spin_until(lambda: not ours(), 10.0), (
+        f'still in the graph: {ours()}; while running: {before}\n{proc.output()}')
