@@ -98,6 +98,8 @@ class _PathTable:
         self.len_list = [math.inf] * n_samples
         self.neg_len_list = [-math.inf] * n_samples
         self.complete_ = False
+        # What a single cell's polynomial reads of the segments (_build_cell).
+        self._seg_lists = [seg[name].tolist() for name in ('k', 'lam_c', 'lam_end', 'count')]
         self._unpublished = False   # built samples not yet in the searchable lengths
         self._lock = threading.RLock()
 
@@ -112,9 +114,15 @@ class _PathTable:
         # One errstate for the whole build (the path arithmetic divides 0 by 0 where a
         # cell has zero width or nothing moves; those entries are handled).
         with self._lock, np.errstate(all='ignore'):
+            if self._unpublished:
+                self._publish()     # every built sample searchable (length_at_tension)
             for _ in range(4):
                 j = min(max(bisect.bisect_left(self.neg_len_list, -length), 1), self.n_cells)
                 if self._cell_built[j - 1]:
+                    return
+                if self._built[j - 1] and self._built[j]:
+                    # Both ends exact: the full table's cell. Its polynomial alone.
+                    self._build_cell(j - 1)
                     return
                 # Sample j is built (or this is the first build); the exact cell is
                 # after the last built sample before it: cells p .. j - 1.
@@ -123,6 +131,8 @@ class _PathTable:
                 if len(blocks) > 2:
                     blocks = self._guess(length, blocks)
                 self._build_blocks(blocks)
+                if self.complete_:
+                    return
             self._complete()    # not reached: a guess is off by one block at most
 
     def _guess(self, length, blocks):
@@ -144,7 +154,8 @@ class _PathTable:
         return range(blocks[0] + int(hit[0]), blocks[0] + int(hit[-1]) + 1)
 
     def _build_blocks(self, blocks):
-        """Samples and cells of ``blocks`` (consecutive), in one pass."""
+        """The samples of ``blocks`` (consecutive), in one pass, made searchable (the
+        cells' polynomials are built one by one, :meth:`_build_cell`)."""
         first = blocks[0] * _BLOCK
         last = min((blocks[-1] + 1) * _BLOCK, self.n_cells)
         self._build_samples(np.arange(first, last + 1))
@@ -152,14 +163,21 @@ class _PathTable:
         if (built[1:] > built[:-1]).any():
             self._complete()
             return
-        self._build_cells(first, last)
-        # Lists first, then the flags: a solve that sees a cell built without the lock
-        # (ensure's fast path) must find the exact lengths when it searches.
-        if self._unpublished:
-            self._publish()
-        else:
-            self._publish_block(first, last)
-        self._cell_built[first:last] = [True] * (last - first)
+        self._publish_block(first, last)
+
+    def _build_cell(self, j):
+        """The start polynomial of cell ``j`` (both its samples built), in plain floats
+        (:func:`_cell_polynomial`; by :func:`_path_polynomials` where that divides by
+        zero). The row first, then the flag: a solve that sees the cell built without
+        the lock (ensure's fast path) reads it."""
+        at = slice(j, j + 2)
+        try:
+            self.poly[j] = _cell_polynomial(
+                self.lam[at].tolist(), self._exact[at].tolist(), self.b[at].tolist(),
+                self._derivs[:, at].tolist(), *self._seg_lists)
+        except ArithmeticError:
+            self._build_cells(j, j + 1)
+        self._cell_built[j] = True
 
     def _publish(self):
         """Searchable lengths from the built samples (in place: the single-solve layout
@@ -560,6 +578,18 @@ def _cell_ends(n_cells):
 
 # Powers of the interior points t = 1/4, 1/2, 3/4 where the start polynomials are checked.
 _HULL_POWERS = np.array([0.25, 0.5, 0.75])[:, None] ** np.arange(_START_DEGREE + 1)
+_HULL_POWERS_LIST = _HULL_POWERS.tolist()
+
+
+def _hull_points(c):
+    """(P-1, 3, n+1) values of the polynomials ``c`` (P-1, 6, n+1) at the points of
+    :data:`_HULL_POWERS`, summed term by term in a fixed order (``c_0 + t c_1 + ...``;
+    a matrix product may round differently), as :func:`_cell_polynomial` sums them."""
+    terms = _HULL_POWERS[:, :, None] * c[:, None]       # (P-1, 3, 6, n+1)
+    inner = terms[:, :, 0].copy()
+    for p in range(1, _START_DEGREE + 1):
+        inner += terms[:, :, p]
+    return inner
 
 
 def _path_polynomials(lam, length, b, lp, lpp, l3, k, lam_c, lam_end, count):
@@ -621,7 +651,7 @@ def _path_polynomials(lam, length, b, lp, lpp, l3, k, lam_c, lam_end, count):
     c[:, 4] = -15.0 * e_val + 7.0 * e_slope - e_curv
     c[:, 5] = 6.0 * e_val - 3.0 * e_slope + 0.5 * e_curv
     # Check the quintic on a few interior points: it must stay in the cell's hull.
-    inner = np.matmul(_HULL_POWERS, c)                      # (P-1, 3, n+1)
+    inner = _hull_points(c)                                 # (P-1, 3, n+1)
     lo, hi = np.minimum(p0, p1)[:, None], np.maximum(p0, p1)[:, None]
     tol = 1e-12 * (1.0 + np.abs(hi))
     smooth = (np.isfinite(c).all(axis=(1, 2)) & (h[:, 0] < 0)
@@ -633,6 +663,93 @@ def _path_polynomials(lam, length, b, lp, lpp, l3, k, lam_c, lam_end, count):
     # Entries constant over a cell (held straight, at contact) stay exactly constant.
     np.copyto(c[:, 1:], 0.0, where=(p0 == p1)[:, None, :])
     return c
+
+
+def _cell_polynomial(lam, length, b, derivs, k, lam_c, lam_end, count):
+    """:func:`_path_polynomials` of one cell in plain Python floats (lists): the one
+    cell a single solve reads of its table block, at a fraction of the cost of the
+    numpy version on the whole block (~60 calls on small arrays: overhead, not
+    arithmetic). The numpy version stays for whole tables (a batch's ~500 cells).
+
+    ``lam``, ``length`` hold the cell's two samples, ``b`` and ``derivs`` (the rows of
+    ``l'``, ``l''``, ``l'''``, each laid out as ``b``) their values for the U distinct
+    segments; ``k``, ``lam_c``, ``lam_end``, ``count`` are lists of U. The same
+    operations in the same order as :func:`_path_polynomials`, so the same bits
+    (test_forward_lazy_table.py compares the two over whole tables). Returns the
+    (6, U+1) rows as lists. Raises ZeroDivisionError or OverflowError where numpy
+    would divide by zero or overflow (such a cell is built by :func:`_path_polynomials`).
+    """
+    lam0, lam1 = lam
+    h = length[1] - length[0]
+    n = len(k)
+    free = [lam0 >= lc and lam1 <= le for lc, le in zip(lam_c, lam_end)]
+    du, dv, t1, t2 = [], [], [], []     # per cell end (start, end)
+    for bq, lp, lpp, l3 in zip(b, *derivs):
+        u_row, v_row = [], []
+        s1 = s2 = 0.0
+        for i in range(n):
+            if free[i]:
+                bi, p, pp, ki = bq[i], lp[i], lpp[i], k[i]
+                lp2 = p * p
+                phi1 = 2.0 * (bi * pp - p) / lp2
+                phi2 = 2.0 * (bi * l3[i] * p - 2.0 * pp * (bi * pp - p)) / (lp2 * p)
+                u = 1.0 / (ki * phi1)
+                v = -ki * phi2 * u ** 3
+            else:
+                u = v = 0.0
+            # T' and T'' summed as _weighted_rows does: the first term, then the rest.
+            x1, x2 = u * lp[i] * count[i], (u * u * lpp[i] + v * lp[i]) * count[i]
+            if i:
+                s1 += x1
+                s2 += x2
+            else:
+                s1, s2 = x1, x2
+            u_row.append(u)
+            v_row.append(v)
+        du.append(u_row + [1.0])
+        dv.append(v_row + [0.0])
+        t1.append(s1)
+        t2.append(s2)
+    hh = h * h
+    d0, d1 = ([h * x / t for x in row] for row, t in zip(du, t1))
+    s0, s1 = ([hh * (y / (t * t) - x * tt / t ** 3) for x, y in zip(rx, ry)]
+              for rx, ry, t, tt in zip(du, dv, t1, t2))
+    p0, p1 = b[0] + [lam0], b[1] + [lam1]
+    rows = [[] for _ in range(_START_DEGREE + 1)]
+    smooth = h < 0
+    for a0, a1, e0, e1, c0, c1 in zip(p0, p1, d0, d1, s0, s1):
+        e_val = a1 - a0 - e0 - 0.5 * c0
+        e_slope = e1 - e0 - c0
+        e_curv = c1 - c0
+        col = (a0, e0, 0.5 * c0, 10.0 * e_val - 4.0 * e_slope + 0.5 * e_curv,
+               -15.0 * e_val + 7.0 * e_slope - e_curv,
+               6.0 * e_val - 3.0 * e_slope + 0.5 * e_curv)
+        for row, x in zip(rows, col):
+            row.append(x)
+        if not smooth:
+            continue
+        if not all(map(math.isfinite, col)):
+            smooth = False
+            continue
+        # The quintic at the hull points (summed in _hull_points' order) in the hull.
+        lo, hi = (a0, a1) if a0 <= a1 else (a1, a0)
+        tol = 1e-12 * (1.0 + abs(hi))
+        for powers in _HULL_POWERS_LIST:
+            x = powers[0] * col[0]
+            for q in range(1, _START_DEGREE + 1):
+                x += powers[q] * col[q]
+            if not (x >= lo - tol and x <= hi + tol):
+                smooth = False
+                break
+    if not smooth:      # the linear interpolant
+        rows = [p0, [a1 - a0 for a0, a1 in zip(p0, p1)]] + [[0.0] * (n + 1)
+                                                            for _ in range(4)]
+    # Entries constant over the cell (held straight, at contact) stay exactly constant.
+    for col, (a0, a1) in enumerate(zip(p0, p1)):
+        if a0 == a1:
+            for row in rows[1:]:
+                row[col] = 0.0
+    return rows
 
 
 def _check_length(prob: _Problem, length: np.ndarray, skeleton, d):
