@@ -681,29 +681,24 @@ def _cell_polynomial(lam, length, b, derivs, k, lam_c, lam_end, count):
     """
     lam0, lam1 = lam
     h = length[1] - length[0]
-    n = len(k)
     free = [lam0 >= lc and lam1 <= le for lc, le in zip(lam_c, lam_end)]
     du, dv, t1, t2 = [], [], [], []     # per cell end (start, end)
     for bq, lp, lpp, l3 in zip(b, *derivs):
         u_row, v_row = [], []
-        s1 = s2 = 0.0
-        for i in range(n):
-            if free[i]:
-                bi, p, pp, ki = bq[i], lp[i], lpp[i], k[i]
+        # T' and T'' summed in _weighted_rows' order (-0.0 + x is x, bit for bit).
+        s1 = s2 = -0.0
+        for is_free, bi, p, pp, p3, ki, w in zip(free, bq, lp, lpp, l3, k, count):
+            if is_free:
                 lp2 = p * p
-                phi1 = 2.0 * (bi * pp - p) / lp2
-                phi2 = 2.0 * (bi * l3[i] * p - 2.0 * pp * (bi * pp - p)) / (lp2 * p)
+                bend = bi * pp - p
+                phi1 = 2.0 * bend / lp2
+                phi2 = 2.0 * (bi * p3 * p - 2.0 * pp * bend) / (lp2 * p)
                 u = 1.0 / (ki * phi1)
                 v = -ki * phi2 * u ** 3
             else:
                 u = v = 0.0
-            # T' and T'' summed as _weighted_rows does: the first term, then the rest.
-            x1, x2 = u * lp[i] * count[i], (u * u * lpp[i] + v * lp[i]) * count[i]
-            if i:
-                s1 += x1
-                s2 += x2
-            else:
-                s1, s2 = x1, x2
+            s1 += u * p * w
+            s2 += (u * u * pp + v * p) * w
             u_row.append(u)
             v_row.append(v)
         du.append(u_row + [1.0])
@@ -731,18 +726,19 @@ def _cell_polynomial(lam, length, b, derivs, k, lam_c, lam_end, count):
         if not all(map(math.isfinite, col)):
             smooth = False
             continue
-        # The quintic at the hull points (summed in _hull_points' order) in the hull.
+        # The quintic at the hull points (summed in _hull_points' order; the first
+        # power is 1) within the cell's hull.
         lo, hi = (a0, a1) if a0 <= a1 else (a1, a0)
         tol = 1e-12 * (1.0 + abs(hi))
-        for powers in _HULL_POWERS_LIST:
-            x = powers[0] * col[0]
-            for q in range(1, _START_DEGREE + 1):
-                x += powers[q] * col[q]
-            if not (x >= lo - tol and x <= hi + tol):
+        lo, hi = lo - tol, hi + tol
+        q0, q1, q2, q3, q4, q5 = col
+        for _, w1, w2, w3, w4, w5 in _HULL_POWERS_LIST:
+            x = q0 + w1 * q1 + w2 * q2 + w3 * q3 + w4 * q4 + w5 * q5
+            if not lo <= x <= hi:
                 smooth = False
                 break
     if not smooth:      # the linear interpolant
-        rows = [p0, [a1 - a0 for a0, a1 in zip(p0, p1)]] + [[0.0] * (n + 1)
+        rows = [p0, [a1 - a0 for a0, a1 in zip(p0, p1)]] + [[0.0] * len(p0)
                                                             for _ in range(4)]
     # Entries constant over the cell (held straight, at contact) stay exactly constant.
     for col, (a0, a1) in enumerate(zip(p0, p1)):
