@@ -3,7 +3,8 @@
 Owns :class:`_Problem` (everything about one skeleton and threading that does not depend
 on the length: per-segment tensions where branches start and end, and the path table
 :class:`_PathTable`, the exact samples of the whole quasi-static path and its quintic
-start polynomials, built block by block as lengths ask for them), the memoised builders
+start polynomials, built as lengths ask for them: samples block by block, a single
+solve's cell polynomial on its own in plain floats), the memoised builders
 (:func:`_problem`, :func:`_single`, :func:`_single_named`,
 :func:`_threading_cached`), the batch layout of
 problem data (:func:`_stack`) and the length checks that raise the documented errors.
@@ -47,18 +48,21 @@ _BLOCK = 16
 
 class _PathTable:
     """Exact samples of the quasi-static path of one threading and their start
-    polynomials, built block by block on demand.
+    polynomials, built on demand.
 
     The tensions ``lam`` (P,) of every sample are known from the branch profiles; a
     sample's branch magnitudes ``b`` (per distinct segment) and total length cost a
     refinement, and a cell's quintic start polynomial needs its two end samples. A
-    solve asks for its length (:meth:`ensure`), which builds the block of
-    :data:`_BLOCK` cells holding its cell, found from approximate lengths at the block
-    boundaries (:meth:`_guess`, no refinement) and confirmed on the exact ones; a
-    batch builds the rest (:meth:`complete`). Every entry is computed on its own (the
-    refinement, the derivatives and the polynomials are element-wise, the length sums
-    in a fixed order), so a partly built table agrees bit for bit with a full one
-    wherever it is built.
+    single solve asks for its length (:meth:`ensure`), which builds the samples of the
+    block of :data:`_BLOCK` cells holding its cell (numpy, one pass), found from
+    approximate lengths at the block boundaries (:meth:`_guess`, no refinement) and
+    confirmed on the exact ones, and then the polynomial of that one cell
+    (:meth:`_build_cell`, plain floats: a block's polynomials in numpy cost several
+    times more, all call overhead); a batch builds the rest (:meth:`complete`, numpy).
+    Every entry is computed on its own (the refinement, the derivatives and the
+    polynomials are element-wise, the length sums in a fixed order; the float and numpy
+    polynomials do the same operations in the same order), so a partly built table
+    agrees bit for bit with a full one wherever it is built.
 
     ``len`` (P,) and its Python-list copies ``len_list``, ``neg_len_list`` (what the
     solves search) are exact at built samples; a sample not built holds the length of
