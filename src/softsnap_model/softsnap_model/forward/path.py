@@ -296,10 +296,10 @@ def _path_samples(mu, seg, s):
     out = mu <= mu_first
     ends = np.where(out, b_first, b_last)
     out |= mu >= mu_last
-    b = np.fmin(np.fmax(start, b_lo), b_hi)
-    _, lp, lpp = _branch_eval(b, direction, d1, d2, s, seg['pre'])
-    b = np.where(out, ends, np.fmin(np.fmax(b - (2.0 * b + mu * lp) / (2.0 + mu * lpp),
-                                            b_lo), b_hi))
+    b0 = np.fmin(np.fmax(start, b_lo), b_hi)
+    _, lp, lpp = _branch_eval(b0, direction, d1, d2, s, seg['pre'])
+    r0 = 2.0 * b0 + mu * lp
+    b = np.where(out, ends, np.fmin(np.fmax(b0 - r0 / (2.0 + mu * lpp), b_lo), b_hi))
     ev = _path_derivatives(b, direction, d1, d2, s, pre=seg['pre'])
     step = (2.0 * b + mu * ev[1]) / (2.0 + mu * ev[2])
     # The root is inside the cell (mu_lo < mu), never at b_lo: this also turns away
@@ -308,9 +308,19 @@ def _path_samples(mu, seg, s):
     if not ok.all():
         rest = ~ok
         shape = mu.shape
-        sub = tuple(np.broadcast_to(c, shape)[rest] for c in cell)
+        # Most of these start on a table sample, the root to rounding: the refinement
+        # would keep that start after its first evaluation (its residual test, on the
+        # same values as r0 here), so they keep it without the refinement's ~40 numpy
+        # calls. (A zero start is left to the refinement: fmax may change its sign.)
+        kept = rest & (start >= b_lo) & (start <= b_hi) & (start != 0.0) & (
+            np.abs(r0) <= 1e-15 * (2.0 * np.abs(b0) + np.abs(mu * lp)))
+        b[kept] = start[kept]
+        hard = rest & ~kept
+        if hard.any():
+            sub = tuple(np.broadcast_to(c, shape)[hard] for c in cell)
+            dd = [np.broadcast_to(c, shape)[hard] for c in (direction, d1, d2)]
+            b[hard] = _branch_refine(mu[hard], sub, *dd, s, 30, start[hard], _branch_eval)
         dd = [np.broadcast_to(c, shape)[rest] for c in (direction, d1, d2)]
-        b[rest] = _branch_refine(mu[rest], sub, *dd, s, 30, start[rest], _branch_eval)
         for full, part in zip(ev, _path_derivatives(b[rest], *dd, s)):
             full[rest] = part
     return b, ev
