@@ -285,8 +285,10 @@ def _path_samples(mu, seg, s):
     One Newton step from the cubic start of the cell (:func:`.branch._segment_cells`,
     about 1e-10 rad off) lands at rounding level; the evaluation at that point, which the
     table needs anyway, gives the next step, and the entry is kept where that step is at
-    rounding level too. The rest (near a pitchfork, a start outside its cell; a few per
-    table) take the safeguarded refinement. Entries outside a segment's table (straight
+    rounding level too. Of the rest, an entry whose cubic start already is the root to
+    rounding (a start on a table sample) keeps that start, as the refinement would; the
+    others (near a pitchfork, a start outside its cell; a few per hundred tables) take
+    the safeguarded refinement. Entries outside a segment's table (straight
     before buckling, at contact) take its end values. Everything is per entry. Called
     under ``np.errstate(all='ignore')`` (0/0 in cells of zero width, at a pitchfork).
     """
