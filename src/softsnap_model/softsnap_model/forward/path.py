@@ -287,7 +287,7 @@ def _path_samples(mu, seg, s):
     table needs anyway, gives the next step, and the entry is kept where that step is at
     rounding level too. Of the rest, an entry whose cubic start already is the root to
     rounding (a start on a table sample) keeps that start, as the refinement would; the
-    others (near a pitchfork, a start outside its cell; a few per hundred tables) take
+    others (near a pitchfork, a start outside its cell; about one in a hundred 16-cell blocks) take
     the safeguarded refinement. Entries outside a segment's table (straight
     before buckling, at contact) take its end values. Everything is per entry. Called
     under ``np.errstate(all='ignore')`` (0/0 in cells of zero width, at a pitchfork).
