@@ -287,10 +287,11 @@ def _path_samples(mu, seg, s):
     table needs anyway, gives the next step, and the entry is kept where that step is at
     rounding level too. Of the rest, an entry whose cubic start already is the root to
     rounding (a start on a table sample) keeps that start, as the refinement would; the
-    others (near a pitchfork, a start outside its cell; about one in a hundred 16-cell blocks) take
-    the safeguarded refinement. Entries outside a segment's table (straight
-    before buckling, at contact) take its end values. Everything is per entry. Called
-    under ``np.errstate(all='ignore')`` (0/0 in cells of zero width, at a pitchfork).
+    others (near a pitchfork, a start outside its cell; about one 16-cell block in a
+    hundred) take the safeguarded refinement. Entries outside a segment's table
+    (straight before buckling, at contact) take its end values. Everything is per entry.
+    Called under ``np.errstate(all='ignore')`` (0/0 in cells of zero width, at a
+    pitchfork).
     """
     direction, d1, d2 = seg['direction'], seg['d1'], seg['d2']
     start, cell = _segment_cells(mu, seg['tables'])
