@@ -41,7 +41,9 @@ def first_solve_s(mod, threading, length_mm: float) -> float:
     """CPU time (s) of a first solve by the solver module ``mod``, its per-threading
     caches emptied first."""
     for name in THREADING_CACHES:
-        getattr(mod, name).cache_clear()
+        cached = getattr(mod, name, None)     # older revisions lack some of them
+        if cached is not None:
+            cached.cache_clear()
     t0 = time.thread_time()
     mod.solve_forward(SK, threading, length_mm)
     return time.thread_time() - t0
@@ -99,7 +101,8 @@ def main() -> None:
     print(load_line('start'))
     mods = [forward] + ([load_before(args.before)] if args.before else [])
     for mod in mods:
-        mod.clear_caches()
+        if hasattr(mod, 'clear_caches'):
+            mod.clear_caches()
     loop_round(mods, 2)   # imports, pair profiles of the benchmark threadings
     rows = {(kind, m): [] for kind in ('loop', 'random') for m in range(len(mods))}
     for r in range(args.rounds):
