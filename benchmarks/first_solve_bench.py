@@ -14,9 +14,13 @@ gives the two other views a user meets:
   threadings, which still build some, are not counted.
 
 Each figure is the median, 10th and 90th percentile of ``time.thread_time`` per solve,
-repeated ``--rounds`` times (median and range of the round medians). ROS-free.
+repeated ``--rounds`` times (median and range of the round medians). With ``--before
+REV`` the solver of that git revision (forward_bench's ``load_before``) takes turns
+with this one solve by solve, on the same threadings and lengths, and the ratio
+before/now of the round medians is printed. ROS-free.
 
-Usage: .venv/bin/python benchmarks/first_solve_bench.py [--rounds 3] [--random 1500]
+Usage: .venv/bin/python benchmarks/first_solve_bench.py [--rounds 3] [--random 1200]
+       [--before REV]
 """
 from __future__ import annotations
 
@@ -26,45 +30,55 @@ import statistics
 import time
 
 from benchlib import fmt_spread, load_line
-from forward_bench import SK, THREADINGS
+from forward_bench import SK, THREADINGS, load_before
 from softsnap_model import forward
 
 #: The per-threading caches a first solve fills (pair profiles are kept).
 THREADING_CACHES = ('_problem', '_single', '_single_named', '_threading_cached')
 
 
-def forget_threadings() -> None:
+def first_solve_s(mod, threading, length_mm: float) -> float:
+    """CPU time (s) of a first solve by the solver module ``mod``, its per-threading
+    caches emptied first."""
     for name in THREADING_CACHES:
-        getattr(forward, name).cache_clear()
-
-
-def first_solve_s(threading, length_mm: float) -> float:
-    forget_threadings()
+        cached = getattr(mod, name, None)     # older revisions lack some of them
+        if cached is not None:
+            cached.cache_clear()
     t0 = time.thread_time()
-    forward.solve_forward(SK, threading, length_mm)
+    mod.solve_forward(SK, threading, length_mm)
     return time.thread_time() - t0
 
 
-def loop_round(passes: int) -> list[float]:
+def loop_round(mods, passes: int) -> list[list[float]]:
+    """Per module of ``mods``, the times of a loop of first solves (taking turns)."""
     threadings = [text.split() for text in THREADINGS.values()]
-    return [first_solve_s(t, SK.straight_length_mm(t) - 30.0)
-            for _ in range(passes) for t in threadings]
+    out = [[] for _ in mods]
+    for _ in range(passes):
+        for t in threadings:
+            for mod, times in zip(mods, out):
+                times.append(first_solve_s(mod, t, SK.straight_length_mm(t) - 30.0))
+    return out
 
 
-def random_round(count: int, warmup: int, seed: int) -> list[float]:
+def random_round(mods, count: int, warmup: int, seed: int) -> list[list[float]]:
+    """Per module of ``mods``, the times of first solves of random new threadings (the
+    modules take turns on each)."""
     rng = random.Random(seed)
     holes = list(SK.holes_mm)
-    seen, times = set(), []
-    while len(times) < count + warmup:
+    seen, out = set(), [[] for _ in mods]
+    while len(out[0]) < count + warmup:
         t = [rng.choice(holes) for _ in range(SK.n_ribs)]
         if tuple(t) in seen:
             continue
         seen.add(tuple(t))
+        length = SK.straight_length_mm(t) - rng.uniform(5.0, 40.0)
         try:
-            times.append(first_solve_s(t, SK.straight_length_mm(t) - rng.uniform(5.0, 40.0)))
+            times = [first_solve_s(mod, t, length) for mod in mods]
         except forward.InfeasibleLengthError:
             continue    # a contraction this threading cannot reach: drawn again, not timed
-    return times[warmup:]
+        for kept, dt in zip(out, times):
+            kept.append(dt)
+    return [times[warmup:] for times in out]
 
 
 def summary(times: list[float]) -> tuple[float, float, float]:
@@ -81,21 +95,32 @@ def main() -> None:
                         help='random new threadings timed per round')
     parser.add_argument('--warmup', type=int, default=300,
                         help='random threadings solved first, not timed (pair profiles)')
+    parser.add_argument('--before', metavar='REV',
+                        help='also time the solver of this git revision, solve by solve')
     args = parser.parse_args()
     print(load_line('start'))
-    forward.clear_caches()
-    loop_round(2)   # imports, pair profiles of the benchmark threadings
-    rows = {'loop': [], 'random': []}
+    mods = [forward] + ([load_before(args.before)] if args.before else [])
+    for mod in mods:
+        if hasattr(mod, 'clear_caches'):
+            mod.clear_caches()
+    loop_round(mods, 2)   # imports, pair profiles of the benchmark threadings
+    rows = {(kind, m): [] for kind in ('loop', 'random') for m in range(len(mods))}
     for r in range(args.rounds):
-        rows['loop'].append(summary(loop_round(args.passes)))
-        rows['random'].append(summary(random_round(args.random, args.warmup, seed=r)))
+        for kind, times in (('loop', loop_round(mods, args.passes)),
+                            ('random', random_round(mods, args.random, args.warmup, seed=r))):
+            for m, values in enumerate(times):
+                rows[kind, m].append(summary(values))
     print('first solve of a threading, ms of CPU; median (range) over rounds of the '
           'per-round median, 10th and 90th percentile (target <= 1 ms):')
-    for name, label in (('loop', f'loop over the {len(THREADINGS)} benchmark threadings'),
+    for kind, label in (('loop', f'loop over the {len(THREADINGS)} benchmark threadings'),
                         ('random', 'random new 12-rib threadings')):
-        med, p10, p90 = zip(*rows[name])
-        print(f'  {label}: median {fmt_spread(med, 1e3, 2)}, p10 {fmt_spread(p10, 1e3, 2)}, '
-              f'p90 {fmt_spread(p90, 1e3, 2)}')
+        for m, who in enumerate(['now'] + [args.before] * (len(mods) - 1)):
+            med, p10, p90 = zip(*rows[kind, m])
+            print(f'  {label} ({who}): median {fmt_spread(med, 1e3, 2)}, '
+                  f'p10 {fmt_spread(p10, 1e3, 2)}, p90 {fmt_spread(p90, 1e3, 2)}')
+        if args.before:
+            ratio = [b[0] / n[0] for b, n in zip(rows[kind, 1], rows[kind, 0])]
+            print(f'    ratio of the medians, {args.before}/now: {fmt_spread(ratio, 1, 2)}x')
     print(load_line('end'))
 
 

@@ -145,3 +145,31 @@ def test_loop_over_every_7_rib_threading_builds_each_table_once_and_stays_small(
     nbytes = max(sum(a.nbytes for a in (tb.len, tb._exact, tb.b, tb._derivs, tb.poly))
                  for tb in tables)
     assert nbytes <= 0.35e6, nbytes
+
+
+def test_a_cells_float_polynomial_is_the_numpy_tables_bit_for_bit():
+    # A single solve builds its cell's start polynomial in plain floats
+    # (path._cell_polynomial), a batch the whole table's in numpy: every cell of whole
+    # tables, built both ways, over random 12-rib threadings and the paper's.
+    rng = np.random.default_rng(17)
+    holes = list(SKELETONS[0].holes_mm)
+    threadings = THREADINGS[:9] + [list(rng.choice(holes, 12)) for _ in range(12)]
+    n_cells = n_numpy = 0
+    for i, t in enumerate(threadings):
+        sk = SKELETONS[i % 2]
+        forget_tables()
+        table = fwd._problem(sk, key(sk, t)).path.complete()
+        for j in range(table.n_cells):
+            at = slice(j, j + 2)
+            try:
+                rows = fpath._cell_polynomial(
+                    table.lam[at].tolist(), table._exact[at].tolist(), table.b[at].tolist(),
+                    table._derivs[:, at].tolist(), *table._seg_lists)
+            except ArithmeticError:     # built by numpy then (a zero denominator)
+                n_numpy += 1
+                continue
+            assert np.array_equal(np.array(rows), table.poly[j], equal_nan=True), (t, j)
+            # The sign of a zero too (the stored bits).
+            assert np.array_equal(np.signbit(rows), np.signbit(table.poly[j])), (t, j)
+            n_cells += 1
+    assert n_cells > 9000 and n_numpy < 0.02 * n_cells

@@ -3,7 +3,8 @@
 Owns :class:`_Problem` (everything about one skeleton and threading that does not depend
 on the length: per-segment tensions where branches start and end, and the path table
 :class:`_PathTable`, the exact samples of the whole quasi-static path and its quintic
-start polynomials, built block by block as lengths ask for them), the memoised builders
+start polynomials, built as lengths ask for them: samples block by block, a single
+solve's cell polynomial on its own in plain floats), the memoised builders
 (:func:`_problem`, :func:`_single`, :func:`_single_named`,
 :func:`_threading_cached`), the batch layout of
 problem data (:func:`_stack`) and the length checks that raise the documented errors.
@@ -47,18 +48,21 @@ _BLOCK = 16
 
 class _PathTable:
     """Exact samples of the quasi-static path of one threading and their start
-    polynomials, built block by block on demand.
+    polynomials, built on demand.
 
     The tensions ``lam`` (P,) of every sample are known from the branch profiles; a
     sample's branch magnitudes ``b`` (per distinct segment) and total length cost a
     refinement, and a cell's quintic start polynomial needs its two end samples. A
-    solve asks for its length (:meth:`ensure`), which builds the block of
-    :data:`_BLOCK` cells holding its cell, found from approximate lengths at the block
-    boundaries (:meth:`_guess`, no refinement) and confirmed on the exact ones; a
-    batch builds the rest (:meth:`complete`). Every entry is computed on its own (the
-    refinement, the derivatives and the polynomials are element-wise, the length sums
-    in a fixed order), so a partly built table agrees bit for bit with a full one
-    wherever it is built.
+    single solve asks for its length (:meth:`ensure`), which builds the samples of the
+    block of :data:`_BLOCK` cells holding its cell (numpy, one pass), found from
+    approximate lengths at the block boundaries (:meth:`_guess`, no refinement) and
+    confirmed on the exact ones, and then the polynomial of that one cell
+    (:meth:`_build_cell`, plain floats: a block's polynomials in numpy cost several
+    times more, all call overhead); a batch builds the rest (:meth:`complete`, numpy).
+    Every entry is computed on its own (the refinement, the derivatives and the
+    polynomials are element-wise, the length sums in a fixed order; the float and numpy
+    polynomials do the same operations in the same order), so a partly built table
+    agrees bit for bit with a full one wherever it is built.
 
     ``len`` (P,) and its Python-list copies ``len_list``, ``neg_len_list`` (what the
     solves search) are exact at built samples; a sample not built holds the length of
@@ -98,6 +102,8 @@ class _PathTable:
         self.len_list = [math.inf] * n_samples
         self.neg_len_list = [-math.inf] * n_samples
         self.complete_ = False
+        # What a single cell's polynomial reads of the segments (_build_cell).
+        self._seg_lists = [seg[name].tolist() for name in ('k', 'lam_c', 'lam_end', 'count')]
         self._unpublished = False   # built samples not yet in the searchable lengths
         self._lock = threading.RLock()
 
@@ -112,9 +118,15 @@ class _PathTable:
         # One errstate for the whole build (the path arithmetic divides 0 by 0 where a
         # cell has zero width or nothing moves; those entries are handled).
         with self._lock, np.errstate(all='ignore'):
+            if self._unpublished:
+                self._publish()     # every built sample searchable (length_at_tension)
             for _ in range(4):
                 j = min(max(bisect.bisect_left(self.neg_len_list, -length), 1), self.n_cells)
                 if self._cell_built[j - 1]:
+                    return
+                if self._built[j - 1] and self._built[j]:
+                    # Both ends exact: the full table's cell. Its polynomial alone.
+                    self._build_cell(j - 1)
                     return
                 # Sample j is built (or this is the first build); the exact cell is
                 # after the last built sample before it: cells p .. j - 1.
@@ -123,6 +135,8 @@ class _PathTable:
                 if len(blocks) > 2:
                     blocks = self._guess(length, blocks)
                 self._build_blocks(blocks)
+                if self.complete_:
+                    return
             self._complete()    # not reached: a guess is off by one block at most
 
     def _guess(self, length, blocks):
@@ -144,7 +158,8 @@ class _PathTable:
         return range(blocks[0] + int(hit[0]), blocks[0] + int(hit[-1]) + 1)
 
     def _build_blocks(self, blocks):
-        """Samples and cells of ``blocks`` (consecutive), in one pass."""
+        """The samples of ``blocks`` (consecutive), in one pass, made searchable (the
+        cells' polynomials are built one by one, :meth:`_build_cell`)."""
         first = blocks[0] * _BLOCK
         last = min((blocks[-1] + 1) * _BLOCK, self.n_cells)
         self._build_samples(np.arange(first, last + 1))
@@ -152,14 +167,21 @@ class _PathTable:
         if (built[1:] > built[:-1]).any():
             self._complete()
             return
-        self._build_cells(first, last)
-        # Lists first, then the flags: a solve that sees a cell built without the lock
-        # (ensure's fast path) must find the exact lengths when it searches.
-        if self._unpublished:
-            self._publish()
-        else:
-            self._publish_block(first, last)
-        self._cell_built[first:last] = [True] * (last - first)
+        self._publish_block(first, last)
+
+    def _build_cell(self, j):
+        """The start polynomial of cell ``j`` (both its samples built), in plain floats
+        (:func:`_cell_polynomial`; by :func:`_path_polynomials` where that divides by
+        zero). The row first, then the flag: a solve that sees the cell built without
+        the lock (ensure's fast path) reads it."""
+        at = slice(j, j + 2)
+        try:
+            self.poly[j] = _cell_polynomial(
+                self.lam[at].tolist(), self._exact[at].tolist(), self.b[at].tolist(),
+                self._derivs[:, at].tolist(), *self._seg_lists)
+        except ArithmeticError:
+            self._build_cells(j, j + 1)
+        self._cell_built[j] = True
 
     def _publish(self):
         """Searchable lengths from the built samples (in place: the single-solve layout
@@ -263,10 +285,13 @@ def _path_samples(mu, seg, s):
     One Newton step from the cubic start of the cell (:func:`.branch._segment_cells`,
     about 1e-10 rad off) lands at rounding level; the evaluation at that point, which the
     table needs anyway, gives the next step, and the entry is kept where that step is at
-    rounding level too. The rest (near a pitchfork, a start outside its cell; a few per
-    table) take the safeguarded refinement. Entries outside a segment's table (straight
-    before buckling, at contact) take its end values. Everything is per entry. Called
-    under ``np.errstate(all='ignore')`` (0/0 in cells of zero width, at a pitchfork).
+    rounding level too. Of the rest, an entry whose cubic start already is the root to
+    rounding (a start on a table sample) keeps that start, as the refinement would; the
+    others (near a pitchfork, a start outside its cell; about one 16-cell block in a
+    hundred) take the safeguarded refinement. Entries outside a segment's table
+    (straight before buckling, at contact) take its end values. Everything is per entry.
+    Called under ``np.errstate(all='ignore')`` (0/0 in cells of zero width, at a
+    pitchfork).
     """
     direction, d1, d2 = seg['direction'], seg['d1'], seg['d2']
     start, cell = _segment_cells(mu, seg['tables'])
@@ -274,10 +299,10 @@ def _path_samples(mu, seg, s):
     out = mu <= mu_first
     ends = np.where(out, b_first, b_last)
     out |= mu >= mu_last
-    b = np.fmin(np.fmax(start, b_lo), b_hi)
-    _, lp, lpp = _branch_eval(b, direction, d1, d2, s, seg['pre'])
-    b = np.where(out, ends, np.fmin(np.fmax(b - (2.0 * b + mu * lp) / (2.0 + mu * lpp),
-                                            b_lo), b_hi))
+    b0 = np.fmin(np.fmax(start, b_lo), b_hi)
+    _, lp, lpp = _branch_eval(b0, direction, d1, d2, s, seg['pre'])
+    r0 = 2.0 * b0 + mu * lp
+    b = np.where(out, ends, np.fmin(np.fmax(b0 - r0 / (2.0 + mu * lpp), b_lo), b_hi))
     ev = _path_derivatives(b, direction, d1, d2, s, pre=seg['pre'])
     step = (2.0 * b + mu * ev[1]) / (2.0 + mu * ev[2])
     # The root is inside the cell (mu_lo < mu), never at b_lo: this also turns away
@@ -286,9 +311,19 @@ def _path_samples(mu, seg, s):
     if not ok.all():
         rest = ~ok
         shape = mu.shape
-        sub = tuple(np.broadcast_to(c, shape)[rest] for c in cell)
+        # Most of these start on a table sample, the root to rounding: the refinement
+        # would keep that start after its first evaluation (its residual test, on the
+        # same values as r0 here), so they keep it without the refinement's ~40 numpy
+        # calls. (A zero start is left to the refinement: fmax may change its sign.)
+        kept = rest & (start >= b_lo) & (start <= b_hi) & (start != 0.0) & (
+            np.abs(r0) <= 1e-15 * (2.0 * np.abs(b0) + np.abs(mu * lp)))
+        b[kept] = start[kept]
+        hard = rest & ~kept
+        if hard.any():
+            sub = tuple(np.broadcast_to(c, shape)[hard] for c in cell)
+            dd = [np.broadcast_to(c, shape)[hard] for c in (direction, d1, d2)]
+            b[hard] = _branch_refine(mu[hard], sub, *dd, s, 30, start[hard], _branch_eval)
         dd = [np.broadcast_to(c, shape)[rest] for c in (direction, d1, d2)]
-        b[rest] = _branch_refine(mu[rest], sub, *dd, s, 30, start[rest], _branch_eval)
         for full, part in zip(ev, _path_derivatives(b[rest], *dd, s)):
             full[rest] = part
     return b, ev
@@ -560,6 +595,18 @@ def _cell_ends(n_cells):
 
 # Powers of the interior points t = 1/4, 1/2, 3/4 where the start polynomials are checked.
 _HULL_POWERS = np.array([0.25, 0.5, 0.75])[:, None] ** np.arange(_START_DEGREE + 1)
+_HULL_POWERS_LIST = _HULL_POWERS.tolist()
+
+
+def _hull_points(c):
+    """(P-1, 3, n+1) values of the polynomials ``c`` (P-1, 6, n+1) at the points of
+    :data:`_HULL_POWERS`, summed term by term in a fixed order (``c_0 + t c_1 + ...``;
+    a matrix product may round differently), as :func:`_cell_polynomial` sums them."""
+    terms = _HULL_POWERS[:, :, None] * c[:, None]       # (P-1, 3, 6, n+1)
+    inner = terms[:, :, 0].copy()
+    for p in range(1, _START_DEGREE + 1):
+        inner += terms[:, :, p]
+    return inner
 
 
 def _path_polynomials(lam, length, b, lp, lpp, l3, k, lam_c, lam_end, count):
@@ -621,7 +668,7 @@ def _path_polynomials(lam, length, b, lp, lpp, l3, k, lam_c, lam_end, count):
     c[:, 4] = -15.0 * e_val + 7.0 * e_slope - e_curv
     c[:, 5] = 6.0 * e_val - 3.0 * e_slope + 0.5 * e_curv
     # Check the quintic on a few interior points: it must stay in the cell's hull.
-    inner = np.matmul(_HULL_POWERS, c)                      # (P-1, 3, n+1)
+    inner = _hull_points(c)                                 # (P-1, 3, n+1)
     lo, hi = np.minimum(p0, p1)[:, None], np.maximum(p0, p1)[:, None]
     tol = 1e-12 * (1.0 + np.abs(hi))
     smooth = (np.isfinite(c).all(axis=(1, 2)) & (h[:, 0] < 0)
@@ -633,6 +680,89 @@ def _path_polynomials(lam, length, b, lp, lpp, l3, k, lam_c, lam_end, count):
     # Entries constant over a cell (held straight, at contact) stay exactly constant.
     np.copyto(c[:, 1:], 0.0, where=(p0 == p1)[:, None, :])
     return c
+
+
+def _cell_polynomial(lam, length, b, derivs, k, lam_c, lam_end, count):
+    """:func:`_path_polynomials` of one cell in plain Python floats (lists): the one
+    cell a single solve reads of its table block, at a fraction of the cost of the
+    numpy version on the whole block (~60 calls on small arrays: overhead, not
+    arithmetic). The numpy version stays for whole tables (a batch's ~500 cells).
+
+    ``lam``, ``length`` hold the cell's two samples, ``b`` and ``derivs`` (the rows of
+    ``l'``, ``l''``, ``l'''``, each laid out as ``b``) their values for the U distinct
+    segments; ``k``, ``lam_c``, ``lam_end``, ``count`` are lists of U. The same
+    operations in the same order as :func:`_path_polynomials`, so the same bits
+    (test_forward_lazy_table.py compares the two over whole tables). Returns the
+    (6, U+1) rows as lists. Raises ZeroDivisionError or OverflowError where numpy
+    would divide by zero or overflow (such a cell is built by :func:`_path_polynomials`).
+    """
+    lam0, lam1 = lam
+    h = length[1] - length[0]
+    free = [lam0 >= lc and lam1 <= le for lc, le in zip(lam_c, lam_end)]
+    du, dv, t1, t2 = [], [], [], []     # per cell end (start, end)
+    for bq, lp, lpp, l3 in zip(b, *derivs):
+        u_row, v_row = [], []
+        # T' and T'' summed in _weighted_rows' order (-0.0 + x is x, bit for bit).
+        s1 = s2 = -0.0
+        for is_free, bi, p, pp, p3, ki, w in zip(free, bq, lp, lpp, l3, k, count):
+            if is_free:
+                lp2 = p * p
+                bend = bi * pp - p
+                phi1 = 2.0 * bend / lp2
+                phi2 = 2.0 * (bi * p3 * p - 2.0 * pp * bend) / (lp2 * p)
+                u = 1.0 / (ki * phi1)
+                v = -ki * phi2 * u ** 3
+            else:
+                u = v = 0.0
+            s1 += u * p * w
+            s2 += (u * u * pp + v * p) * w
+            u_row.append(u)
+            v_row.append(v)
+        du.append(u_row + [1.0])
+        dv.append(v_row + [0.0])
+        t1.append(s1)
+        t2.append(s2)
+    hh = h * h
+    d0, d1 = ([h * x / t for x in row] for row, t in zip(du, t1))
+    s0, s1 = ([hh * (y / (t * t) - x * tt / t ** 3) for x, y in zip(rx, ry)]
+              for rx, ry, t, tt in zip(du, dv, t1, t2))
+    p0, p1 = b[0] + [lam0], b[1] + [lam1]
+    rows = [[] for _ in range(_START_DEGREE + 1)]
+    smooth = h < 0
+    for a0, a1, e0, e1, c0, c1 in zip(p0, p1, d0, d1, s0, s1):
+        e_val = a1 - a0 - e0 - 0.5 * c0
+        e_slope = e1 - e0 - c0
+        e_curv = c1 - c0
+        col = (a0, e0, 0.5 * c0, 10.0 * e_val - 4.0 * e_slope + 0.5 * e_curv,
+               -15.0 * e_val + 7.0 * e_slope - e_curv,
+               6.0 * e_val - 3.0 * e_slope + 0.5 * e_curv)
+        for row, x in zip(rows, col):
+            row.append(x)
+        if not smooth:
+            continue
+        if not all(map(math.isfinite, col)):
+            smooth = False
+            continue
+        # The quintic at the hull points (summed in _hull_points' order; the first
+        # power is 1) within the cell's hull.
+        lo, hi = (a0, a1) if a0 <= a1 else (a1, a0)
+        tol = 1e-12 * (1.0 + abs(hi))
+        lo, hi = lo - tol, hi + tol
+        q0, q1, q2, q3, q4, q5 = col
+        for _, w1, w2, w3, w4, w5 in _HULL_POWERS_LIST:
+            x = q0 + w1 * q1 + w2 * q2 + w3 * q3 + w4 * q4 + w5 * q5
+            if not lo <= x <= hi:
+                smooth = False
+                break
+    if not smooth:      # the linear interpolant
+        rows = [p0, [a1 - a0 for a0, a1 in zip(p0, p1)]] + [[0.0] * len(p0)
+                                                            for _ in range(4)]
+    # Entries constant over the cell (held straight, at contact) stay exactly constant.
+    for col, (a0, a1) in enumerate(zip(p0, p1)):
+        if a0 == a1:
+            for row in rows[1:]:
+                row[col] = 0.0
+    return rows
 
 
 def _check_length(prob: _Problem, length: np.ndarray, skeleton, d):
