@@ -434,8 +434,6 @@ class DriverNode(SoftSnapNode):
     # -- ROS outputs (called from the link's worker thread) ----------------------------
     def report_callback(self, report: LinkReport) -> None:
         self._latest_report = report
-        if not self.context.ok():
-            return
         c = report.counters
         status = report.status
         # Published at the poll rate, however many commands the link sends (each reply
@@ -446,6 +444,10 @@ class DriverNode(SoftSnapNode):
                   c.reboots_detected, c.stale_stops, c.stalls_detected, c.internal_errors,
                   c.stops_unconfirmed, report.last_error, report.last_error_stamp)
         if report.stamp < self._publish_due and events == self._published_events:
+            return
+        # Asked only before a publish (rclpy takes a lock for it): most reports publish
+        # nothing, and a shut-down context publishes nothing and changes no state here.
+        if not self.context.ok():
             return
         # Due again a little before the next poll's report: jitter must not skip a poll.
         self._publish_due = report.stamp + 0.9 * self.link.config.poll_period_s
