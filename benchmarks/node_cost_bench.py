@@ -20,6 +20,8 @@ measuring window after a warm-up. Cases:
   node's CPU and its CPU per length, and whether it served them all within one core.
 - ``driver``: driver_node polling a simulated module at 10 Hz and taking 50 Hz commands
   (a new length each time), the simulated module in a separate process.
+- ``driver_idle``: the same driver_node with no commands, polling its module at 10 Hz
+  (what a driver costs while the robot stands).
 - ``drivers5`` and ``container5``: five modules driven like ``driver`` (one process
   serving the five simulated modules, one publishing the five command streams, as the
   gait does), by five ``driver_node`` processes or by one ``driver_container`` process;
@@ -74,7 +76,8 @@ MAIN = {  # node -> (module with main(), what main needs in argv)
 }
 #: The container's source in a checkout (revisions before it have none).
 CONTAINER_SOURCE = 'src/softsnap_driver/softsnap_driver/driver_container.py'
-CASES = ('baseline', 'model5', 'model_idle', 'model50', 'driver', 'drivers5', 'container5', 'rerun')
+CASES = ('baseline', 'model5', 'model_idle', 'model50', 'driver', 'driver_idle', 'drivers5',
+         'container5', 'rerun')
 
 BASELINE_NODE = '''
 import rclpy
@@ -444,9 +447,10 @@ DRIVER_PARAMS = ['-p', 'counts_per_mm:=89.13', '-p', 'straight_length_m:=0.198',
 
 
 def case_driver(code_dir, work: Path, warmup, seconds, modules: int = 1,
-                container: bool = False):
+                container: bool = False, commands: bool = True):
     """``modules`` simulated modules (one process) driven by one driver_node process
-    each, or by one driver_container process; CPU summed over the driver processes."""
+    each, or by one driver_container process; CPU summed over the driver processes.
+    Without ``commands`` no command publisher runs (the drivers only poll)."""
     log = work / 'driver.log'
     procs = [start(run_child('sim', str(modules)), None, work / 'sim.log')]
     try:
@@ -468,6 +472,9 @@ def case_driver(code_dir, work: Path, warmup, seconds, modules: int = 1,
         procs += drivers
         procs.append(start(run_child('listen', 'drivers5' if modules > 1 else 'driver',
                                      str(work / 'counters')), None, work / 'listen.log'))
+        if not commands:   # working once its state arrives
+            return measure(drivers, warmup, seconds, log, work / 'counters',
+                           lambda: 'commands' in read_counters(work / 'counters'))
         procs.append(start(run_child('commands', '50', '0.198', str(modules)), None,
                            work / 'commands.log'))
         return measure(drivers, warmup, seconds, log, work / 'counters',
@@ -608,6 +615,8 @@ def main() -> int:
                                      args.length_publishers)
                 elif case == 'driver':
                     cpu = case_driver(code_dir, run_dir, w, s)
+                elif case == 'driver_idle':
+                    cpu = case_driver(code_dir, run_dir, w, s, commands=False)
                 elif case in ('drivers5', 'container5'):
                     cpu = case_driver(code_dir, run_dir, w, s, 5, case == 'container5')
                 else:
@@ -622,12 +631,13 @@ def main() -> int:
                       flush=True)
 
     per_module = {'baseline': 1, 'model5': 5, 'model_idle': 5, 'model50': 50, 'driver': 1,
-                  'drivers5': 5, 'container5': 5, 'rerun': 5}
+                  'driver_idle': 1, 'drivers5': 5, 'container5': 5, 'rerun': 5}
     what = {'baseline': 'idle rclpy node, 100 Hz empty timer',
             'model5': 'model_node, 5 modules, 100 Hz, all lengths changing',
             'model_idle': 'model_node, 5 modules, 100 Hz, no lengths (idle)',
             'model50': 'model_node, 50 modules, 100 Hz, all lengths changing',
             'driver': 'driver_node, 10 Hz polls + 50 Hz commands',
+            'driver_idle': 'driver_node, 10 Hz polls, no commands',
             'drivers5': '5 driver_node processes, each as driver',
             'container5': '1 driver_container process, 5 modules, each as driver',
             'rerun': 'rerun_logger, 5 modules at 50 Hz'}

@@ -116,8 +116,12 @@ PARAMETERS = {
 }
 
 
-#: Longest the command thread blocks in one wait (s): it notices a stop this fast.
+#: How long a stop waits for the command thread to end (s); a stop wakes it at once.
 COMMAND_WAIT_S = 0.05
+#: Longest the command thread blocks in one wait with no command arriving (s): a safety
+#: net only, since a stop, a new or closed route and the context's shutdown each wake it
+#: through its guard condition (it woke 20 times a second, idle, before).
+COMMAND_IDLE_WAIT_S = 1.0
 
 
 #: Largest second a builtin_interfaces/Time holds (int32).
@@ -173,6 +177,9 @@ class CommandInbox:
     skipped; the other routes are not disturbed. The thread never dies silently: an
     unexpected error is logged (throttled) and the loop goes on; it ends on :meth:`stop`
     or when the context shuts down.
+
+    Between commands the thread sleeps in ``rcl_wait``; a guard condition in the same
+    wait set wakes it for a stop, a route added or closed, and the context's shutdown.
     """
 
     def __init__(self, node: Node):
@@ -180,6 +187,8 @@ class CommandInbox:
         self._lock = threading.Lock()       # guards _routes and every route's ``open``
         self._routes: tuple[_Route, ...] = ()
         self._stop = threading.Event()
+        self._guard = _rclpy.GuardCondition(node.context.handle)
+        node.context.on_shutdown(self._wake)   # kept as a weak reference by rclpy
         self._thread = threading.Thread(target=self._run, name='commands', daemon=True)
         self._thread.start()
 
@@ -190,6 +199,7 @@ class CommandInbox:
                                                       depth), handle, logger)
         with self._lock:
             self._routes = (*self._routes, route)
+        self._wake()
         return route
 
     def close(self, route: _Route) -> None:
@@ -198,10 +208,18 @@ class CommandInbox:
         with self._lock:
             route.open = False
             self._routes = tuple(r for r in self._routes if r is not route)
+        self._wake()
+
+    def _wake(self) -> None:
+        """End the thread's current wait (it then looks at its routes and the stop)."""
+        try:
+            self._guard.trigger_guard_condition()
+        except Exception:  # noqa: BLE001 - destroyed with the thread's end: nothing waits
+            pass
 
     def _run(self) -> None:
         context = self._node.context
-        timeout_ns = int(COMMAND_WAIT_S * 1e9)
+        timeout_ns = int(COMMAND_IDLE_WAIT_S * 1e9)
         routes: tuple[_Route, ...] = ()
         handles = ()
         by_pointer: dict[int, _Route] = {}
@@ -209,7 +227,8 @@ class CommandInbox:
         # Every subscription taken from is held (``__enter__``) until the thread ends:
         # destroying the inbox node while a wait is in progress is then deferred by
         # rclpy until the thread lets go.
-        held = []
+        held = [self._guard]
+        self._guard.__enter__()
         try:
             while not self._stop.is_set():
                 try:
@@ -223,7 +242,7 @@ class CommandInbox:
                                 handle.__enter__()
                                 held.append(handle)
                         new_by_pointer = {route.rcl.pointer: route for route in new_routes}
-                        new_wait_set = (_rclpy.WaitSet(len(new_routes), 0, 0, 0, 0, 0,
+                        new_wait_set = (_rclpy.WaitSet(len(new_routes), 1, 0, 0, 0, 0,
                                                        context.handle) if new_routes else None)
                         routes, handles, by_pointer, wait_set = (
                             new_routes, new_handles, new_by_pointer, new_wait_set)
@@ -236,6 +255,7 @@ class CommandInbox:
                     wait_set.clear_entities()
                     for handle in handles:
                         wait_set.add_subscription(handle)
+                    wait_set.add_guard_condition(self._guard)
                     wait_set.wait(timeout_ns)
                     ready = wait_set.get_ready_entities('subscription')
                     # The context is asked only after a wake without a message (rclpy
@@ -268,6 +288,10 @@ class CommandInbox:
         finally:
             for handle in held:
                 handle.__exit__(None, None, None)
+            # Both hold the rcl context: left alive, they would keep it from being finalised.
+            for entity in (wait_set, self._guard):
+                if entity is not None:
+                    entity.destroy_when_not_in_use()
 
     def _deliver(self, route: _Route, raw: bytes) -> None:
         try:
@@ -288,6 +312,7 @@ class CommandInbox:
 
     def stop(self, timeout: float) -> None:
         self._stop.set()
+        self._wake()
         self._thread.join(timeout)
 
 
@@ -434,8 +459,6 @@ class DriverNode(SoftSnapNode):
     # -- ROS outputs (called from the link's worker thread) ----------------------------
     def report_callback(self, report: LinkReport) -> None:
         self._latest_report = report
-        if not self.context.ok():
-            return
         c = report.counters
         status = report.status
         # Published at the poll rate, however many commands the link sends (each reply
@@ -446,6 +469,10 @@ class DriverNode(SoftSnapNode):
                   c.reboots_detected, c.stale_stops, c.stalls_detected, c.internal_errors,
                   c.stops_unconfirmed, report.last_error, report.last_error_stamp)
         if report.stamp < self._publish_due and events == self._published_events:
+            return
+        # Asked only before a publish (rclpy takes a lock for it): most reports publish
+        # nothing, and a shut-down context publishes nothing and changes no state here.
+        if not self.context.ok():
             return
         # Due again a little before the next poll's report: jitter must not skip a poll.
         self._publish_due = report.stamp + 0.9 * self.link.config.poll_period_s

@@ -464,23 +464,23 @@ class ModuleClient:
     def _exchange(self, payload: bytes, timeout_s: float | None = None) -> bytes:
         timeout = self.timeout_s if timeout_s is None else min(max(timeout_s, 1e-3), self.timeout_s)
         deadline = time.monotonic() + timeout
-        where = f'{self.host}:{self.port}'
         try:
             sock = self._connect(timeout)
         except ConnectionRefusedError as exc:
-            raise ModuleConnectionError(f'{where} refused the connection') from exc
+            raise ModuleConnectionError(f'{self._where()} refused the connection') from exc
         except (socket.timeout, TimeoutError) as exc:
-            raise ModuleTimeout(f'{where}: no connection within {timeout:.3g} s') from exc
+            raise ModuleTimeout(f'{self._where()}: no connection within {timeout:.3g} s') from exc
         except OSError as exc:
-            raise ModuleConnectionError(f'{where}: {exc.strerror or exc}') from exc
+            raise ModuleConnectionError(f'{self._where()}: {exc.strerror or exc}') from exc
         chunks: list[bytes] = []
         size = 0
         try:
             with sock:
-                sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-                sock.settimeout(max(deadline - time.monotonic(), 1e-3))
+                # The request is one small write on a fresh connection: Nagle's algorithm
+                # never holds it back, and the connect's timeout still bounds it.
                 sock.sendall(payload)
-                # The firmware closes the connection after its reply: read until EOF.
+                # The firmware closes the connection after its reply: read until EOF. A
+                # reply (~1.2 kB) comes whole in one read, then the EOF.
                 while True:
                     remaining = deadline - time.monotonic()
                     if remaining <= 0:
@@ -492,14 +492,18 @@ class ModuleClient:
                     chunks.append(chunk)
                     size += len(chunk)
                     if size > MAX_REPLY_BYTES:
-                        raise MalformedReply(f'{where}: reply exceeds {MAX_REPLY_BYTES} bytes')
+                        raise MalformedReply(f'{self._where()}: reply exceeds {MAX_REPLY_BYTES} bytes')
         except (socket.timeout, TimeoutError) as exc:
-            raise ModuleTimeout(f'{where}: no complete reply within {timeout:.3g} s') from exc
+            raise ModuleTimeout(f'{self._where()}: no complete reply within {timeout:.3g} s') from exc
         except OSError as exc:
             if size:
                 # A reset after a complete reply is still a reply; parse what came.
                 return b''.join(chunks)
-            raise ModuleConnectionError(f'{where}: {exc.strerror or exc}') from exc
+            raise ModuleConnectionError(f'{self._where()}: {exc.strerror or exc}') from exc
         if not size:
-            raise ModuleConnectionError(f'{where} closed the connection without a reply')
-        return b''.join(chunks)
+            raise ModuleConnectionError(f'{self._where()} closed the connection without a reply')
+        return chunks[0] if len(chunks) == 1 else b''.join(chunks)
+
+    def _where(self) -> str:
+        """``host:port`` for error messages (built only when one is raised)."""
+        return f'{self.host}:{self.port}'

@@ -1,0 +1,74 @@
+"""The command thread (CommandInbox) in the test process, over real DDS.
+
+Between commands it sleeps in rcl_wait for up to COMMAND_IDLE_WAIT_S; a stop and the
+context's shutdown wake it at once through its guard condition. Here the idle wait is
+made a minute long, so a thread that was not woken would outlive the generous joins.
+"""
+from __future__ import annotations
+
+import time
+
+import pytest
+
+rclpy = pytest.importorskip('rclpy')
+
+from softsnap_interfaces.msg import CableLength  # noqa: E402
+
+from softsnap_driver import driver_node  # noqa: E402
+from softsnap_driver.driver_node import CommandInbox, inbox_node  # noqa: E402
+
+NS = '/inbox_test'
+
+
+def _inbox_delivering(context, name: str):
+    """An inbox on a node of its own in ``context``, one route, and a publisher on that
+    route's topic; returns (inbox node, inbox, publisher node, publisher, delivered)."""
+    node = inbox_node(f'{name}_inbox', NS, context)
+    inbox = CommandInbox(node)
+    delivered = []
+    inbox.subscribe('m1/cable_length/command', 10,
+                    lambda length_m, stamp_ns: delivered.append((length_m, stamp_ns)),
+                    node.get_logger())
+    sender = rclpy.create_node(f'{name}_sender', namespace=NS, context=context)
+    publisher = sender.create_publisher(CableLength, 'm1/cable_length/command', 10)
+    return node, inbox, sender, publisher, delivered
+
+
+def _deliver_one(publisher, delivered, length_m: float, timeout_s: float = 30.0) -> None:
+    """Publish ``length_m`` until the inbox has delivered it (discovery takes a while)."""
+    msg = CableLength(cable_length=length_m)
+    msg.header.stamp.sec, msg.header.stamp.nanosec = 7, 8
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline and not delivered:
+        publisher.publish(msg)
+        time.sleep(0.1)
+    assert delivered, 'no command delivered within 30 s'
+    assert delivered[0] == (pytest.approx(length_m), 7_000_000_008)
+
+
+def test_a_stop_wakes_the_sleeping_command_thread_at_once(monkeypatch):
+    monkeypatch.setattr(driver_node, 'COMMAND_IDLE_WAIT_S', 60.0)
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    try:
+        node, inbox, sender, publisher, delivered = _inbox_delivering(context, 'stop')
+        _deliver_one(publisher, delivered, 0.1875)
+        time.sleep(0.2)                 # asleep again in its (minute-long) wait
+        inbox.stop(20.0)
+        assert not inbox._thread.is_alive(), 'the stop did not wake the command thread'
+        sender.destroy_node()
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=context)
+
+
+def test_the_context_shutdown_wakes_and_ends_the_command_thread(monkeypatch):
+    monkeypatch.setattr(driver_node, 'COMMAND_IDLE_WAIT_S', 60.0)
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    node, inbox, sender, publisher, delivered = _inbox_delivering(context, 'shutdown')
+    _deliver_one(publisher, delivered, 0.125)
+    time.sleep(0.2)
+    rclpy.shutdown(context=context)     # as SIGINT does, before any stop
+    inbox._thread.join(20.0)
+    assert not inbox._thread.is_alive(), 'the shutdown did not wake the command thread'
