@@ -6,7 +6,8 @@ and serialised by rclpy, a 50-module ``RobotShape`` cost 1.6 ms of CPU per publi
 the development machine, against 0.2 ms for publishing the same message as bytes. A
 message's layout only changes when a module gains or loses its shape or its rib
 centres, so it is laid out once (:class:`RobotShapeWire`, :class:`ModuleShapeWire`)
-and each new shape is written into its place through numpy views of the buffer.
+and each new shape is written into its place: its scalars with ``struct``, the arrays of
+all new shapes together through one float64 view of the buffer.
 
 Format: the OMG CDR encoding ROS 2 uses on the wire (little-endian, encapsulation
 ``00 01 00 00``; each primitive aligned to its size counted from the end of the
