@@ -687,6 +687,15 @@ def main() -> int:
                          f'{1e6 / per_length:.0f} lengths/s (100 Hz x 50 modules x 2 = '
                          f'10000/s): {"served" if serves else "NOT served"} here')
             print(line)
+    for label in versions:
+        if ('model5', label) in results and ('model50', label) in results:
+            five = statistics.median(results[('model5', label)])
+            fifty = statistics.median(results[('model50', label)])
+            # The target is the 5-module average above; this is what each further module
+            # adds (the fixed per-prediction cost cancels out).
+            print(f'model_node {label}: per-module marginal cost (cost(50) - cost(5)) / 45 = '
+                  f'{(fifty - five) / 45:.2f}% of a core per module (the target figure is '
+                  f'the 5-module average, {five / 5:.2f}%)')
     if 'before' in recordings and 'after' in recordings:
         e_before, e_after = entities(recordings['before']), entities(recordings['after'])
         same = e_before == e_after

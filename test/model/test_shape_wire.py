@@ -97,6 +97,39 @@ def test_robot_and_module_bytes_read_back_as_the_messages_through_layout_changes
     assert any(m.angles[0] != 0.0 for m in got.modules)
 
 
+def test_random_subsets_of_new_shapes_read_back_in_one_layout(brittle_star):
+    # One layout throughout (every module solved, rib centres on): each step rewrites
+    # only a random subset of modules in place, so the arrays written for one subset
+    # must land in those modules' places and leave the others' as they were.
+    rng = np.random.default_rng(17)
+    scene, skeleton = brittle_star, brittle_star.skeleton
+    predictor = RobotPredictor(scene)
+    wire = RobotShapeWire(scene.name, 'commanded', scene.module_names, skeleton.n_segments,
+                          skeleton.n_ribs)
+    n = len(scene.modules)
+    subsets = [range(n)] + [rng.choice(n, size=rng.integers(1, n + 1), replace=False)
+                            for _ in range(40)]
+    first_stamp = {}
+    for step, subset in enumerate(subsets):
+        for index in subset:
+            module = scene.modules[index]
+            predictor.submit('commanded', module.name,
+                             module.straight_length_mm - rng.uniform(5.0, 45.0),
+                             stamp_ns=int(rng.integers(0, 2)) * (1_700_000_000_000_000_000 + step))
+        assert len(predictor.tick(True)['commanded']) == len(subset)
+        stamp_ns = 1_800_000_000_000_000_000 + 987_654_321 * step
+        shapes, poses = predictor.shapes('commanded'), predictor.base_poses('commanded')
+        got = deserialize_message(wire.serialize(shapes, poses, stamp_ns), RobotShape)
+        want = _expected_robot(scene, 'commanded', shapes, poses, stamp_ns)
+        # A shape solved from an unstamped length keeps the stamp of the message that
+        # first carried it (as the node's message objects do).
+        for index in subset:
+            first_stamp[index] = stamp_ns
+        want.modules = [_expected_module(scene.name, 'commanded', m.name, shape, first_stamp[i])
+                        for i, (m, shape) in enumerate(zip(scene.modules, shapes))]
+        assert got == want, step
+
+
 def test_wire_rib_centres_are_the_solvers_in_metres(brittle_star):
     predictor = RobotPredictor(brittle_star)
     module = brittle_star.modules[2]
@@ -120,6 +153,23 @@ def test_cable_length_is_read_from_the_bytes(frame_id):
     stamp_ns, length = decode_cable_length(serialize_message(msg))
     assert length == 0.171234
     assert stamp_ns == 1_700_000_123_987_654_321
+
+
+def test_cable_length_reader_agrees_with_rclpy_on_random_messages():
+    # The model node reads every length with this reader instead of rclpy's: random
+    # stamps, frame ids of every length modulo 8 (they move the float's alignment)
+    # and lengths must come out as rclpy reads the same bytes.
+    rng = np.random.default_rng(1717)
+    for _ in range(300):
+        msg = CableLength(cable_length=float(rng.normal(0.17, 0.1)))
+        msg.header.stamp.sec = int(rng.integers(-2**31, 2**31))
+        msg.header.stamp.nanosec = int(rng.integers(0, 10**9))
+        msg.header.frame_id = ''.join(rng.choice(list('abcxyz/_0'), size=rng.integers(0, 20)))
+        data = serialize_message(msg)
+        back = deserialize_message(data, CableLength)
+        stamp_ns, length = decode_cable_length(data)
+        assert length == back.cable_length
+        assert stamp_ns == back.header.stamp.sec * 1_000_000_000 + back.header.stamp.nanosec
 
 
 @pytest.mark.parametrize('data', [b'', b'\x00\x01\x00\x00', b'\x00\x00\x00\x00' + bytes(24),

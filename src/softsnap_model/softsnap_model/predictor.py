@@ -160,6 +160,13 @@ class RobotPredictor:
         self._batch_solver = (PreparedBatch(self.skeleton, list(ranges)) if self.batch
                               else None)
         self._slots = {(name, source): _Slot() for name in self._index for source in SOURCES}
+        # Per source, the slots in scene order (shapes() every prediction); and the base
+        # poses, fixed unless a module is chained to another (base_poses() as often).
+        self._source_slots = {source: [self._slots[(m.name, source)] for m in scene.modules]
+                              for source in SOURCES}
+        self._fixed_poses = (None if any(m.parent is not None for m in scene.modules) else
+                             [(m.base_position_m, m.base_orientation_xyzw)
+                              for m in scene.modules])
         # Slots holding a length not solved yet, in arrival order (a dict as ordered set):
         # an idle tick visits none.
         self._pending: dict[tuple[str, str], None] = {}
@@ -240,11 +247,12 @@ class RobotPredictor:
             angles, centers, tension, energy, converged, residual = result
             for i, (name, source) in enumerate(members):
                 slot = self._slots[(name, source)]
-                if not want.get(source, False):
+                points = want.get(source, False)
+                if not points:
                     self.counters.skipped_rib_points += 1
                 slot.shape = ModulePrediction(
                     module=name, source=source, cable_length_mm=length, angles=angles,
-                    rib_centers_mm=centers if want.get(source, False) else None,
+                    rib_centers_mm=centers if points else None,
                     tension=tension, energy=energy, converged=converged, residual=residual,
                     solve_time_s=elapsed if i == 0 else 0.0, stamp_ns=slot.pending_stamp_ns)
                 slot.pending_mm = None
@@ -311,7 +319,7 @@ class RobotPredictor:
 
     def shapes(self, source: str) -> list[ModulePrediction | None]:
         """Last solved shape per module in scene order (None before the first length)."""
-        return [self._slots[(m.name, source)].shape for m in self.scene.modules]
+        return [slot.shape for slot in self._source_slots[source]]
 
     def base_poses(self, source: str) -> list[tuple[tuple[float, float, float],
                                                      tuple[float, float, float, float]]]:
@@ -320,6 +328,8 @@ class RobotPredictor:
         Chained modules (a snake) sit on their parent's tip rib, so their pose follows the
         parent's current shape of the same source; others use the scene's fixed pose.
         """
+        if self._fixed_poses is not None:
+            return list(self._fixed_poses)
         poses: dict[str, tuple] = {}
 
         def pose_of(module):

@@ -6,7 +6,8 @@ and serialised by rclpy, a 50-module ``RobotShape`` cost 1.6 ms of CPU per publi
 the development machine, against 0.2 ms for publishing the same message as bytes. A
 message's layout only changes when a module gains or loses its shape or its rib
 centres, so it is laid out once (:class:`RobotShapeWire`, :class:`ModuleShapeWire`)
-and each new shape is written into its place through numpy views of the buffer.
+and each new shape is written into its place: its scalars with ``struct``, the arrays of
+all new shapes together through one float64 view of the buffer.
 
 Format: the OMG CDR encoding ROS 2 uses on the wire (little-endian, encapsulation
 ``00 01 00 00``; each primitive aligned to its size counted from the end of the
@@ -32,10 +33,14 @@ __all__ = ['CDR_LE', 'ModuleShapeWire', 'RobotShapeWire']
 CDR_LE = b'\x00\x01\x00\x00'
 MM_PER_M = 1000.0
 NS_PER_S = 1_000_000_000
+#: Sets of changed modules whose array indices are kept per layout (a robot's ticks
+#: repeat a few: usually all modules, or one group of a gait).
+INDEX_SETS_KEPT = 64
 
 _STAMP = struct.Struct('<iI')
 _F64 = struct.Struct('<d')
-_F64X2 = struct.Struct('<dd')
+#: tension, energy (f64), converged (bool), padding to 8, residual, solve_time (f64).
+_TAIL = struct.Struct('<ddB7xdd')
 
 
 class _Writer:
@@ -86,7 +91,8 @@ def _split_ns(stamp_ns: int) -> tuple[int, int]:
 
 
 class _ModuleFields:
-    """Where one ModuleShape's values sit in a buffer, and how to write a shape there."""
+    """Where one ModuleShape's values sit in a buffer, and how to write its scalars there
+    (its arrays are written for all modules at once, see :meth:`_ShapeBuffer._update`)."""
 
     def __init__(self, writer: _Writer, frame_id: str, module: str, source: str,
                  n_angles: int, n_points: int):
@@ -95,33 +101,31 @@ class _ModuleFields:
         writer.string(module)
         writer.string(source)
         self.cable_length_at = writer.f64()
-        self.angles_at = writer.f64_sequence(n_angles)
-        self.points_at = writer.f64_sequence(n_points, 3)     # geometry_msgs/Point
-        self.tension_at = writer.f64(2)          # tension, energy
-        self.converged_at = writer.boolean()
-        self.residual_at = writer.f64(2)         # residual, solve_time
-        self.n_angles, self.n_points = n_angles, n_points
-        self.angles = self.points = None
-
-    def bind(self, buf: bytearray) -> None:
-        """Make the numpy views of the arrays (once the buffer no longer grows)."""
-        if self.n_angles:
-            self.angles = np.frombuffer(buf, '<f8', self.n_angles, self.angles_at)
-        if self.n_points:
-            self.points = np.frombuffer(buf, '<f8', 3 * self.n_points,
-                                        self.points_at).reshape(self.n_points, 3)
+        angles_at = writer.f64_sequence(n_angles)
+        points_at = writer.f64_sequence(n_points, 3)          # geometry_msgs/Point
+        self.tail_at = writer.f64(2)             # tension, energy
+        writer.boolean()                         # converged
+        writer.f64(2)                            # residual, solve_time
+        # Indices into the buffer's float64 view (see _ShapeBuffer): the angles, and the
+        # x, y of each rib centre in row order (z stays 0).
+        self.angles = _f64_index(angles_at, n_angles)
+        self.points = (_f64_index(points_at, 3 * n_points).reshape(n_points, 3)[:, :2].ravel()
+                       if n_points else np.zeros(0, dtype=np.intp))
 
     def write(self, buf: bytearray, shape, stamp_ns: int) -> None:
-        """Write a :class:`~softsnap_model.predictor.ModulePrediction` (mm in, m out)."""
+        """Write the scalars of a :class:`~softsnap_model.predictor.ModulePrediction`
+        (mm in, m out)."""
         _STAMP.pack_into(buf, self.stamp_at,
                          *_split_ns(shape.stamp_ns if shape.stamp_ns > 0 else stamp_ns))
         _F64.pack_into(buf, self.cable_length_at, shape.cable_length_mm / MM_PER_M)
-        self.angles[:] = shape.angles
-        if self.points is not None:
-            np.divide(shape.rib_centers_mm, MM_PER_M, out=self.points[:, :2])
-        _F64X2.pack_into(buf, self.tension_at, shape.tension * MM_PER_M, shape.energy)
-        buf[self.converged_at] = 1 if shape.converged else 0
-        _F64X2.pack_into(buf, self.residual_at, shape.residual, shape.solve_time_s)
+        _TAIL.pack_into(buf, self.tail_at, shape.tension * MM_PER_M, shape.energy,
+                        1 if shape.converged else 0, shape.residual, shape.solve_time_s)
+
+
+def _f64_index(at: int, count: int) -> np.ndarray:
+    """Indices in the float64 view of ``count`` float64 from byte offset ``at`` (CDR
+    aligns them to 8 bytes from the end of the encapsulation header)."""
+    return np.arange(count, dtype=np.intp) + (at - len(CDR_LE)) // 8
 
 
 def _layout_of(shape) -> int:
@@ -150,17 +154,44 @@ class _ShapeBuffer:
         return _ModuleFields(writer, f'{self.robot}/{name}', name, self.source,
                              self.n_segments, self.n_ribs if layout == 2 else 0)
 
+    def _bind(self, buf: bytearray) -> None:
+        """Adopt a newly laid out buffer: its float64 view, and no array indices yet."""
+        self.buf = buf
+        # The whole message after the encapsulation header as float64: every float64
+        # field is aligned to 8 from there, so one view reaches all of them.
+        self._f64 = np.frombuffer(buf, '<f8', (len(buf) - len(CDR_LE)) // 8, len(CDR_LE))
+        self._indices: dict[tuple, tuple] = {}
+
     def _update(self, shapes, stamp_ns: int) -> None:
         layouts = tuple(_layout_of(shape) for shape in shapes)
         if layouts != self._layouts:
             self._build(layouts)
             self._layouts = layouts
             self._written = [None] * len(shapes)
-        buf, written = self.buf, self._written
-        for i, shape in enumerate(shapes):
-            if shape is not None and shape is not written[i]:
-                self._fields[i].write(buf, shape, stamp_ns)
-                written[i] = shape
+        buf, written, fields = self.buf, self._written, self._fields
+        changed = [i for i, shape in enumerate(shapes)
+                   if shape is not None and shape is not written[i]]
+        if not changed:
+            return
+        for i in changed:
+            fields[i].write(buf, shapes[i], stamp_ns)
+            written[i] = shapes[i]
+        # The arrays of every changed module in two assignments: numpy's per-call cost,
+        # not the copying, is what a module's arrays cost (two calls per module before).
+        key = tuple(changed)
+        indices = self._indices.get(key)
+        if indices is None:
+            if len(self._indices) >= INDEX_SETS_KEPT:
+                self._indices.clear()
+            indices = self._indices[key] = (
+                np.concatenate([fields[i].angles for i in changed]),
+                np.concatenate([fields[i].points for i in changed]),
+                [i for i in changed if fields[i].points.size])
+        angles_at, points_at, with_points = indices
+        self._f64[angles_at] = np.concatenate([shapes[i].angles for i in changed])
+        if with_points:
+            self._f64[points_at] = np.concatenate(
+                [shapes[i].rib_centers_mm for i in with_points]).ravel() / MM_PER_M
 
 
 class RobotShapeWire(_ShapeBuffer):
@@ -193,9 +224,7 @@ class RobotShapeWire(_ShapeBuffer):
                         for name, layout in zip(self.modules, layouts)]
         n = len(self.modules)
         poses_at = writer.f64_sequence(n, 7)      # geometry_msgs/Pose
-        self.buf = writer.buf
-        for fields in self._fields:
-            fields.bind(self.buf)
+        self._bind(writer.buf)
         self._poses = (np.frombuffer(self.buf, '<f8', 7 * n, poses_at).reshape(n, 7)
                        if n else np.zeros((0, 7)))
         self._poses_written: list = [None] * n
@@ -235,8 +264,7 @@ class ModuleShapeWire(_ShapeBuffer):
     def _build(self, layouts) -> None:
         writer = _Writer()
         self._fields = [self._module(writer, self.modules[0], layouts[0])]
-        self.buf = writer.buf
-        self._fields[0].bind(self.buf)
+        self._bind(writer.buf)
 
     def serialize(self, shape, stamp_ns: int) -> bytes:
         """CDR bytes of one module's shape (``stamp_ns`` if its length had no stamp)."""
