@@ -636,7 +636,9 @@ def _path_polynomials(lam, length, b, lp, lpp, l3, k, lam_c, lam_end, count):
     phi1 = 2.0 * (b * lpp - lp) / lp2                          # phi'(b)
     phi2 = 2.0 * (b * l3 * lp - 2.0 * lpp * (b * lpp - lp)) / (lp2 * lp)
     u_all = 1.0 / (k * phi1)
-    v_all = -k * phi2 * u_all ** 3
+    # Cubes as products here and in _cell_polynomial: numpy's float64 power may use
+    # another pow (SIMD) than Python's float; products round the same everywhere.
+    v_all = -k * phi2 * (u_all * u_all * u_all)
     # Segments moving across the whole cell (bent, not yet at their branch end).
     free = (lam[:-1, None] >= lam_c) & (lam[1:, None] <= lam_end)
     # Both cell ends at once (leading axis: cell start, cell end).
@@ -656,7 +658,7 @@ def _path_polynomials(lam, length, b, lp, lpp, l3, k, lam_c, lam_end, count):
     dv[..., :-1], dv[..., -1] = v, 0.0
     # In t: d/dt = h d/dL and d/dL = (d/dlambda) / T'.
     d0, d1 = h * du / t1
-    s0, s1 = h * h * (dv / (t1 * t1) - du * t2 / t1 ** 3)
+    s0, s1 = h * h * (dv / (t1 * t1) - du * t2 / (t1 * t1 * t1))
     # Quintic with the values, slopes d and second derivatives s (in t) at both ends.
     e_val = p1 - p0 - d0 - 0.5 * s0
     e_slope = d1 - d0 - s0
@@ -711,7 +713,7 @@ def _cell_polynomial(lam, length, b, derivs, k, lam_c, lam_end, count):
                 phi1 = 2.0 * bend / lp2
                 phi2 = 2.0 * (bi * p3 * p - 2.0 * pp * bend) / (lp2 * p)
                 u = 1.0 / (ki * phi1)
-                v = -ki * phi2 * u ** 3
+                v = -ki * phi2 * (u * u * u)
             else:
                 u = v = 0.0
             s1 += u * p * w
@@ -724,7 +726,7 @@ def _cell_polynomial(lam, length, b, derivs, k, lam_c, lam_end, count):
         t2.append(s2)
     hh = h * h
     d0, d1 = ([h * x / t for x in row] for row, t in zip(du, t1))
-    s0, s1 = ([hh * (y / (t * t) - x * tt / t ** 3) for x, y in zip(rx, ry)]
+    s0, s1 = ([hh * (y / (t * t) - x * tt / (t * t * t)) for x, y in zip(rx, ry)]
               for rx, ry, t, tt in zip(du, dv, t1, t2))
     p0, p1 = b[0] + [lam0], b[1] + [lam1]
     rows = [[] for _ in range(_START_DEGREE + 1)]
