@@ -175,7 +175,6 @@ class _ShapeBuffer:
             return
         for i in changed:
             fields[i].write(buf, shapes[i], stamp_ns)
-            written[i] = shapes[i]
         # The arrays of every changed module in two assignments: numpy's per-call cost,
         # not the copying, is what a module's arrays cost (two calls per module before).
         key = tuple(changed)
@@ -192,6 +191,10 @@ class _ShapeBuffer:
         if with_points:
             self._f64[points_at] = np.concatenate(
                 [shapes[i].rib_centers_mm for i in with_points]).ravel() / MM_PER_M
+        # Marked only once every field is in: after a write that raised, the next
+        # message writes these modules again instead of keeping stale arrays.
+        for i in changed:
+            written[i] = shapes[i]
 
 
 class RobotShapeWire(_ShapeBuffer):
