@@ -42,7 +42,7 @@ def _deliver_one(publisher, delivered, length_m: float, timeout_s: float = 30.0)
     while time.monotonic() < deadline and not delivered:
         publisher.publish(msg)
         time.sleep(0.1)
-    assert delivered, 'no command delivered within 30 s'
+    assert delivered, f'no command delivered within {timeout_s:g} s'
     assert delivered[0] == (pytest.approx(length_m), 7_000_000_008)
 
 
@@ -72,3 +72,27 @@ def test_the_context_shutdown_wakes_and_ends_the_command_thread(monkeypatch):
     rclpy.shutdown(context=context)     # as SIGINT does, before any stop
     inbox._thread.join(20.0)
     assert not inbox._thread.is_alive(), 'the shutdown did not wake the command thread'
+
+
+def test_a_route_added_while_the_thread_sleeps_gets_its_commands_at_once(monkeypatch):
+    # driver_container subscribes its modules one by one: the thread is already asleep
+    # on the first module's route when the others are added.
+    monkeypatch.setattr(driver_node, 'COMMAND_IDLE_WAIT_S', 60.0)
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    try:
+        node, inbox, sender, publisher, delivered = _inbox_delivering(context, 'added')
+        _deliver_one(publisher, delivered, 0.15)
+        time.sleep(0.2)                 # asleep again, waiting on the first route only
+        second = []
+        inbox.subscribe('m2/cable_length/command', 10,
+                        lambda length_m, stamp_ns: second.append((length_m, stamp_ns)),
+                        node.get_logger())
+        publisher_2 = sender.create_publisher(CableLength, 'm2/cable_length/command', 10)
+        _deliver_one(publisher_2, second, 0.0625, timeout_s=20.0)
+        inbox.stop(20.0)
+        assert not inbox._thread.is_alive()
+        sender.destroy_node()
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=context)

@@ -188,7 +188,9 @@ class CommandInbox:
         self._routes: tuple[_Route, ...] = ()
         self._stop = threading.Event()
         self._guard = _rclpy.GuardCondition(node.context.handle)
-        node.context.on_shutdown(self._wake)   # kept as a weak reference by rclpy
+        # Kept as a weak reference by rclpy. It sets the stop: a wake that also brings a
+        # command would otherwise skip the context check below and sleep again.
+        node.context.on_shutdown(self._on_context_shutdown)
         self._thread = threading.Thread(target=self._run, name='commands', daemon=True)
         self._thread.start()
 
@@ -208,6 +210,10 @@ class CommandInbox:
         with self._lock:
             route.open = False
             self._routes = tuple(r for r in self._routes if r is not route)
+        self._wake()
+
+    def _on_context_shutdown(self) -> None:
+        self._stop.set()
         self._wake()
 
     def _wake(self) -> None:
