@@ -37,6 +37,12 @@ from softsnap_model import forward
 THREADING_CACHES = ('_problem', '_single', '_single_named', '_threading_cached')
 
 
+def missing_caches(mod) -> list[str]:
+    """The caches of THREADING_CACHES that ``mod`` lacks (an older revision): its
+    loop-round solves are then partly warm, and its times too low."""
+    return [name for name in THREADING_CACHES if getattr(mod, name, None) is None]
+
+
 def first_solve_s(mod, threading, length_mm: float) -> float:
     """CPU time (s) of a first solve by the solver module ``mod``, its per-threading
     caches emptied first."""
@@ -74,7 +80,7 @@ def random_round(mods, count: int, warmup: int, seed: int) -> list[list[float]]:
         length = SK.straight_length_mm(t) - rng.uniform(5.0, 40.0)
         try:
             times = [first_solve_s(mod, t, length) for mod in mods]
-        except forward.InfeasibleLengthError:
+        except tuple(mod.InfeasibleLengthError for mod in mods):
             continue    # a contraction this threading cannot reach: drawn again, not timed
         for kept, dt in zip(out, times):
             kept.append(dt)
@@ -103,6 +109,9 @@ def main() -> None:
     for mod in mods:
         if hasattr(mod, 'clear_caches'):
             mod.clear_caches()
+    if args.before and (missing := missing_caches(mods[1])):
+        print(f'note: {args.before} lacks {", ".join(missing)}: those are not emptied, '
+              'so its loop-round times are partly warm (too low)')
     loop_round(mods, 2)   # imports, pair profiles of the benchmark threadings
     rows = {(kind, m): [] for kind in ('loop', 'random') for m in range(len(mods))}
     for r in range(args.rounds):
