@@ -1181,7 +1181,7 @@ def _exit_now(context, exit_by: float) -> None:
 
     The process first stays ``EXIT_LINGER_S`` (never past ``exit_by``, monotonic s):
     ended at once, 2 of 39 exits during two long designs on the loaded machine stayed in
-    a peer's ROS graph until the DDS lease ran out (20 s), 0 of 40 with the linger. Why
+    a peer's ROS graph until the DDS lease ran out (20 s), 0 of 70 with the linger. Why
     is not proven: the participant and its threads are gone by then, so the farewell was
     sent; the likely loss is a reader that had not yet read it from the shared-memory
     transport, whose data lives in the writer's process. Output is flushed first.
