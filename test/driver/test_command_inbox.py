@@ -1,11 +1,13 @@
 """The command thread (CommandInbox) in the test process, over real DDS.
 
-Between commands it sleeps in rcl_wait for up to COMMAND_IDLE_WAIT_S; a stop and the
-context's shutdown wake it at once through its guard condition. Here the idle wait is
-made a minute long, so a thread that was not woken would outlive the generous joins.
+Between commands it sleeps in rcl_wait for up to COMMAND_IDLE_WAIT_S; a stop, a route
+added and rclpy.shutdown() wake it at once through its guard condition. Here the idle
+wait is made a minute long, so a thread that was not woken would outlive the generous
+joins.
 """
 from __future__ import annotations
 
+import contextlib
 import time
 
 import pytest
@@ -46,53 +48,48 @@ def _deliver_one(publisher, delivered, length_m: float, timeout_s: float = 30.0)
     assert delivered[0] == (pytest.approx(length_m), 7_000_000_008)
 
 
-def test_a_stop_wakes_the_sleeping_command_thread_at_once(monkeypatch):
+@contextlib.contextmanager
+def _asleep_after_a_command(monkeypatch, name: str, length_m: float):
+    """An inbox in a context of its own whose command thread has delivered one command
+    and is asleep again in a minute-long wait; yields (context, inbox node, inbox,
+    sender node). Nodes and context are closed after (if the test has not)."""
     monkeypatch.setattr(driver_node, 'COMMAND_IDLE_WAIT_S', 60.0)
     context = rclpy.Context()
     rclpy.init(context=context)
     try:
-        node, inbox, sender, publisher, delivered = _inbox_delivering(context, 'stop')
-        _deliver_one(publisher, delivered, 0.1875)
+        node, inbox, sender, publisher, delivered = _inbox_delivering(context, name)
+        _deliver_one(publisher, delivered, length_m)
         time.sleep(0.2)                 # asleep again in its (minute-long) wait
+        yield context, node, inbox, sender
+        if context.ok():
+            sender.destroy_node()
+            node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=context)
+
+
+def test_a_stop_wakes_the_sleeping_command_thread_at_once(monkeypatch):
+    with _asleep_after_a_command(monkeypatch, 'stop', 0.1875) as (_, _, inbox, _):
         inbox.stop(20.0)
         assert not inbox._thread.is_alive(), 'the stop did not wake the command thread'
-        sender.destroy_node()
-        node.destroy_node()
-    finally:
-        rclpy.shutdown(context=context)
 
 
 def test_the_context_shutdown_wakes_and_ends_the_command_thread(monkeypatch):
-    monkeypatch.setattr(driver_node, 'COMMAND_IDLE_WAIT_S', 60.0)
-    context = rclpy.Context()
-    rclpy.init(context=context)
-    node, inbox, sender, publisher, delivered = _inbox_delivering(context, 'shutdown')
-    _deliver_one(publisher, delivered, 0.125)
-    time.sleep(0.2)
-    rclpy.shutdown(context=context)     # as SIGINT does, before any stop
-    inbox._thread.join(20.0)
-    assert not inbox._thread.is_alive(), 'the shutdown did not wake the command thread'
+    with _asleep_after_a_command(monkeypatch, 'shutdown', 0.125) as (context, _, inbox, _):
+        rclpy.shutdown(context=context)     # an explicit shutdown, before any stop
+        inbox._thread.join(20.0)
+        assert not inbox._thread.is_alive(), 'the shutdown did not wake the command thread'
 
 
 def test_a_route_added_while_the_thread_sleeps_gets_its_commands_at_once(monkeypatch):
     # driver_container subscribes its modules one by one: the thread is already asleep
     # on the first module's route when the others are added.
-    monkeypatch.setattr(driver_node, 'COMMAND_IDLE_WAIT_S', 60.0)
-    context = rclpy.Context()
-    rclpy.init(context=context)
-    try:
-        node, inbox, sender, publisher, delivered = _inbox_delivering(context, 'added')
-        _deliver_one(publisher, delivered, 0.15)
-        time.sleep(0.2)                 # asleep again, waiting on the first route only
+    with _asleep_after_a_command(monkeypatch, 'added', 0.15) as (_, node, inbox, sender):
         second = []
         inbox.subscribe('m2/cable_length/command', 10,
                         lambda length_m, stamp_ns: second.append((length_m, stamp_ns)),
                         node.get_logger())
-        publisher_2 = sender.create_publisher(CableLength, 'm2/cable_length/command', 10)
-        _deliver_one(publisher_2, second, 0.0625, timeout_s=20.0)
+        publisher = sender.create_publisher(CableLength, 'm2/cable_length/command', 10)
+        _deliver_one(publisher, second, 0.0625, timeout_s=20.0)
         inbox.stop(20.0)
         assert not inbox._thread.is_alive()
-        sender.destroy_node()
-        node.destroy_node()
-    finally:
-        rclpy.shutdown(context=context)
