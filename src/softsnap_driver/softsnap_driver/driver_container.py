@@ -41,9 +41,9 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from softsnap_driver.driver_node import (_NAME, COMMAND_WAIT_S, CommandInbox, DriverNode,
-                                         inbox_node, steady_timer)
+                                         steady_timer)
 from softsnap_driver.link import SHUTDOWN_BUDGET_S
-from softsnap_driver.spinning import run_nodes_main
+from softsnap_driver.spinning import inbox_node, run_nodes_main
 
 
 def _read_only_array(kind: int, description: str) -> ParameterDescriptor:

@@ -51,7 +51,7 @@ from softsnap_driver.diagnostics import DriverHealth, battery_state, diagnostic_
 from softsnap_driver.link import LinkConfig, LinkReport, ModuleLink
 from softsnap_driver.protocol import FIRMWARE_DEADBAND_COUNTS
 from softsnap_driver.ros_parameters import SoftSnapNode
-from softsnap_driver.spinning import run_nodes_main
+from softsnap_driver.spinning import inbox_node, run_nodes_main
 from softsnap_driver.state_wire import (CableLengthWire, ModuleStateFields, ModuleStateWire,
                                         fill_module_state)
 
@@ -606,13 +606,6 @@ def steady_timer(node: Node, period_s: float, callback):
     """A timer on the steady clock: health must be reported while a simulated time
     stands still."""
     return node.create_timer(period_s, callback, clock=Clock(clock_type=ClockType.STEADY_TIME))
-
-
-def inbox_node(name: str, namespace: str, context) -> Node:
-    """A node for command subscriptions only, which no executor spins (CommandInbox); its
-    node-local remap keeps a process-wide `-r __node:=NAME` from giving it another name."""
-    return Node(name, namespace=namespace, context=context, start_parameter_services=False,
-                enable_rosout=False, cli_args=['--ros-args', '-r', f'__node:={name}'])
 
 
 def _module_argument(args: list[str]) -> str | None:

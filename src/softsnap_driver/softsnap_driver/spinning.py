@@ -12,6 +12,7 @@ import sys
 from typing import Callable
 
 from rclpy.executors import Executor, ExternalShutdownException
+from rclpy.node import Node
 
 
 def spin_until_shutdown(executor: Executor) -> None:
@@ -23,6 +24,14 @@ def spin_until_shutdown(executor: Executor) -> None:
     except Exception:
         if executor.context.ok():
             raise  # a real failure, not a shutdown
+
+
+def inbox_node(name: str, namespace: str, context) -> Node:
+    """A node whose subscriptions a thread of its own takes from, which no executor spins
+    (the drivers' CommandInbox, model_node's PredictionThread); its node-local remap keeps
+    a process-wide `-r __node:=NAME` from giving it another name."""
+    return Node(name, namespace=namespace, context=context, start_parameter_services=False,
+                enable_rosout=False, cli_args=['--ros-args', '-r', f'__node:={name}'])
 
 
 def _spin_nodes(nodes) -> None:

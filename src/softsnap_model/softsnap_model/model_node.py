@@ -49,7 +49,6 @@ from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescr
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
-from rclpy.node import Node
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.qos import QoSProfile
 from rclpy.serialization import deserialize_message, serialize_message
@@ -61,7 +60,7 @@ from visualization_msgs.msg import MarkerArray
 
 from softsnap_driver.cdr import CdrError, decode_cable_length
 from softsnap_driver.ros_parameters import SoftSnapNode
-from softsnap_driver.spinning import spin_until_shutdown
+from softsnap_driver.spinning import inbox_node, spin_until_shutdown
 from softsnap_interfaces.msg import CableLength, Design, ModelDiagnostics, ModuleShape, RobotShape
 from softsnap_interfaces.action import DesignThreading
 from softsnap_interfaces.srv import ForwardShape, InverseDesign
@@ -393,12 +392,8 @@ class ModelNode(SoftSnapNode):
         # and rclpy's per-message dispatch (~0.2 ms) would otherwise dominate the node's
         # CPU at 100 Hz. The subscriptions live on an inbox node that no executor spins; up
         # to `depth` messages per topic wait in DDS between two period boundaries.
-        # A `-r __node:=NAME` on the command line renames every node of the process: the
-        # inbox's own (node-local, so winning) remap keeps it from taking the model's name.
-        self._inbox = Node('model_node_inbox', namespace=self.get_namespace(),
-                           context=self.context, start_parameter_services=False,
-                           enable_rosout=False,
-                           cli_args=['--ros-args', '-r', f'__node:={self.get_name()}_inbox'])
+        self._inbox = inbox_node(f'{self.get_name()}_inbox', self.get_namespace(),
+                                 self.context)
         self._length_subscriptions = []
         # Length messages taken per length subscription since start (count), in diagnostics.
         self.lengths_taken = [0] * (len(self.scene.modules) * len(SOURCES))
