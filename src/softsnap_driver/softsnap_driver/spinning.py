@@ -8,8 +8,11 @@ logger). Here any exception raised once the context is no longer ok is that shut
 """
 from __future__ import annotations
 
+import gc
+import os
 import sys
-from typing import Callable
+import time
+from typing import Callable, NoReturn
 
 from rclpy.executors import Executor, ExternalShutdownException
 from rclpy.node import Node
@@ -24,6 +27,36 @@ def spin_until_shutdown(executor: Executor) -> None:
     except Exception:
         if executor.context.ok():
             raise  # a real failure, not a shutdown
+
+
+#: After ROS is closed, how long a fast exit keeps the process before it ends (s), and
+#: the latest it ends, counted from when spinning ended (s): see exit_without_teardown.
+EXIT_LINGER_S = 0.3
+EXIT_BY_S = 1.5
+
+
+def exit_without_teardown(status: int, context, spinning_ended: float) -> NoReturn:
+    """Close the ROS context, then end the process without Python's interpreter teardown.
+
+    For nodes whose every resource is already closed (ROS shut down, files flushed):
+    SIGINT must end them within 2 s, and the interpreter's teardown of numpy, rclpy,
+    rerun and the message modules alone took 0.3 s idle and up to 2.4 s on the loaded
+    2-core machine, with nothing in it that anyone outside the process could notice.
+
+    The process first stays ``EXIT_LINGER_S``, never past ``spinning_ended + EXIT_BY_S``
+    (monotonic s): ended at once, 2 of 39 model_node exits during two long designs on
+    the loaded machine stayed in a peer's ROS graph until the DDS lease ran out (20 s),
+    0 of 70 with the linger. Why is not proven: the participant and its threads are gone
+    by then, so the farewell was sent; the likely loss is a reader that had not yet read
+    it from the shared-memory transport, whose data lives in the writer's process.
+    Output is flushed first.
+    """
+    gc.collect()  # drop the last references to ROS handles so the context can go
+    context.destroy()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    time.sleep(max(0.0, min(EXIT_LINGER_S, spinning_ended + EXIT_BY_S - time.monotonic())))
+    os._exit(status)
 
 
 def inbox_node(name: str, namespace: str, context) -> Node:

@@ -39,8 +39,8 @@ Parameters (read-only except ``rate``):
 from __future__ import annotations
 
 import datetime as dt
-import os
 import sys
+import time
 from pathlib import Path
 
 import rclpy
@@ -56,7 +56,7 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 
 from softsnap_driver.ros_parameters import SoftSnapNode
-from softsnap_driver.spinning import spin_until_shutdown
+from softsnap_driver.spinning import exit_without_teardown, spin_until_shutdown
 from softsnap_interfaces.msg import CableLength, ModuleState, RobotShape
 from softsnap_model import recording
 
@@ -435,6 +435,7 @@ def main(args=None):
         get_logger('rerun_logger').fatal(str(exc))
         status = 2
     finally:
+        stopped = time.monotonic()
         if node is not None:
             logger = node.get_logger()
             summary = node.close()
@@ -444,10 +445,7 @@ def main(args=None):
     # The recording is closed (flushed, footer written) and ROS is shut down: nothing of
     # ours is left to finish. Interpreter teardown of rerun's and pyarrow's runtime takes
     # 0.5-2 s more on a busy machine, past the 2 s a SIGINT may take: skip it.
-    sys.stdout.flush()
-    sys.stderr.flush()
-    os._exit(status)
-    return status
+    exit_without_teardown(status, rclpy.get_default_context(), stopped)
 
 
 if __name__ == '__main__':

@@ -33,11 +33,8 @@ from __future__ import annotations
 import array
 import contextlib
 import dataclasses
-import gc
 import math
-import os
 import queue
-import sys
 import threading
 import time
 
@@ -60,7 +57,7 @@ from visualization_msgs.msg import MarkerArray
 
 from softsnap_driver.cdr import CdrError, decode_cable_length
 from softsnap_driver.ros_parameters import SoftSnapNode
-from softsnap_driver.spinning import inbox_node, spin_until_shutdown
+from softsnap_driver.spinning import exit_without_teardown, inbox_node, spin_until_shutdown
 from softsnap_interfaces.msg import CableLength, Design, ModelDiagnostics, ModuleShape, RobotShape
 from softsnap_interfaces.action import DesignThreading
 from softsnap_interfaces.srv import ForwardShape, InverseDesign
@@ -83,10 +80,6 @@ DESIGN_STOP_WAIT_S = 0.5
 FEEDBACK_PERIOD_S = 0.1
 #: On shutdown, how long the prediction thread may take to finish its prediction (s).
 TICK_STOP_WAIT_S = 0.5
-#: After ROS is closed, how long the process stays before it ends (s), and the latest it
-#: ends, counted from the end of spinning (s): see _exit_now.
-EXIT_LINGER_S = 0.3
-EXIT_BY_S = 1.5
 #: After a length wakes the idle prediction thread, the fraction of a period it waits
 #: for more (lengths published together are solved together).
 GATHER_FRACTION = 0.5
@@ -1163,30 +1156,7 @@ def main(args=None):
         executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown()
-    _exit_now(node.context, stopped + EXIT_BY_S)
-
-
-def _exit_now(context, exit_by: float) -> None:
-    """Close the ROS context, then end the process without Python's interpreter teardown.
-
-    SIGINT must end the node within 2 s. With ROS closed (the node's entities and the DDS
-    participant gone), what remains is the interpreter's teardown of numpy, rclpy and the
-    message modules: 0.3 s on an idle machine but up to 2.4 s measured on the loaded
-    2-core machine, with nothing left in it that anyone outside the process could notice.
-
-    The process first stays ``EXIT_LINGER_S`` (never past ``exit_by``, monotonic s):
-    ended at once, 2 of 39 exits during two long designs on the loaded machine stayed in
-    a peer's ROS graph until the DDS lease ran out (20 s), 0 of 70 with the linger. Why
-    is not proven: the participant and its threads are gone by then, so the farewell was
-    sent; the likely loss is a reader that had not yet read it from the shared-memory
-    transport, whose data lives in the writer's process. Output is flushed first.
-    """
-    gc.collect()  # drop the last references to ROS handles so the context can go
-    context.destroy()
-    sys.stdout.flush()
-    sys.stderr.flush()
-    time.sleep(max(0.0, min(EXIT_LINGER_S, exit_by - time.monotonic())))
-    os._exit(0)
+    exit_without_teardown(0, node.context, stopped)
 
 
 if __name__ == '__main__':
