@@ -502,7 +502,7 @@ class ModuleClient:
             raise ModuleConnectionError(f'{self._where()}: {exc.strerror or exc}') from exc
         if not size:
             raise ModuleConnectionError(f'{self._where()} closed the connection without a reply')
-        return chunks[0] if len(chunks) == 1 else b''.join(chunks)
+        return b''.join(chunks)
 
     def _where(self) -> str:
         """``host:port`` for error messages (built only when one is raised)."""
