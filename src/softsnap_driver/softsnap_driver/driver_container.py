@@ -7,13 +7,12 @@ services, link worker thread and safety behaviour (docs/safety.md). What they sh
 what an rclpy process costs whatever it does: the DDS participant and its threads, one
 executor for the services and parameters, one diagnostics timer per distinct
 ``diagnostics_period_s`` (each executor wake costs milliseconds here: it rebuilds a wait
-set over every node's services), and one command
-thread (:class:`~softsnap_driver.driver_node.CommandInbox`, on node
-``driver_container_inbox``) that waits on every module's command topic at once and hands
-each command to its own module's driver. With
-several modules on one machine (the simulated robot, or one computer driving a robot's
-modules over Wi-Fi) that fixed cost is paid once (docs/driver.md, "Several modules in
-one process").
+set over every node's services), and one command thread
+(:class:`~softsnap_driver.driver_node.CommandInbox`, on node ``driver_container_inbox``)
+that waits on every module's command topic at once and hands each command to its own
+module's driver. With several modules on one machine (the simulated robot, or one
+computer driving a robot's modules over Wi-Fi) that fixed cost is paid once
+(docs/driver.md, "Several modules in one process").
 
 Parameters of the container node ``driver_container`` (read-only):
 
