@@ -74,7 +74,10 @@ def test_tracks_commands_and_serves_services_with_sim_module_process(start_node,
     driver = start_node('softsnap_driver', 'driver_node', *driver_args(free_port))
     probe = ModuleProbe(ros_node)
     probe.wait_ready()
-    assert probe.last().online and probe.last().module == 'm1'
+    # Both processes start together: a first poll before the simulated module listens is
+    # refused and reported offline; the driver must then come online by itself.
+    assert probe.wait_state(lambda state: state.online, 20.0), probe.last()
+    assert probe.last().module == 'm1'
     for length in (0.19, 0.14, 0.16, 0.125):          # a changing command
         probe.command(length)
         assert ros_node.spin_until(lambda: probe.measured and within_deadband(
