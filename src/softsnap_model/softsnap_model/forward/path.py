@@ -45,6 +45,12 @@ _THREADINGS_CACHED = 2560
 #: solve builds one or two blocks, a few percent of the table's entries.
 _BLOCK = 16
 
+#: Margin (mm) of a single solve's cell guess from approximate lengths (each distinct
+#: segment's length interpolated linearly in its profile table: some 1e-4 mm off a
+#: segment), and the most cells it builds the samples of in plain floats.
+_GUESS_MARGIN_MM = 2e-3
+_GUESS_CELLS = 3
+
 
 class _PathTable:
     """Exact samples of the quasi-static path of one threading and their start
@@ -104,6 +110,7 @@ class _PathTable:
         self.complete_ = False
         # What a single cell's polynomial reads of the segments (_build_cell).
         self._seg_lists = [seg[name].tolist() for name in ('k', 'lam_c', 'lam_end', 'count')]
+        self._float_rows = None     # the float sample builder's rows (_build_run)
         self._unpublished = False   # built samples not yet in the searchable lengths
         self._lock = threading.RLock()
 
@@ -120,7 +127,7 @@ class _PathTable:
         with self._lock, np.errstate(all='ignore'):
             if self._unpublished:
                 self._publish()     # every built sample searchable (length_at_tension)
-            for _ in range(4):
+            for attempt in range(4):
                 j = min(max(bisect.bisect_left(self.neg_len_list, -length), 1), self.n_cells)
                 if self._cell_built[j - 1]:
                     return
@@ -131,6 +138,11 @@ class _PathTable:
                 # Sample j is built (or this is the first build); the exact cell is
                 # after the last built sample before it: cells p .. j - 1.
                 p = max(self._built.rfind(1, 0, j), 0)
+                if attempt == 0:
+                    run = self._guess_cells(length, p, j)
+                    if run is not None:
+                        self._build_run(*run)
+                        continue
                 blocks = range(p // _BLOCK, (j - 1) // _BLOCK + 1)
                 if len(blocks) > 2:
                     blocks = self._guess(length, blocks)
@@ -156,6 +168,49 @@ class _PathTable:
         if not hit.size:
             return blocks
         return range(blocks[0] + int(hit[0]), blocks[0] + int(hit[-1]) + 1)
+
+    def _guess_cells(self, length, p, j):
+        """Samples ``(first, last)`` of the cells among ``p .. j - 1`` whose approximate
+        lengths (as :meth:`_guess`'s, at every sample) bracket ``length`` with a margin
+        of :data:`_GUESS_MARGIN_MM`, or None if none does or more than a few do (then
+        whole blocks are built)."""
+        seg = self.seg
+        mu = self.lam[p:j + 1] / seg['k'][:, None]          # (U, j - p + 1)
+        approx = np.dot(seg['count'], np.array([
+            _interp(m, table_mu, table_len)
+            for m, table_mu, table_len in zip(mu, seg['table_mu'], seg['table_len'])]))
+        margin = _GUESS_MARGIN_MM + 1e-9 * abs(length)
+        hit = ((approx[:-1] >= length - margin) & (approx[1:] <= length + margin)).nonzero()[0]
+        if not hit.size or hit[-1] - hit[0] >= _GUESS_CELLS:
+            return None
+        return p + int(hit[0]), p + int(hit[-1]) + 1
+
+    def _build_run(self, first, last):
+        """The samples ``first .. last`` (a few), in plain floats
+        (:func:`_path_samples_float`; by :meth:`_build_samples` if an entry needs
+        numpy), made searchable."""
+        idx = [i for i in range(first, last + 1) if not self._built[i]]
+        if idx:
+            if self._float_rows is None:
+                self._float_rows = _float_rows(self.seg)
+            try:
+                samples = _path_samples_float(
+                    self.lam[idx].tolist(), self._float_rows, self._seg_lists[0],
+                    self._seg_lists[3], self.s, self.straight)
+            except (_HardEntry, ArithmeticError):
+                self._build_samples(np.array(idx))
+            else:
+                at = slice(idx[0], idx[-1] + 1) if idx[-1] - idx[0] == len(idx) - 1 else idx
+                total, b, lp, lpp, l3 = zip(*samples)
+                self._exact[at] = total
+                self.b[at] = b
+                self._derivs[:, at] = (lp, lpp, l3)
+                self._sample_built[at] = True
+        built = self._exact[self._sample_built]
+        if (built[1:] > built[:-1]).any():
+            self._complete()
+            return
+        self._publish_block(first, last)
 
     def _build_blocks(self, blocks):
         """The samples of ``blocks`` (consecutive), in one pass, made searchable (the
@@ -327,6 +382,140 @@ def _path_samples(mu, seg, s):
         for full, part in zip(ev, _path_derivatives(b[rest], *dd, s)):
             full[rest] = part
     return b, ev
+
+
+class _HardEntry(Exception):
+    """An entry the float path sample builder leaves to the numpy one (a zero clamp,
+    whose sign numpy's fmax may set otherwise; an entry needing the refinement)."""
+
+
+def _derivs_float(b, series, e1, e2, dd2, p_bb, s):
+    """:func:`_path_derivatives` of one entry in plain floats from its series values
+    ``series`` (``g, g'/b, g''`` and, for the third derivative, ``g'''/b`` at ``b^2``;
+    numpy's :func:`_series`, element-wise), ``pre`` given: the same operations in the
+    same order. Raises ArithmeticError (:class:`_HardEntry` for a ``l^2`` not positive)
+    where numpy would carry inf or NaN. Returns ``l, l', l'', l'''`` (the last None
+    without the fourth series column)."""
+    g, g1_over_b, g2 = series[:3]
+    g1 = b * g1_over_b
+    p1, p2 = s + e1 * b, s + e2 * b
+    p = p1 * p2
+    p_b = e1 * p2 + e2 * p1
+    q = dd2 + g * p
+    if not q > 0.0:
+        raise _HardEntry
+    length = math.sqrt(q)
+    half_inv = 0.5 / length
+    lp = (g1 * p + g * p_b) * half_inv
+    lpp = (g2 * p + 2.0 * g1 * p_b + g * p_bb - 2.0 * lp * lp) * half_inv
+    if len(series) == 3:
+        return length, lp, lpp, None
+    g3 = b * series[3]
+    l3 = (g3 * p + 3.0 * g2 * p_b + 3.0 * g1 * p_bb - 6.0 * lp * lpp) * half_inv
+    return length, lp, lpp, l3
+
+
+def _series_lists(b, pairs):
+    """:func:`_series` at ``b^2`` for a list of floats ``b``: one numpy pass over all
+    of them (element-wise, so each value is the one a table build computes), returned
+    per entry as tuples of the columns."""
+    x = np.array(b)
+    return list(zip(*_series(x * x, pairs).tolist()))
+
+
+def _clamp_float(x, lo, hi):
+    """``np.fmin(np.fmax(x, lo), hi)`` for floats (NaN gives way to the bound); a zero
+    result is left to numpy (:class:`_HardEntry`: which zero's sign it keeps is the SIMD
+    loop's business)."""
+    y = lo if x != x or lo > x else x
+    z = hi if y != y or hi < y else y
+    if z == 0.0:
+        raise _HardEntry
+    return z
+
+
+def _float_rows(seg):
+    """Per distinct segment, what :func:`_path_samples_float` reads: its table rows
+    ``b, mu, dmu`` as lists, their first and last ``mu`` and ``b``, and ``pre``."""
+    tables = seg['tables'][:, :3].tolist()
+    pre = [x.tolist() for x in seg['pre']]
+    return [(tb, tm, tdmu, tm[0], tm[-1], tb[0], tb[-1], *p)
+            for (tb, tm, tdmu), *p in zip(tables, *pre)]
+
+
+def _path_samples_float(lam, rows, k, count, s, straight):
+    """:func:`_path_samples` and the total length of :meth:`_PathTable._build_samples`
+    at the tensions ``lam`` (a list: the two or three samples of a single solve's cell)
+    in plain floats, bit for bit (the same operations in the same order;
+    test_forward_lazy_table.py compares them), the series of the lengths in numpy, one
+    pass over every entry per evaluation. Per entry: the cubic start of
+    :func:`.branch._segment_cells`, one Newton step, the check of the next step, a start
+    that already is the root kept. ``rows`` (:func:`_float_rows`), ``k``, ``count``:
+    per distinct segment. Returns ``(total, b, l', l'', l''')`` lists per sample; raises
+    :class:`_HardEntry` or ArithmeticError where an entry needs numpy (the refinement, a
+    division by zero that numpy carries as inf or NaN; rare)."""
+    entries = []        # (mu, row, cell or None outside the table, start, b0)
+    for lam_i in lam:
+        for row, k_u in zip(rows, k):
+            mu = lam_i / k_u
+            tb, tm, tdmu, mu_first, mu_last, b_first, b_last = row[:7]
+            if mu <= mu_first or mu >= mu_last:     # outside the table: its end value
+                b = b_first if mu <= mu_first else b_last
+                entries.append((mu, row, None, b, b))
+                continue
+            i = min(max(bisect.bisect_left(tm, mu), 1), len(tm) - 1)
+            b_lo, b_hi, mu_lo, mu_hi = tb[i - 1], tb[i], tm[i - 1], tm[i]
+            span = mu_hi - mu_lo
+            t = (mu - mu_lo) / span
+            t2 = t * t
+            t3 = t2 * t
+            start = ((2.0 * t3 - 3.0 * t2 + 1.0) * b_lo + (t3 - 2.0 * t2 + t) * span
+                     / tdmu[i - 1] + (3.0 * t2 - 2.0 * t3) * b_hi
+                     + (t3 - t2) * span / tdmu[i])
+            entries.append((mu, row, (b_lo, b_hi), start, _clamp_float(start, b_lo, b_hi)))
+    # One Newton step from the start (entries outside the table keep their end value).
+    b1, r0s = [], []
+    for (mu, row, cell, _, b0), ser in zip(entries, _series_lists([e[4] for e in entries],
+                                                                  _G_PAIRS3)):
+        if cell is None:
+            b1.append(b0)
+            r0s.append(None)
+            continue
+        _, lp, lpp, _ = _derivs_float(b0, ser, *row[7:], s)
+        r0 = 2.0 * b0 + mu * lp
+        b1.append(_clamp_float(b0 - r0 / (2.0 + mu * lpp), *cell))
+        r0s.append((r0, lp))
+    # The evaluation there; an entry keeps b1 where the next step is at rounding level,
+    # else its start where that is the root to rounding.
+    values = []
+    for (mu, row, cell, start, b0), b, r0, ser in zip(entries, b1, r0s,
+                                                      _series_lists(b1, _G_PAIRS4)):
+        ev = _derivs_float(b, ser, *row[7:], s)
+        if cell is not None:
+            try:
+                step = (2.0 * b + mu * ev[1]) / (2.0 + mu * ev[2])
+                ok = abs(step) <= 1e-15 * (1.0 + abs(b)) and b > cell[0]
+            except ZeroDivisionError:   # numpy: an inf or NaN step, not at rounding level
+                ok = False
+            if not ok:
+                r0, lp = r0
+                if not (cell[0] <= start <= cell[1] and start != 0.0
+                        and abs(r0) <= 1e-15 * (2.0 * abs(b0) + abs(mu * lp))):
+                    raise _HardEntry    # the safeguarded refinement: numpy's
+                b = start
+                ev = _derivs_float(b, _series_lists([b], _G_PAIRS4)[0], *row[7:], s)
+        values.append((b,) + ev)
+    out = []
+    n = len(rows)
+    for i in range(len(lam)):
+        b, length, lp, lpp, l3 = (list(col) for col in zip(*values[i * n:(i + 1) * n]))
+        total = length[0] * count[0]
+        for x, w in zip(length[1:], count[1:]):
+            total += x * w
+        if not any(b):      # every segment straight: the straight length, exactly
+            total = straight
+        out.append((total, b, lp, lpp, l3))
+    return out
 
 
 def _weighted_sum(values, weights):
