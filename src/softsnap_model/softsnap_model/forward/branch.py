@@ -187,7 +187,8 @@ def _pair_profiles(d1, d2, s: float, b_max: float) -> dict:
     ``b, mu, dmu`` (n, M) are views of ``tables`` (n, 4, M), whose last row is the
     segment length at the samples; ``end_length`` is the segment's length at its branch
     end as the table has it (within rounding of the one :func:`.path._problem` sums for
-    the reachable minimum); ``kinds`` the tuple of end kinds.
+    the reachable minimum); ``kinds`` the tuple of end kinds; ``table_lists`` per pair
+    the rows of ``tables`` as lists (converted once per pair).
     """
     s, b_max = float(s), float(b_max)
     keys = [(x, y, s, b_max) for x, y in zip(np.asarray(d1, dtype=float).tolist(),
@@ -200,7 +201,9 @@ def _pair_profiles(d1, d2, s: float, b_max: float) -> dict:
         built['end_length'] = built['length'][:, -1]
         scalars = np.stack([built[name] for name in _SCALAR_KEYS], axis=1)
         tables = np.stack([built[name] for name in _TABLE_KEYS], axis=1)
-        return [(scalars[j], tables[j], str(built['kind'][j])) for j in range(len(missing))]
+        # The tables also as lists (what a single solve's float sample builder reads).
+        return [(scalars[j], tables[j], str(built['kind'][j]), tuple(tables[j].tolist()))
+                for j in range(len(missing))]
 
     found = _PROFILE_CACHE.get_many(keys, build)
     scalars = np.array([f[0] for f in found]).T
@@ -208,6 +211,7 @@ def _pair_profiles(d1, d2, s: float, b_max: float) -> dict:
     out = dict(zip(_SCALAR_KEYS, scalars))
     out['mirror'] = scalars[1] != 0.0
     out['kinds'] = tuple([f[2] for f in found])     # end kinds (str)
+    out['table_lists'] = [f[3] for f in found]      # per pair: tables as lists
     out.update(tables=tables, b=tables[:, 0], mu=tables[:, 1], dmu=tables[:, 2])
     return out
 

@@ -151,18 +151,23 @@ class _PathTable:
                     return
             self._complete()    # not reached: a guess is off by one block at most
 
-    def _guess(self, length, blocks):
-        """The blocks whose approximate boundary lengths bracket ``length``, with a
-        margin (all of them if none does). Approximate: each segment's length
-        interpolated linearly in its profile table (off by some 1e-4 mm a segment, a
-        cell's curvature; about as close as its angle interpolated and the exact length
-        of that), no refinement: one interpolation per distinct segment."""
+    def _approx_lengths(self, lam):
+        """Approximate path lengths at the tensions ``lam`` (samples of the table): each
+        distinct segment's length interpolated linearly in its profile table (off by
+        some 1e-4 mm a segment, a cell's curvature; about as close as its angle
+        interpolated and the exact length of that), no refinement: one interpolation
+        per distinct segment."""
         seg = self.seg
-        at = np.minimum(np.arange(blocks[0], blocks[-1] + 2) * _BLOCK, self.n_cells)
-        mu = self.lam[at] / seg['k'][:, None]          # (U, blocks + 1)
-        approx = np.dot(seg['count'], np.array([
+        mu = lam / seg['k'][:, None]          # (U, n)
+        return np.dot(seg['count'], np.array([
             _interp(m, table_mu, table_len)
             for m, table_mu, table_len in zip(mu, seg['table_mu'], seg['table_len'])]))
+
+    def _guess(self, length, blocks):
+        """The blocks whose approximate boundary lengths (:meth:`_approx_lengths`)
+        bracket ``length``, with a margin (all of them if none does)."""
+        at = np.minimum(np.arange(blocks[0], blocks[-1] + 2) * _BLOCK, self.n_cells)
+        approx = self._approx_lengths(self.lam[at])
         margin = 0.05 + 1e-6 * abs(length)
         hit = ((approx[1:] <= length + margin) & (approx[:-1] >= length - margin)).nonzero()[0]
         if not hit.size:
@@ -171,19 +176,23 @@ class _PathTable:
 
     def _guess_cells(self, length, p, j):
         """Samples ``(first, last)`` of the cells among ``p .. j - 1`` whose approximate
-        lengths (as :meth:`_guess`'s, at every sample) bracket ``length`` with a margin
-        of :data:`_GUESS_MARGIN_MM`, or None if none does or more than a few do (then
-        whole blocks are built)."""
-        seg = self.seg
-        mu = self.lam[p:j + 1] / seg['k'][:, None]          # (U, j - p + 1)
-        approx = np.dot(seg['count'], np.array([
-            _interp(m, table_mu, table_len)
-            for m, table_mu, table_len in zip(mu, seg['table_mu'], seg['table_len'])]))
+        lengths (:meth:`_approx_lengths`) bracket ``length`` with a margin of
+        :data:`_GUESS_MARGIN_MM`, or None if none does or more than
+        :data:`_GUESS_CELLS` do (then whole blocks are built). In two steps: the
+        lengths every :data:`_BLOCK` samples, then at every sample between the two
+        that bracket ``length`` (fewer points to interpolate than all of them)."""
         margin = _GUESS_MARGIN_MM + 1e-9 * abs(length)
+        at = list(range(p, j, _BLOCK)) + [j]
+        approx = self._approx_lengths(self.lam[at])
+        hit = ((approx[:-1] >= length - margin) & (approx[1:] <= length + margin)).nonzero()[0]
+        if not hit.size or hit[-1] - hit[0] > 1:
+            return None
+        lo, hi = at[hit[0]], at[hit[-1] + 1]
+        approx = self._approx_lengths(self.lam[lo:hi + 1])
         hit = ((approx[:-1] >= length - margin) & (approx[1:] <= length + margin)).nonzero()[0]
         if not hit.size or hit[-1] - hit[0] >= _GUESS_CELLS:
             return None
-        return p + int(hit[0]), p + int(hit[-1]) + 1
+        return lo + int(hit[0]), lo + int(hit[-1]) + 1
 
     def _build_run(self, first, last):
         """The samples ``first .. last`` (a few), in plain floats
@@ -437,10 +446,9 @@ def _clamp_float(x, lo, hi):
 def _float_rows(seg):
     """Per distinct segment, what :func:`_path_samples_float` reads: its table rows
     ``b, mu, dmu`` as lists, their first and last ``mu`` and ``b``, and ``pre``."""
-    tables = seg['tables'][:, :3].tolist()
     pre = [x.tolist() for x in seg['pre']]
     return [(tb, tm, tdmu, tm[0], tm[-1], tb[0], tb[-1], *p)
-            for (tb, tm, tdmu), *p in zip(tables, *pre)]
+            for (tb, tm, tdmu, _), *p in zip(seg['table_lists'], *pre)]
 
 
 def _path_samples_float(lam, rows, k, count, s, straight):
@@ -649,6 +657,7 @@ def _problem(skeleton: Skeleton, d: tuple) -> _Problem:
     rows = np.array([d1, d2, k, direction, lam_c, lam_end])[:, first]
     seg = dict(zip(('d1', 'd2', 'k', 'direction', 'lam_c', 'lam_end'), rows))
     tables = prof['tables'][first]
+    seg['table_lists'] = [prof['table_lists'][i] for i in first]
     seg.update(table_b=tables[:, 0], table_mu=tables[:, 1], dmu=tables[:, 2],
                table_len=tables[:, 3], tables=tables,
                count=np.array([inverse.count(u) for u in range(len(first))], dtype=float))
