@@ -111,6 +111,7 @@ class _PathTable:
         # What a single cell's polynomial reads of the segments (_build_cell).
         self._seg_lists = [seg[name].tolist() for name in ('k', 'lam_c', 'lam_end', 'count')]
         self._float_rows = None     # the float sample builder's rows (_build_run)
+        self._run_lists = {}        # its last samples as lists: index -> (lam, total, b, ...)
         self._unpublished = False   # built samples not yet in the searchable lengths
         self._lock = threading.RLock()
 
@@ -202,10 +203,10 @@ class _PathTable:
         if idx:
             if self._float_rows is None:
                 self._float_rows = _float_rows(self.seg)
+            lam = self.lam[idx].tolist()
             try:
-                samples = _path_samples_float(
-                    self.lam[idx].tolist(), self._float_rows, self._seg_lists[0],
-                    self._seg_lists[3], self.s, self.straight)
+                samples = _path_samples_float(lam, self._float_rows, self._seg_lists[0],
+                                              self._seg_lists[3], self.s, self.straight)
             except (_HardEntry, ArithmeticError):
                 self._build_samples(np.array(idx))
             else:
@@ -215,6 +216,8 @@ class _PathTable:
                 self.b[at] = b
                 self._derivs[:, at] = (lp, lpp, l3)
                 self._sample_built[at] = True
+                # The same values as lists, for the cell's polynomial (_build_cell).
+                self._run_lists = dict(zip(idx, zip(lam, *zip(*samples))))
         built = self._exact[self._sample_built]
         if (built[1:] > built[:-1]).any():
             self._complete()
@@ -239,10 +242,15 @@ class _PathTable:
         zero). The row first, then the flag: a solve that sees the cell built without
         the lock (ensure's fast path) reads it."""
         at = slice(j, j + 2)
+        ends = self._run_lists.get(j), self._run_lists.get(j + 1)
+        if ends[0] and ends[1]:     # just built in floats: the lists at hand
+            lam, length, b, lp, lpp, l3 = zip(*ends)
+            derivs = [lp, lpp, l3]
+        else:
+            lam, length, b = self.lam[at].tolist(), self._exact[at].tolist(), self.b[at].tolist()
+            derivs = self._derivs[:, at].tolist()
         try:
-            self.poly[j] = _cell_polynomial(
-                self.lam[at].tolist(), self._exact[at].tolist(), self.b[at].tolist(),
-                self._derivs[:, at].tolist(), *self._seg_lists)
+            self.poly[j] = _cell_polynomial(lam, length, b, derivs, *self._seg_lists)
         except ArithmeticError:
             self._build_cells(j, j + 1)
         self._cell_built[j] = True
