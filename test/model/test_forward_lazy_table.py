@@ -173,3 +173,77 @@ def test_a_cells_float_polynomial_is_the_numpy_tables_bit_for_bit():
             assert np.array_equal(np.signbit(rows), np.signbit(table.poly[j])), (t, j)
             n_cells += 1
     assert n_cells > 9000 and n_numpy < 0.02 * n_cells
+
+
+def test_a_single_solves_float_samples_are_the_numpy_tables_bit_for_bit():
+    # A single first solve builds its cell's two or three samples in plain floats
+    # (path._path_samples_float), a block or a whole table builds them in numpy
+    # (path._path_samples): every sample of whole tables, built both ways. The cases:
+    # the paper's threadings, every segment a mirror one (straight before buckling),
+    # random 12-rib threadings on thick and thin ribs, uneven stiffness, and holes at
+    # the rib's ends (coinciding holes: branches ending at their shortest length).
+    rng = np.random.default_rng(6)
+    uneven = Skeleton(stiffness=tuple(rng.uniform(0.5, 2.0, 11)))
+    ends = Skeleton(rib_thickness_mm=0.0,
+                    holes_mm={'E': 12.5, 'R2': 6.0, 'R1': 3.0, 'L1': -3.0, 'L2': -6.0})
+    cases = [(SKELETONS[i % 2], t) for i, t in enumerate(THREADINGS)]
+    for sk in SKELETONS + (uneven, ends):
+        names = list(sk.holes_mm)
+        cases += [(sk, list(rng.choice(names, 12))) for _ in range(6)]
+    cases += [(ends, ['E'] * 4 + list(rng.choice(list(ends.holes_mm), 8))) for _ in range(4)]
+    n_samples = n_numpy = n_outside = 0
+    kinds = set()
+    for sk, t in cases:
+        forget_tables()
+        prob = fwd._problem(sk, key(sk, t))
+        kinds.update(prob.kind)
+        table = prob.path.complete()
+        rows = fpath._float_rows(table.seg)
+        k, count = table._seg_lists[0], table._seg_lists[3]
+        for j, lam in enumerate(table.lam.tolist()):
+            try:
+                (total, b, lp, lpp, l3), = fpath._path_samples_float(
+                    [lam], rows, k, count, table.s, table.straight)
+            except (fpath._HardEntry, ArithmeticError):   # built by numpy then (rare)
+                n_numpy += 1
+                continue
+            got = np.array([b, lp, lpp, l3])
+            ref = np.concatenate([table.b[j][None], table._derivs[:, j]])
+            assert total == table._exact[j], (t, j)
+            assert np.array_equal(got, ref), (t, j)
+            assert np.array_equal(np.signbit(got), np.signbit(ref)), (t, j)
+            mu = [lam / x for x in k]
+            n_outside += sum(m <= row[3] or m >= row[4] for m, row in zip(mu, rows))
+            n_samples += 1
+    assert {'contact', 'shortest'} <= kinds
+    assert n_samples > 15000 and n_numpy < 0.02 * n_samples
+    assert n_outside > 0.1 * n_samples      # straight (before buckling) and at the ends
+
+
+def test_a_float_built_cell_is_the_full_tables_cell():
+    # The first solve of a length builds its cell's samples in floats: the same entries,
+    # cell polynomial and solution as a table built in full, on random threadings.
+    rng = np.random.default_rng(11)
+    sk = SKELETONS[0]
+    n_float = 0
+    for _ in range(40):
+        t = list(rng.choice(list(sk.holes_mm), 12))
+        lo, hi = fwd.reachable_range(sk, t)
+        length = rng.uniform(lo, hi)
+        forget_tables()
+        res = fwd.solve_forward(sk, t, length)
+        table = fwd._problem(sk, key(sk, t)).path
+        built = table._sample_built.copy()
+        n_float += bool(table._run_lists) and built.sum() <= 2 * fpath._GUESS_CELLS
+        exact, b, derivs = table._exact.copy(), table.b.copy(), table._derivs.copy()
+        cells = np.array(table._cell_built)
+        poly = table.poly[cells].copy()
+        forget_tables()
+        full = fwd._problem(sk, key(sk, t)).path.complete()
+        assert np.array_equal(exact[built], full._exact[built])
+        assert np.array_equal(b[built], full.b[built])
+        assert np.array_equal(derivs[:, built], full._derivs[:, built])
+        assert np.array_equal(poly, full.poly[cells])
+        ref = fwd.solve_forward(sk, t, length)
+        assert np.array_equal(res.angles, ref.angles) and res.tension == ref.tension
+    assert n_float >= 30        # most first solves built only a few samples, in floats
