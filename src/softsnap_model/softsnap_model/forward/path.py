@@ -673,12 +673,12 @@ def _problem(skeleton: Skeleton, d: tuple) -> _Problem:
     # segments' tables hold them all), up to where the path ends (all segments at their
     # ends, or the first fold).
     lam_all = (seg['k'][:, None] * seg['table_mu']).ravel()
-    lam_all = lam_all[np.isfinite(lam_all)]
     if snap:
         lam_top = float(np.min(lam_end[folds]))
     else:
         finite = [x for x in lam_end.tolist() if math.isfinite(x)]
-        lam_top = max(finite) if finite else float(lam_all.max())
+        lam_top = max(finite) if finite else float(lam_all[np.isfinite(lam_all)].max())
+    # (lam_all <= lam_top also drops the tables' inf and NaN tensions.)
     lam_path = _sorted_unique(np.concatenate([[0.0], lam_all[lam_all <= lam_top], [lam_top]]))
     if lam_path.size > _PATH_SAMPLES:
         # Thin to a bounded table; keep the ends and every buckling tension (the kept
