@@ -3,8 +3,9 @@
 Owns :class:`_Problem` (everything about one skeleton and threading that does not depend
 on the length: per-segment tensions where branches start and end, and the path table
 :class:`_PathTable`, the exact samples of the whole quasi-static path and its quintic
-start polynomials, built as lengths ask for them: samples block by block, a single
-solve's cell polynomial on its own in plain floats), the memoised builders
+start polynomials, built as lengths ask for them: a single solve's cell, its two or
+three samples and its polynomial, in plain floats; else samples block by block in
+numpy), the memoised builders
 (:func:`_problem`, :func:`_single`, :func:`_single_named`,
 :func:`_threading_cached`), the batch layout of
 problem data (:func:`_stack`) and the length checks that raise the documented errors.
@@ -59,16 +60,18 @@ class _PathTable:
     The tensions ``lam`` (P,) of every sample are known from the branch profiles; a
     sample's branch magnitudes ``b`` (per distinct segment) and total length cost a
     refinement, and a cell's quintic start polynomial needs its two end samples. A
-    single solve asks for its length (:meth:`ensure`), which builds the samples of the
-    block of :data:`_BLOCK` cells holding its cell (numpy, one pass), found from
-    approximate lengths at the block boundaries (:meth:`_guess`, no refinement) and
-    confirmed on the exact ones, and then the polynomial of that one cell
-    (:meth:`_build_cell`, plain floats: a block's polynomials in numpy cost several
-    times more, all call overhead); a batch builds the rest (:meth:`complete`, numpy).
-    Every entry is computed on its own (the refinement, the derivatives and the
-    polynomials are element-wise, the length sums in a fixed order; the float and numpy
-    polynomials do the same operations in the same order), so a partly built table
-    agrees bit for bit with a full one wherever it is built.
+    single solve asks for its length (:meth:`ensure`), which finds the one to three
+    cells whose approximate lengths bracket it (:meth:`_guess_cells`, no refinement),
+    builds their samples in plain floats (:meth:`_build_run`: a few entries, where
+    numpy's ~150 calls for any number of them cost more) and, confirmed on the exact
+    lengths, the polynomial of the one cell (:meth:`_build_cell`, plain floats). Where
+    the guess misses or an entry needs numpy (the refinement), the samples of the
+    block of :data:`_BLOCK` cells holding the cell are built in one numpy pass
+    (:meth:`_guess`, :meth:`_build_blocks`); a batch builds the rest
+    (:meth:`complete`, numpy). Every entry is computed on its own (the refinement, the
+    derivatives and the polynomials are element-wise, the length sums in a fixed
+    order; the float and numpy builders do the same operations in the same order), so
+    a partly built table agrees bit for bit with a full one wherever it is built.
 
     ``len`` (P,) and its Python-list copies ``len_list``, ``neg_len_list`` (what the
     solves search) are exact at built samples; a sample not built holds the length of
