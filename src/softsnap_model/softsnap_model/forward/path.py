@@ -439,8 +439,7 @@ def _series_lists(b, pairs):
     """:func:`_series` at ``b^2`` for a list of floats ``b``: one numpy pass over all
     of them (element-wise, so each value is the one a table build computes), returned
     per entry as tuples of the columns."""
-    x = np.array(b)
-    return list(zip(*_series(x * x, pairs).tolist()))
+    return list(zip(*_series(np.array([x * x for x in b]), pairs).tolist()))
 
 
 def _clamp_float(x, lo, hi):
@@ -482,7 +481,8 @@ def _path_samples_float(lam, rows, k, count, s, straight):
                 b = b_first if mu <= mu_first else b_last
                 entries.append((mu, row, None, b, b))
                 continue
-            i = min(max(bisect.bisect_left(tm, mu), 1), len(tm) - 1)
+            # In 1 .. M - 1 (searchsorted's cell, clamped): tm[0] < mu < tm[-1] here.
+            i = bisect.bisect_left(tm, mu)
             b_lo, b_hi, mu_lo, mu_hi = tb[i - 1], tb[i], tm[i - 1], tm[i]
             span = mu_hi - mu_lo
             t = (mu - mu_lo) / span
