@@ -59,10 +59,10 @@ and path tables (``path._problem``, ``path._single``, ``path._single_named``; th
 single solve keeps its per-threading lists in the ``path._single`` entry) and the hole
 offsets of a threading given by name (``path._threading_cached``), least recently used
 out beyond ``path._THREADINGS_CACHED`` (2560) threadings, about 0.3 MB each. A path
-table is built lazily: a single solve builds the samples of the block of it around its
-length (a first solve about a twentieth of the table) and the start polynomial of its
-own cell, a batch the whole table; entries are computed one by one, so a partly built
-table answers exactly like a full one.
+table is built lazily: a single solve builds the two or three samples of its own cell
+(in plain floats; where that cannot, the 16-cell block around it, in numpy) and the
+cell's start polynomial, a batch the whole table; entries are computed one by one, so
+a partly built table answers exactly like a full one.
 :func:`clear_caches` empties them all (benchmarks use it to time a first solve).
 """
 from __future__ import annotations

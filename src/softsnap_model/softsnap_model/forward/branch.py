@@ -188,7 +188,7 @@ def _pair_profiles(d1, d2, s: float, b_max: float) -> dict:
     segment length at the samples; ``end_length`` is the segment's length at its branch
     end as the table has it (within rounding of the one :func:`.path._problem` sums for
     the reachable minimum); ``kinds`` the tuple of end kinds; ``table_lists`` per pair
-    the rows of ``tables`` as lists (converted once per pair).
+    its rows ``b, mu, dmu`` as memoryviews (indexing gives Python floats).
     """
     s, b_max = float(s), float(b_max)
     keys = [(x, y, s, b_max) for x, y in zip(np.asarray(d1, dtype=float).tolist(),
@@ -201,8 +201,10 @@ def _pair_profiles(d1, d2, s: float, b_max: float) -> dict:
         built['end_length'] = built['length'][:, -1]
         scalars = np.stack([built[name] for name in _SCALAR_KEYS], axis=1)
         tables = np.stack([built[name] for name in _TABLE_KEYS], axis=1)
-        # The tables also as lists (what a single solve's float sample builder reads).
-        return [(scalars[j], tables[j], str(built['kind'][j]), tuple(tables[j].tolist()))
+        # Rows b, mu, dmu also as sequences of Python floats (what a single solve's float
+        # sample builder reads): read-only memoryviews of the table, no copy.
+        return [(scalars[j], tables[j], str(built['kind'][j]),
+                 tuple(memoryview(tables[j, r]).toreadonly() for r in range(3)))
                 for j in range(len(missing))]
 
     found = _PROFILE_CACHE.get_many(keys, build)
@@ -211,7 +213,7 @@ def _pair_profiles(d1, d2, s: float, b_max: float) -> dict:
     out = dict(zip(_SCALAR_KEYS, scalars))
     out['mirror'] = scalars[1] != 0.0
     out['kinds'] = tuple([f[2] for f in found])     # end kinds (str)
-    out['table_lists'] = [f[3] for f in found]      # per pair: tables as lists
+    out['table_lists'] = [f[3] for f in found]      # per pair: rows as memoryviews
     out.update(tables=tables, b=tables[:, 0], mu=tables[:, 1], dmu=tables[:, 2])
     return out
 

@@ -455,10 +455,11 @@ def _clamp_float(x, lo, hi):
 
 def _float_rows(seg):
     """Per distinct segment, what :func:`_path_samples_float` reads: its table rows
-    ``b, mu, dmu`` as lists, their first and last ``mu`` and ``b``, and ``pre``."""
+    ``b, mu, dmu`` (memoryviews: Python floats when indexed, ``bisect`` searches them),
+    their first and last ``mu`` and ``b``, and ``pre``."""
     pre = [x.tolist() for x in seg['pre']]
     return [(tb, tm, tdmu, tm[0], tm[-1], tb[0], tb[-1], *p)
-            for (tb, tm, tdmu, _), *p in zip(seg['table_lists'], *pre)]
+            for (tb, tm, tdmu), *p in zip(seg['table_lists'], *pre)]
 
 
 def _path_samples_float(lam, rows, k, count, s, straight):
