@@ -60,9 +60,10 @@ single solve keeps its per-threading lists in the ``path._single`` entry) and th
 offsets of a threading given by name (``path._threading_cached``), least recently used
 out beyond ``path._THREADINGS_CACHED`` (2560) threadings, about 0.3 MB each. A path
 table is built lazily: a single solve builds the two or three samples of its own cell
-(in plain floats; where that cannot, the 16-cell block around it, in numpy) and the
-cell's start polynomial, a batch the whole table; entries are computed one by one, so
-a partly built table answers exactly like a full one.
+(in plain floats, or numpy for an entry that needs the refinement; the 16-cell block
+around it where the cell's guess misses) and the cell's start polynomial, a batch the
+whole table; entries are computed one by one, so a partly built table answers exactly
+like a full one.
 :func:`clear_caches` empties them all (benchmarks use it to time a first solve).
 """
 from __future__ import annotations

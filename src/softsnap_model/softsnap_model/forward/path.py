@@ -64,10 +64,11 @@ class _PathTable:
     cells whose approximate lengths bracket it (:meth:`_guess_cells`, no refinement),
     builds their samples in plain floats (:meth:`_build_run`: a few entries, where
     numpy's ~150 calls for any number of them cost more) and, confirmed on the exact
-    lengths, the polynomial of the one cell (:meth:`_build_cell`, plain floats). Where
-    the guess misses or an entry needs numpy (the refinement), the samples of the
-    block of :data:`_BLOCK` cells holding the cell are built in one numpy pass
-    (:meth:`_guess`, :meth:`_build_blocks`); a batch builds the rest
+    lengths, the polynomial of the one cell (:meth:`_build_cell`, plain floats). An
+    entry that needs numpy (the refinement) has those samples built by numpy
+    (:meth:`_build_samples`); where the guess misses, the samples of the block of
+    :data:`_BLOCK` cells holding the cell are built in one numpy pass (:meth:`_guess`,
+    :meth:`_build_blocks`); a batch builds the rest
     (:meth:`complete`, numpy). Every entry is computed on its own (the refinement, the
     derivatives and the polynomials are element-wise, the length sums in a fixed
     order; the float and numpy builders do the same operations in the same order), so
