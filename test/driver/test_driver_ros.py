@@ -229,6 +229,28 @@ def test_state_and_measured_come_at_the_poll_rate_while_commands_stream(start_no
     assert probe.last().last_error == '' and probe.last().online
 
 
+def test_a_subscriber_joining_later_gets_measured_lengths_and_states(start_node, ros_node, sim_server):
+    """Topics nobody subscribes to are not published: a reader that joins later (the
+    driver has polled for a while with none) gets them from then on."""
+    from softsnap_interfaces.msg import CableLength, ModuleState
+    server = sim_server()
+    start_node('softsnap_driver', 'driver_node', *driver_args(server.port))
+    base = f'{NS}/m1'
+    # First only a state reader, until the driver has polled with no measured reader.
+    states = []
+    ros_node.create_subscription(ModuleState, f'{base}/state', states.append, 50)
+    assert ros_node.spin_until(lambda: len(states) >= 5 and states[-1].online, 20.0)
+    measured = []
+    ros_node.create_subscription(CableLength, f'{base}/cable_length/measured', measured.append, 50)
+    assert ros_node.spin_until(lambda: len(measured) >= 3, 10.0), 'no measured length'
+    assert measured[-1].header.frame_id == 'm1'
+    assert measured[-1].cable_length == pytest.approx(STRAIGHT_M, abs=1e-3)
+    # And a second state reader that joins late gets states too.
+    late = []
+    ros_node.create_subscription(ModuleState, f'{base}/state', late.append, 50)
+    assert ros_node.spin_until(lambda: len(late) >= 3, 10.0), 'no state for a late reader'
+
+
 def test_parameters_are_validated(start_node, ros_node, sim_server, tmp_path):
     from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
     from rcl_interfaces.srv import SetParameters

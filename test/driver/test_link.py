@@ -481,6 +481,34 @@ def test_stream_of_small_steps_needs_fewer_requests_and_ends_on_its_final_target
     assert last(link).counters.targets_sent == len(received(server))
 
 
+def test_a_waiting_target_is_derived_again_with_a_calibration_changed_meanwhile(sim_server, link_to):
+    """The set re-derives a command accepted under another calibration (the accepted one
+    is reused only with the very calibration it was derived with): a target waiting for
+    its poll slot goes out in the new counts, or is refused if the new range excludes it."""
+    poll = 2.0
+    server = sim_server()
+    link = link_to(server, poll_period_s=poll)
+    base = CAL.command(0.19).count
+    link.command(CAL.length_m(base))
+    assert wait_for(lambda: targets(server) == [base])
+    length = CAL.length_m(base + DEADBAND_COUNTS)       # within the deadband: waits
+    link.command(length)
+    finer = CableCalibration(counts_per_mm=89.13 * 1.01, straight_length_m=0.198,
+                             max_contraction_m=0.080)
+    link.update_config(LinkConfig(**{**link.config.__dict__, 'calibration': finer}))
+    want = finer.command(length).count
+    assert want != CAL.command(length).count
+    assert wait_for(lambda: targets(server)[-1] == want, 4 * poll), targets(server)
+    # A range that no longer holds the waiting length: refused when it would go out.
+    link.command(finer.length_m(want + 10))             # within the deadband: waits
+    short = CableCalibration(counts_per_mm=89.13, straight_length_m=0.198,
+                             max_contraction_m=0.001, clamp_margin_m=0.0)
+    link.update_config(LinkConfig(**{**link.config.__dict__, 'calibration': short}))
+    assert wait_for(lambda: last(link).counters.commands_refused == 1, 4 * poll)
+    assert targets(server)[-1] == want
+    assert 'command refused' in last(link).last_error
+
+
 def test_zero_target_deadband_sends_every_changed_target(sim_server, link_to):
     server = sim_server()
     link = link_to(server, poll_period_s=2.0, target_deadband_counts=0)
