@@ -38,7 +38,8 @@ from . import geometry
 from .forward import PreparedBatch, reachable_range, solve_forward
 from .scene import Scene, compose_base_pose, quaternion_to_matrix
 
-__all__ = ['BATCH_MIN_PROBLEMS', 'SOURCES', 'ModulePrediction', 'PredictorCounters', 'RobotPredictor']
+__all__ = ['BATCH_MIN_PROBLEMS', 'SOURCES', 'ModulePrediction', 'PredictorCounters',
+           'RobotPredictor']
 
 #: The two shapes kept per module: from the commanded and from the measured cable length.
 SOURCES = ('commanded', 'predicted')
