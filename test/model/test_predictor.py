@@ -223,3 +223,40 @@ def test_an_idle_tick_has_nothing_pending_and_returns_no_shapes(brittle_star):
     # The same length again is skipped at submit: still nothing pending.
     predictor.submit('predicted', 'green', straight(brittle_star, 'green') - 12.0)
     assert not predictor.has_pending and predictor.counters.skipped_unchanged == 1
+
+
+def test_small_ticks_are_solved_one_by_one_and_large_ones_in_one_batch(brittle_star):
+    # Issue 17, sixth pass: a batch call has a fixed cost of about four single solves,
+    # so fewer than BATCH_MIN_PROBLEMS distinct problems go one by one. Both give the
+    # certified shape (to rounding), and the same ticks give the same shapes every time.
+    from softsnap_model.predictor import BATCH_MIN_PROBLEMS
+
+    def feed(predictor, tick):
+        # Tick t changes t modules' commanded lengths (1 to 5 problems).
+        for i, m in enumerate(brittle_star.modules[:tick % 5 + 1]):
+            predictor.submit('commanded', m.name, m.straight_length_mm - 10.0 - 3.0 * i - tick)
+        return predictor.tick(rib_centers=True)['commanded']
+
+    runs = []
+    for _ in range(2):
+        predictor = RobotPredictor(brittle_star)
+        calls = []
+        solve = predictor._batch_solver.solve
+        predictor._batch_solver.solve = lambda *a, **k: calls.append(len(a[1])) or solve(*a, **k)
+        shapes = [feed(predictor, tick) for tick in range(10)]
+        assert calls == [5, 5], calls     # ticks 4 and 9 have five problems
+        assert BATCH_MIN_PROBLEMS == 5
+        runs.append(shapes)
+        for tick_shapes in shapes:
+            for shape in tick_shapes:
+                want = solve_forward(brittle_star.skeleton,
+                                     brittle_star.module(shape.module).threading_mm,
+                                     shape.cable_length_mm)
+                np.testing.assert_allclose(shape.angles, want.angles, rtol=0, atol=1e-12)
+                np.testing.assert_allclose(shape.rib_centers_mm, want.rib_centers,
+                                           rtol=0, atol=1e-9)
+                assert shape.converged
+    for first, second in zip(*runs):    # deterministic: bit-identical shapes
+        for a, b in zip(first, second):
+            assert a.module == b.module and np.array_equal(a.angles, b.angles)
+            assert a.tension == b.tension

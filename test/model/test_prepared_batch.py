@@ -160,3 +160,68 @@ def test_predictor_refuses_a_bad_group_at_tick_time_and_solves_the_others():
                                shape.cable_length_mm)
         np.testing.assert_allclose(shape.angles, single.angles, rtol=0, atol=1e-12)
     assert predictor.shapes('predicted')[scene.module_names.index('blue')] is None
+
+
+def _general_and_started(prepared, threadings, lengths):
+    """(general path's result dict, the started path's or None) for one call's rows."""
+    from softsnap_model.forward import newton
+    uid, reasons = prepared._rows([tuple(t) for t in threadings])
+    assert not reasons
+    rows = prepared._rows_of(uid)
+    started = prepared._start(rows, lengths)
+    copy = tuple(np.array(x, copy=True) for x in started)
+    with np.errstate(all='ignore'):
+        fast = newton._solve_started(rows[0], lengths, started)
+    for before, after in zip(copy, started):
+        np.testing.assert_array_equal(before, after)    # the start is left as it was
+    general = newton._solve_arrays(rows[0], lengths, start=copy)
+    return general, fast
+
+
+def test_a_certified_table_start_skips_newton_and_is_the_general_path_bit_for_bit():
+    # Issue 17, sixth pass: most ticks' table starts are the answer already; the lean
+    # path must then give every field exactly as the general path does, and decline
+    # (None) whatever needs the general path: slack rows, straight mirror segments past
+    # buckling, starts that are not certified.
+    table = {**PAPER, 'alternating': ALTERNATING}
+    names = list(table)
+    prepared = PreparedBatch(SK, [tuple(t) for t in table.values()])
+    rng = np.random.default_rng(6)
+    taken = declined = 0
+    for _ in range(60):
+        picked = [table[names[k]] for k in rng.integers(0, len(names), 10)]
+        low = np.array([reachable_range(SK, t)[0] for t in picked])
+        straight = np.array([SK.straight_length_mm(t) for t in picked])
+        # Down to 1e-6 mm above the minimum (contact), up to just below straight; one
+        # tick in six has a slack row.
+        lengths = low + np.exp(rng.uniform(np.log(1e-6), 0.0, 10)) * (straight - low) * 0.999
+        if rng.uniform() < 1 / 6:
+            lengths[rng.integers(0, 10)] = straight[0] + 1.0
+        general, fast = _general_and_started(prepared, picked, lengths)
+        if fast is None:
+            declined += 1
+            continue
+        taken += 1
+        assert set(fast) == set(general)
+        for key, value in general.items():
+            np.testing.assert_array_equal(fast[key], value, err_msg=key)
+            assert fast[key].dtype == value.dtype, key
+    assert taken >= 20 and declined >= 5, (taken, declined)
+
+
+def test_the_started_path_declines_slack_and_mirror_buckling_rows():
+    prepared = PreparedBatch(SK, [tuple(PAPER['yellow']), tuple(ALTERNATING)])
+    straight = SK.straight_length_mm(PAPER['yellow'])
+    general, fast = _general_and_started(prepared, [PAPER['yellow']] * 2,
+                                         np.array([straight - 20.0, straight + 1.0]))
+    assert fast is None and general['slack'].tolist() == [False, True]
+    # Alternating threading: its mirror segments are straight until they buckle, then
+    # start from their own branch; a sweep over the range crosses that.
+    low, top = reachable_range(SK, ALTERNATING)
+    lengths = np.linspace(low + 1e-3, top - 1e-3, 400)
+    outcomes = [_general_and_started(prepared, [ALTERNATING], lengths[i:i + 1])
+                for i in range(lengths.size)]
+    assert any(fast is None for _, fast in outcomes)
+    for general, fast in outcomes:
+        if fast is not None:
+            np.testing.assert_array_equal(fast['angles'], general['angles'])

@@ -13,9 +13,11 @@ not need, and counts what it skipped:
 - all problems of one tick are solved together in one vectorised call of a
   :class:`~softsnap_model.forward.PreparedBatch` holding the tables of the scene's
   threadings, stacked once (the batch's per-item cost is a small fraction of a single
-  solve's; a warm start changes only the cost, never the answer, so the batch gives the
-  same shapes); a lone problem is solved on its own, warm-started from that module's
-  previous shape;
+  solve's, but a call has a fixed cost of about four single solves); fewer than
+  :data:`BATCH_MIN_PROBLEMS` problems are solved one by one, warm-started from each
+  module's previous shape. Both give the certified shape; they agree to rounding (a few
+  ulp), and which one a tick uses depends only on how many distinct problems it has, so
+  the same sequence of ticks always gives the same shapes;
 - a tick with nothing pending costs a dictionary look-up: only slots with a new length
   are visited;
 - rib centres are handed on only when the caller asks for them (someone subscribes), so
@@ -36,10 +38,16 @@ from . import geometry
 from .forward import PreparedBatch, reachable_range, solve_forward
 from .scene import Scene, compose_base_pose, quaternion_to_matrix
 
-__all__ = ['SOURCES', 'ModulePrediction', 'PredictorCounters', 'RobotPredictor']
+__all__ = ['BATCH_MIN_PROBLEMS', 'SOURCES', 'ModulePrediction', 'PredictorCounters',
+           'RobotPredictor']
 
 #: The two shapes kept per module: from the commanded and from the measured cable length.
 SOURCES = ('commanded', 'predicted')
+
+#: Distinct problems of one tick from which they are solved in one batch call rather
+#: than one by one: the crossover measured for 12-rib modules (a batch call of 1-4 rows
+#: cost 340-390 us, one by one 100-330 us; 6 rows: 430 against 610 us).
+BATCH_MIN_PROBLEMS = 5
 
 #: Default length change (mm) below which a module is not solved again (0.1 µm: far below
 #: an encoder count, so no visible shape change is ever skipped).
@@ -270,7 +278,7 @@ class RobotPredictor:
         refuses bad groups one by one (with the single solve's reason), so a bad length
         never holds up the others.
         """
-        if self.batch and len(groups) > 1:
+        if self.batch and len(groups) >= BATCH_MIN_PROBLEMS:
             keys = list(groups)
             lengths = np.fromiter((key[1] for key in keys), dtype=float, count=len(keys))
             # Offsets as the (interned) tuples the solver was prepared with: one
