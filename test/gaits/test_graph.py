@@ -189,3 +189,14 @@ def test_physics_graph_runs_every_node_but_the_simulator_and_the_recorder_on_sim
     assert not any('use_sim_time' in p for p in driver_parameters(wall).values())
     launched = graph_from_arguments('brittle_star', {'physics': 'true', 'drivers': drivers})
     assert on_sim_time_of(launched) == on_sim_time
+
+
+def test_demo_option_drivers_takes_the_two_modes_and_refuses_others(capsys):
+    from softsnap_gaits.demo import build_parser
+    assert build_parser().parse_args([]).drivers == 'container'
+    assert build_parser().parse_args(['--drivers', 'separate']).drivers == 'separate'
+    with pytest.raises(SystemExit) as exit_info:
+        build_parser().parse_args(['--drivers', 'threads'])
+    assert exit_info.value.code == 2
+    assert "--drivers: invalid choice: 'threads' (choose from 'container', 'separate')" \
+        in capsys.readouterr().err
