@@ -20,9 +20,10 @@ once. For a scene with modules ``m1..mN`` in namespace ``/<scene>``:
 - ``bag_recorder`` (only with ``bag=``): ``bag record --all`` of the robot's ROS domain
   to a rosbag2 directory (:mod:`softsnap_gaits.bag`).
 
-With ``physics=True`` every node but ``sim_robot`` and the bag recorder (and every driver
-in the container) gets ``use_sim_time: true``: ``sim_robot`` publishes ``/clock``, so the gait, the drivers'
-stamps and stall timing, the model and the recording follow simulated time. The bag
+With ``physics=True`` every node but ``sim_robot`` and the bag recorder gets
+``use_sim_time: true`` (a container's drivers each in their own entry of its parameters
+file): ``sim_robot`` publishes ``/clock``, so the gait, the drivers' stamps and stall
+timing, the model and the recording follow simulated time. The bag
 recorder keeps the wall clock: it stores each message's receive time from the middleware
 (the system clock), as ``ros2 bag record`` does without ``--use-sim-time``, and records
 ``/clock`` with the rest, so a replay has the simulated time too.
@@ -156,7 +157,7 @@ def robot_graph(scene: Scene, *, simulate: bool = True, gait: str | None = None,
         directory, which must not exist; no recorder if None.
     drivers : {'container', 'separate'}
         ``'container'``: one ``driver_container`` process drives every module (its drivers'
-        parameters as node-specific rules, :class:`NodeSpec`); ``'separate'``: one
+        parameters in a parameters file, :class:`NodeSpec`); ``'separate'``: one
         ``driver_node`` process per module. Both name module m's driver ``<m>_driver``.
 
     Raises
