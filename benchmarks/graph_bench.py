@@ -9,10 +9,13 @@ against the configured rate; commands lost between the gait node and the drivers
 their own counters); CPU (% of one core) and memory (RSS) per node.
 
 Usage: .venv/bin/python benchmarks/graph_bench.py [--seconds 20] [--rates 50 100]
+[--drivers container separate] (the demo's drivers in one driver_container, its default,
+and/or one driver_node process per module)
 """
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import os
 import subprocess
@@ -22,12 +25,12 @@ import tempfile
 import numpy as np
 
 
-def run_demo(rate_hz: float, seconds: float, scene: str) -> dict:
+def run_demo(rate_hz: float, seconds: float, scene: str, drivers: str = 'container') -> dict:
     with tempfile.TemporaryDirectory() as run_dir:
         out = subprocess.run(
             [sys.executable, '-m', 'softsnap_gaits.demo', '--scene', scene, '--seconds', str(seconds),
              '--gait-rate', str(rate_hz), '--model-rate', str(max(100.0, rate_hz)),
-             '--run-dir', run_dir, '--json'],
+             '--drivers', drivers, '--run-dir', run_dir, '--json'],
             capture_output=True, text=True, timeout=seconds + 180, stdin=subprocess.DEVNULL)
     if out.returncode != 0:
         raise RuntimeError(f'demo failed ({out.returncode}):\n{out.stdout[-2000:]}\n{out.stderr[-2000:]}')
@@ -39,9 +42,12 @@ def main() -> None:
     parser.add_argument('--seconds', type=float, default=20.0)
     parser.add_argument('--rates', type=float, nargs='+', default=[50.0, 100.0])
     parser.add_argument('--scene', default='brittle_star')
+    parser.add_argument('--drivers', nargs='+', choices=('container', 'separate'),
+                        default=['container'],
+                        help="the demo's driver processes; both modes run one after the other")
     args = parser.parse_args()
-    for rate in args.rates:
-        summary = run_demo(rate, args.seconds, args.scene)
+    for rate, drivers in itertools.product(args.rates, args.drivers):
+        summary = run_demo(rate, args.seconds, args.scene, drivers)
         modules = summary['modules'].values()
         cmd_med = np.median([m['command_to_shape_ms']['median'] for m in modules])
         cmd_p99 = np.max([m['command_to_shape_ms']['p99'] for m in modules])
@@ -49,7 +55,8 @@ def main() -> None:
         meas_p99 = np.max([m['measured_to_shape_ms']['p99'] for m in modules])
         achieved = np.mean([m['command_rate_hz'] for m in modules])
         lost = sum(m['commands_lost'] or 0 for m in modules)  # gait sent - drivers received
-        print(f"\n{summary['scene']}: gait at {rate:g} Hz for {summary['seconds']:g} s")
+        print(f"\n{summary['scene']}: gait at {rate:g} Hz for {summary['seconds']:g} s, "
+              f"drivers: {drivers}")
         print(f'  command -> commanded shape: median {cmd_med:.2f} ms, p99 {cmd_p99:.2f} ms')
         print(f'  measured -> predicted shape: median {meas_med:.2f} ms, p99 {meas_p99:.2f} ms')
         print(f'  command rate achieved: {achieved:.1f} Hz of {rate:g} Hz per module; '

@@ -1,6 +1,6 @@
 """sim_robot: the winch under load, options, determinism and locomotion of the core loop.
 
-The socket and ROS side (real driver_node processes) is in test_sim_robot_ros.py.
+The socket and ROS side (the graph's driver_container) is in test_sim_robot_ros.py.
 """
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""sim_robot as a process over real loopback sockets, driven by real driver_node processes.
+"""sim_robot as a process over real loopback sockets, driven by the graph's driver_container.
 
 The gripper (four modules hanging from a fixed connector: the cheapest robot to simulate)
 runs in sim_robot; its drivers are started with the parameters the demo gives them
@@ -27,15 +27,22 @@ def _graph(port_base: int, **sim_params):
                        sim_robot_parameters=params)
 
 
-def _start(start_node, specs, names):
+def _start(start_node, tmp_path, specs, names):
+    """Start the processes named in `names` (the graph's driver_container drives every
+    module)."""
+    from softsnap_gaits.graph import with_driver_parameters
     procs = {}
-    for spec in specs:
-        if spec.executable == 'driver_node':
-            # One command per test, not a gait's stream: no stale-stream watchdog.
-            spec.parameters['command_timeout_s'] = 0.0
+    # One command per test, not a gait's stream: no stale-stream watchdog.
+    for spec in with_driver_parameters(specs, command_timeout_s=0.0):
         if spec.name in names:
-            procs[spec.name] = start_node(spec.package, spec.executable, *spec.ros_args())
+            procs[spec.name] = start_node(spec.package, spec.executable,
+                                          *spec.ros_args(spec.write_node_params(tmp_path)))
     return procs
+
+
+def _driver(specs, module):
+    from softsnap_gaits.graph import driver_parameters
+    return driver_parameters(specs)[module]
 
 
 class Probe:
@@ -78,10 +85,10 @@ class Probe:
 
 
 def test_a_length_command_moves_the_simulated_module_and_the_encoder_follows(
-        start_node, ros_node, slot_port):
+        start_node, ros_node, slot_port, tmp_path):
     specs = _graph(slot_port(4))
     modules = ['front_left', 'back_left']
-    procs = _start(start_node, specs, {'sim_robot', 'driver_front_left', 'driver_back_left'})
+    procs = _start(start_node, tmp_path, specs, {'sim_robot', 'driver_container'})
     probe = Probe(ros_node, modules)
     assert ros_node.spin_until(probe.ready, TIMEOUT_S), \
         '\n'.join(p.output()[-2000:] for p in procs.values())
@@ -94,7 +101,7 @@ def test_a_length_command_moves_the_simulated_module_and_the_encoder_follows(
     assert len(shape.base_poses) == 4 and probe.poses[-1].header.frame_id == 'world'
     tip_before = {m: probe.tip(m) for m in modules}
     straight_m = probe.states['front_left'][-1].measured_cable_length
-    driver = next(s for s in specs if s.name == 'driver_front_left').parameters
+    driver = _driver(specs, 'front_left')
     target_m = straight_m - 0.020
 
     probe.command('front_left', target_m)
@@ -128,10 +135,10 @@ def test_a_length_command_moves_the_simulated_module_and_the_encoder_follows(
 
 
 def test_a_winch_stalled_by_the_cable_tension_is_reported_by_its_driver(
-        start_node, ros_node, slot_port):
+        start_node, ros_node, slot_port, tmp_path):
     # A motor 100 times weaker than the GA12-N20: the cable stops it well before 30 mm.
     specs = _graph(slot_port(4), stall_torque_nm=0.0015)
-    procs = _start(start_node, specs, {'sim_robot', 'driver_front_left'})
+    procs = _start(start_node, tmp_path, specs, {'sim_robot', 'driver_container'})
     probe = Probe(ros_node, ['front_left'])
     assert ros_node.spin_until(probe.ready, TIMEOUT_S), \
         '\n'.join(p.output()[-2000:] for p in procs.values())

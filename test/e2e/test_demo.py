@@ -55,7 +55,9 @@ def test_demo_runs_the_robot_and_records_it(scene, tmp_path, read_rrd):
         assert m['tip_error_mm_mean'] >= 0.0 and m['tip_error_mm_max'] < 400.0, (name, m)
     # Every process stopped on SIGINT (no kill, no crash, no orphan).
     assert all(code in (0, -2) for code in summary['exit_codes'].values()), summary['exit_codes']
-    assert len(summary['exit_codes']) == 5 * 2 + 4  # modules, drivers, model, gait, rerun, bag
+    # Five simulated modules, one driver_container for the five drivers, model, gait,
+    # rerun, bag.
+    assert len(summary['exit_codes']) == 5 + 1 + 4 and 'driver_container' in summary['exit_codes']
     recording = run_dir / f'{scene}.rrd'
     assert summary['recording'] == str(recording.resolve())
     assert recording.stat().st_size > 10_000
@@ -168,7 +170,8 @@ def test_a_module_that_never_comes_online_stops_the_demo_with_what_is_missing(tm
     assert proc.returncode == 1, proc.stdout[-2000:] + proc.stderr[-3000:]
     assert 'did not start within 8 s' in proc.stderr
     assert 'front_left: ' in proc.stderr and 'module online' in proc.stderr, proc.stderr[-3000:]
-    assert 'driver_front_left (still running); its last output' in proc.stderr
+    # The drivers' one process (driver_container), its log shown.
+    assert 'driver_container (still running); its last output' in proc.stderr, proc.stderr[-3000:]
     assert 'SoftSnap demo' not in proc.stdout
     report = json.loads(proc.stdout[proc.stdout.index('{'):])
     assert report['started'] is False and set(report['not_seen']) == {
@@ -178,7 +181,8 @@ def test_a_module_that_never_comes_online_stops_the_demo_with_what_is_missing(tm
 
 def test_two_demos_at_once_both_report_real_numbers(tmp_path):
     # Two robots' slots, not their bags (test_demo_runs_the_robot_and_records_it checks
-    # the bag): without the two recorders, 2 x 13 processes share the 2 cores.
+    # the bag): without the two recorders, 2 x 8 processes (4 sims, the drivers'
+    # container, model, gait, rerun logger) share the 2 cores.
     runs = [tmp_path / 'a', tmp_path / 'b']
     demos = [subprocess.Popen(
         [sys.executable, '-m', 'softsnap_gaits.demo', '--scene', 'gripper', '--seconds', '4',
@@ -313,7 +317,8 @@ def test_ctrl_c_stops_every_process(tmp_path):
     run_dir = tmp_path / 'run'
     demo = start_demo(run_dir)
     try:
-        wait_for_children(run_dir, 4 * 2 + 2)  # gripper: 4 sims + 4 drivers + model + gait
+        # gripper: 4 sims + 1 driver_container + model + gait + bag recorder
+        wait_for_children(run_dir, 4 + 1 + 3)
         time.sleep(2.0)  # let the gait run a little
         demo.send_signal(signal.SIGINT)
         out, err = demo.communicate(timeout=60)
@@ -329,7 +334,7 @@ def test_a_crashing_node_stops_the_demo_without_orphans(tmp_path):
     run_dir = tmp_path / 'run'
     demo = start_demo(run_dir)
     try:
-        children = wait_for_children(run_dir, 4 * 2 + 2)
+        children = wait_for_children(run_dir, 4 + 1 + 3)
         model = next(p for p in children if 'model_node' in ' '.join(p.cmdline()))
         model.kill()  # SIGKILL: a crash, not a clean stop
         out, err = demo.communicate(timeout=60)

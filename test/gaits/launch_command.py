@@ -2,7 +2,8 @@
 
 Reproduces launch_ros (branch ``jazzy``, ``launch_ros/actions/node.py``) for the keyword
 arguments of :func:`softsnap_gaits.launching.node_action_kwargs` (package, executable,
-name, namespace, one dict of parameters):
+name, namespace, a list of parameters: one dict, then for a driver_container the path of
+its drivers' parameters file):
 
 - ``Node.__init__``: ``[<lib>/<package>/<executable>, '--ros-args', '-r', '__node:=NAME']``
   (``ExecutableInPackage`` resolves to ``<prefix>/lib/<package>/<executable>``);
@@ -52,6 +53,9 @@ def launch_ros_command(kwargs: dict, package_prefix: Path, params_dir: Path) -> 
            '-r', f'__node:={name}', '-r', f'__ns:={namespace}']
     fqn = f'{namespace.rstrip("/")}/{name}'
     for params in kwargs.get('parameters') or []:
+        if isinstance(params, Path):
+            cmd += ['--params-file', str(params)]
+            continue
         with tempfile.NamedTemporaryFile(mode='w', prefix='launch_params_', delete=False,
                                          dir=params_dir) as h:
             yaml.dump({fqn: {'ros__parameters': _flatten(params)}}, h, default_flow_style=False)

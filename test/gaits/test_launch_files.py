@@ -3,9 +3,11 @@
 ``launch`` is not on PyPI, so the launch files' graphs (softsnap_gaits.launching) are
 started here with :func:`launch_command.launch_ros_command`, which reproduces
 ``launch_ros.actions.Node``: ``--ros-args -r __node:=NAME -r __ns:=/NS --params-file
-launch_params_XXXX`` with the parameters in a temporary YAML file. Then the graph must
-come up: every node under its name and namespace, every driver reporting its module
-online, and (for the scene started whole) the model node publishing shapes.
+launch_params_XXXX`` with the parameters in a temporary YAML file (and, for the
+driver_container, ``--params-file <its drivers' file>``). Then the graph must come up:
+every node under its name and namespace (each driver as ``<module>_driver``, in the
+container or not), every driver reporting its module online, and (for the scene
+started whole) the model node publishing shapes.
 
 The launch argument ``sim_port_base`` gives the simulated modules this session's free
 ports instead of the scenes' fixed ones, so the test can run beside a demo.
@@ -19,6 +21,7 @@ import pytest
 import yaml
 
 from launch_command import launch_ros_command
+from softsnap_gaits.graph import driver_parameters
 from softsnap_gaits.launching import LAUNCH_ARGUMENTS, graph_from_arguments, node_action_kwargs
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
@@ -44,7 +47,7 @@ def start_launch_graph(start_node, tmp_path, scene, arguments, only=None):
     params_dir.mkdir(exist_ok=True)
     started = []
     for spec in specs:
-        kwargs = node_action_kwargs(spec)
+        kwargs = node_action_kwargs(spec, params_dir)
         cmd = launch_ros_command(kwargs, Path(get_package_prefix(kwargs['package'])), params_dir)
         proc = start_node(kwargs['package'], kwargs['executable'], *cmd[1:])
         started.append((spec, cmd, proc))
@@ -54,7 +57,8 @@ def start_launch_graph(start_node, tmp_path, scene, arguments, only=None):
 def wait_for_graph(ros_node, started, scene, need_shapes: bool, timeout=120.0):
     from softsnap_interfaces.msg import ModuleShape, ModuleState
     ns = f'/{scene}'
-    modules = [s.parameters['module'] for s, _, _ in started if s.executable == 'driver_node']
+    modules = list(driver_parameters([s for s, _, _ in started]))
+    assert modules
     online = {m: False for m in modules}
     shapes = {m: 0 for m in modules}
     subs = []
@@ -66,7 +70,7 @@ def wait_for_graph(ros_node, started, scene, need_shapes: bool, timeout=120.0):
                 subs.append(ros_node.create_subscription(
                     ModuleShape, f'{ns}/{m}/shape/{source}',
                     lambda msg, m=m: shapes.__setitem__(m, shapes[m] + 1), 10))
-    wanted = {(s.name, ns) for s, _, _ in started}
+    wanted = {(s.name, ns) for s, _, _ in started} | {(f'{m}_driver', ns) for m in modules}
 
     def present():
         return wanted <= set(ros_node.get_node_names_and_namespaces())
@@ -109,7 +113,19 @@ def test_launch_commands_match_launch_ros(tmp_path, slot_port):
     assert cmd[6] == '--params-file' and Path(cmd[7]).name.startswith('launch_params_')
     assert yaml.safe_load(Path(cmd[7]).read_text()) == {
         f'/gripper/{spec.name}': {'ros__parameters': {'host': '127.0.0.1', 'port': base}}}
-    assert set(LAUNCH_ARGUMENTS) >= {'simulate', 'gait', 'recording', 'sim_port_base'}
+    assert set(LAUNCH_ARGUMENTS) >= {'simulate', 'gait', 'recording', 'sim_port_base', 'drivers'}
+    # The drivers' container: its own (empty) dict file, then its drivers' file as is.
+    specs = graph_from_arguments('gripper', {'sim_port_base': str(base)})
+    container = next(s for s in specs if s.executable == 'driver_container')
+    cmd = launch_ros_command(node_action_kwargs(container, tmp_path), Path('/prefix'), tmp_path)
+    assert cmd[:6] == ['/prefix/lib/softsnap_driver/driver_container', '--ros-args',
+                       '-r', '__node:=driver_container', '-r', '__ns:=/gripper']
+    assert cmd[6] == '--params-file' and cmd[8:] == [
+        '--params-file', str(tmp_path / 'driver_container.params.yaml')]
+    drivers = yaml.safe_load(Path(cmd[9]).read_text())
+    assert drivers['/gripper/front_left_driver']['ros__parameters']['port'] == base
+    assert drivers['/gripper/driver_container']['ros__parameters']['modules'] == [
+        'front_left', 'back_left', 'back_right', 'front_right']
 
 
 def test_brittle_star_launch_graph_comes_up_whole(start_node, ros_node, tmp_path, slot_port):
@@ -117,17 +133,26 @@ def test_brittle_star_launch_graph_comes_up_whole(start_node, ros_node, tmp_path
     started = start_launch_graph(start_node, tmp_path, 'brittle_star', {
         'sim_port_base': str(base), 'recording': str(tmp_path / 'launch.rrd')})
     assert {s.executable for s, _, _ in started} == {
-        'sim_module', 'driver_node', 'model_node', 'gait_node', 'rerun_logger'}
+        'sim_module', 'driver_container', 'model_node', 'gait_node', 'rerun_logger'}
     wait_for_graph(ros_node, started, 'brittle_star', need_shapes=True)
     assert_sims_serve_their_ports(started)
 
 
-@pytest.mark.parametrize('scene', [s for s in SCENES if s != 'brittle_star'])
-def test_launch_graph_modules_come_up(scene, start_node, ros_node, tmp_path, slot_port):
-    """Every simulated module binds its own port and every driver sees it online."""
+@pytest.mark.parametrize('scene, drivers', [
+    ('starfish', 'container'), ('snake', 'separate'), ('gripper', 'container'),
+    ('ring', 'container')])
+def test_launch_graph_modules_come_up(scene, drivers, start_node, ros_node, tmp_path, slot_port):
+    """Every simulated module binds its own port and every driver sees it online, the
+    drivers in one container or (drivers:=separate) one driver_node each."""
     base = slot_port(5)
-    started = start_launch_graph(start_node, tmp_path, scene, {'sim_port_base': str(base)},
-                                 only=('sim_module', 'driver_node'))
+    started = start_launch_graph(start_node, tmp_path, scene, {
+        'sim_port_base': str(base), 'drivers': drivers},
+        only=('sim_module', 'driver_node', 'driver_container'))
+    executables = [s.executable for s, _, _ in started]
+    if drivers == 'container':
+        assert executables.count('driver_container') == 1 and 'driver_node' not in executables
+    else:
+        assert executables.count('driver_node') == executables.count('sim_module')
     ports = [s.parameters['port'] for s, _, _ in started if s.executable == 'sim_module']
     assert len(ports) == len(set(ports)) >= 4
     wait_for_graph(ros_node, started, scene, need_shapes=False)
@@ -154,11 +179,20 @@ def test_physics_launch_graph_runs_on_the_simulated_clock(start_node, ros_node, 
     base = slot_port(4)
     started = start_launch_graph(start_node, tmp_path, 'gripper', {
         'sim_port_base': str(base), 'physics': 'true'},
-        only=('sim_robot', 'driver_node', 'gait_node'))
-    assert {s.executable for s, _, _ in started} == {'sim_robot', 'driver_node', 'gait_node'}
+        only=('sim_robot', 'driver_container', 'gait_node'))
+    assert {s.executable for s, _, _ in started} == {'sim_robot', 'driver_container', 'gait_node'}
     for spec, cmd, _ in started:
-        params_file = Path(cmd[cmd.index('--params-file') + 1])
-        params = yaml.safe_load(params_file.read_text())[f'/gripper/{spec.name}']['ros__parameters']
+        files = [Path(cmd[i + 1]) for i, arg in enumerate(cmd) if arg == '--params-file']
+        params = {}
+        for path in files:
+            params.update(yaml.safe_load(path.read_text()))
+        if spec.executable == 'driver_container':
+            # Each driver's own, in the second file, under its fully qualified name.
+            assert len(files) == 2
+            for m in driver_parameters([spec]):
+                assert params[f'/gripper/{m}_driver']['ros__parameters']['use_sim_time'] is True
+            continue
+        params = params[f'/gripper/{spec.name}']['ros__parameters']
         expected = None if spec.executable == 'sim_robot' else True
         assert params.get('use_sim_time') is expected, (spec.name, params)
     clocks, phases = [], []

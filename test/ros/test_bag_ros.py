@@ -99,8 +99,9 @@ def recorded(tmp_path_factory, root_conftest, start):
     started_ns = time.time_ns()
     recorder = start(tmp, env, 'softsnap_gaits', 'bag', 'record', '-o', str(bag),
                       '--namespace', NS, '--ros-args', '-r', '__node:=bag_recorder')
-    graph = [start(tmp, env, specs[n].package, specs[n].executable, *specs[n].ros_args())
-             for n in ('sim_yellow', 'driver_yellow', 'model_node', 'gait_node')]
+    graph = [start(tmp, env, specs[n].package, specs[n].executable,
+                   *specs[n].ros_args(specs[n].write_node_params(tmp)))
+             for n in ('sim_yellow', 'driver_container', 'model_node', 'gait_node')]
     peer = _Peer('bag_test_peer')
     shapes = Counter()
     try:

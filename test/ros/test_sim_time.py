@@ -1,6 +1,6 @@
 """Simulated time over DDS: sim_robot's /clock drives the gait, the drivers keep safe.
 
-Real processes (sim_robot, driver_node, gait_node) started with the parameters the demo
+Real processes (sim_robot, the drivers' driver_container, gait_node) started with the parameters the demo
 and the launch files give them (softsnap_gaits.graph with physics: ``use_sim_time`` on
 every node but sim_robot). The gripper is the cheapest robot to simulate; one link per
 segment keeps the physics light on a busy machine.
@@ -32,13 +32,22 @@ def graph(port_base: int, **sim_params):
                        sim_robot_parameters={'links_per_segment': 1, **sim_params})
 
 
-def start(start_node, specs, names, **overrides):
+def start(start_node, tmp_path, specs, names, drivers=None, **overrides):
+    """Start the processes named in `names` with `overrides` by executable and `drivers`
+    added to every driver's parameters."""
+    from softsnap_gaits.graph import with_driver_parameters
     procs = {}
-    for spec in specs:
+    for spec in with_driver_parameters(specs, **(drivers or {})):
         if spec.name in names:
             spec.parameters.update(overrides.get(spec.executable, {}))
-            procs[spec.name] = start_node(spec.package, spec.executable, *spec.ros_args())
+            procs[spec.name] = start_node(spec.package, spec.executable,
+                                          *spec.ros_args(spec.write_node_params(tmp_path)))
     return procs
+
+
+def driver_log(proc, module):
+    """The lines of module's driver in the container's output."""
+    return '\n'.join(line for line in proc.output().splitlines() if f'{module}_driver' in line)
 
 
 class Watch:
@@ -94,17 +103,18 @@ def _alive(procs):
 
 
 def test_gait_plays_its_period_in_simulated_time_when_the_simulation_runs_slow(
-        start_node, ros_node, slot_port):
+        start_node, ros_node, slot_port, tmp_path):
     """(a) sim_robot at 0.2 x real time: the commanded cycle is the gait's period in
     simulated time (command stamps), and five times that in wall time."""
     specs = graph(slot_port(4), time_factor=0.2)
     modules = ['front_left', 'back_right']
-    procs = start(start_node, specs, {'sim_robot', 'gait_node',
-                                      *(f'driver_{m}' for m in modules)},
+    procs = start(start_node, tmp_path, specs, {'sim_robot', 'gait_node', 'driver_container'},
                   gait_node={'period': PERIOD_S, 'amplitude': AMPLITUDE_M})
+    from softsnap_gaits.graph import driver_parameters
     for spec in specs:
-        if spec.name != 'sim_robot':
+        if spec.name not in ('sim_robot', 'driver_container'):
             assert spec.parameters['use_sim_time'] is True, spec
+    assert all(p['use_sim_time'] is True for p in driver_parameters(specs).values())
     watch = Watch(ros_node, modules)
     # Three cycle starts: two whole cycles of simulated time (about 20 s of wall time).
     ok = ros_node.spin_until(lambda: _alive(procs) or len(watch.cycle_starts()) >= 3, TIMEOUT_S)
@@ -140,15 +150,14 @@ def test_gait_plays_its_period_in_simulated_time_when_the_simulation_runs_slow(
 
 
 def test_a_stopped_clock_freezes_the_gait_but_not_the_drivers_safety(
-        start_node, ros_node, slot_port):
+        start_node, ros_node, slot_port, tmp_path):
     """(b) sim_robot paused (SIGSTOP): no /clock, no answers. The gait stops in its
     simulated time, the drivers find the modules offline and stop the stale command
     stream on the wall clock; resumed, the gait goes on where its time stopped. Then
     sim_robot dies: the drivers report the modules offline."""
     specs = graph(slot_port(4))
     modules = ['front_left', 'back_right']
-    procs = start(start_node, specs, {'sim_robot', 'gait_node',
-                                      *(f'driver_{m}' for m in modules)})
+    procs = start(start_node, tmp_path, specs, {'sim_robot', 'gait_node', 'driver_container'})
     watch = Watch(ros_node, modules)
 
     def commanding():
@@ -209,7 +218,7 @@ def test_a_stopped_clock_freezes_the_gait_but_not_the_drivers_safety(
 
 
 def test_a_frozen_simulated_time_with_the_modules_answering_still_confirms_stops(
-        start_node, ros_node, slot_port):
+        start_node, ros_node, slot_port, tmp_path):
     """(b) sim_robot stops stepping after 0.5 s of simulated time (``duration_s``) but
     keeps serving the modules: the /clock stands still (or, for a driver that came up
     after its last message, never came: time 0). A driver on that clock still stops a
@@ -218,14 +227,15 @@ def test_a_frozen_simulated_time_with_the_modules_answering_still_confirms_stops
     from std_srvs.srv import Trigger
     specs = graph(slot_port(4), duration_s=0.5)
     module = 'front_left'
-    procs = start(start_node, specs, {'sim_robot', f'driver_{module}'},
-                  driver_node={'command_timeout_s': 1.0})
+    procs = start(start_node, tmp_path, specs, {'sim_robot', 'driver_container'},
+                  drivers={'command_timeout_s': 1.0})
     watch = Watch(ros_node, [module])
     assert ros_node.spin_until(lambda: _alive(procs) or watch.online(), TIMEOUT_S), \
         {n: p.output()[-1500:] for n, p in procs.items()}
     publisher = ros_node.create_publisher(CableLength, f'{NS}/{module}/cable_length/command', 10)
     assert ros_node.spin_until(lambda: publisher.get_subscription_count() > 0, 30.0)
-    straight = next(s for s in specs if s.name == f'driver_{module}').parameters['straight_length_m']
+    from softsnap_gaits.graph import driver_parameters
+    straight = driver_parameters(specs)[module]['straight_length_m']
     msg = CableLength()
     msg.cable_length = straight - 0.010
 
@@ -243,8 +253,9 @@ def test_a_frozen_simulated_time_with_the_modules_answering_still_confirms_stops
     assert ros_node.spin_until(sent_once, 30.0), watch.states[module][-1]
     assert ros_node.spin_until(lambda: watch.states[module][-1].stale_stops >= 1, 30.0), \
         watch.states[module][-1]
-    assert ros_node.spin_until(lambda: 'stop confirmed' in procs[f'driver_{module}'].output(), 30.0), \
-        procs[f'driver_{module}'].output()[-2000:]
+    driver = procs['driver_container']
+    assert ros_node.spin_until(lambda: 'stop confirmed' in driver_log(driver, module), 30.0), \
+        driver.output()[-2000:]
     # Held where it is (the state after the confirmed stop may come a moment after the log).
     assert ros_node.spin_until(lambda: watch.states[module][-1].encoder_target
                                == watch.states[module][-1].encoder_count, 30.0), watch.states[module][-1]

@@ -21,8 +21,9 @@ Parameters of the container node ``driver_container`` (read-only):
 - ``hosts`` (string array, optional): module i's address is ``hosts[i]``.
 
 Every other parameter is a driver's own: a global ``-p name:=value`` applies to every
-driver, and a parameters file addresses one driver by its node name (``yellow_driver:
-ros__parameters: {port: 8101}``). ``ports``/``hosts`` entries win over both.
+driver, and a parameters file addresses one driver by its fully qualified node name
+(``/robot/yellow_driver: ros__parameters: {port: 8101}``; a bare ``yellow_driver`` key
+matches only outside a namespace). ``ports``/``hosts`` entries win over both.
 
 A module that fails (its link offline, a reboot, an unconfirmed stop) affects no other:
 each has its own link thread and state. On Ctrl-C or SIGTERM every link stops in

@@ -2,8 +2,9 @@
 
 ``make demo`` (or ``.venv/bin/python -m softsnap_gaits.demo --scene snake --seconds 20``,
 or ``ros2 run softsnap_gaits demo``) starts the graph of :func:`softsnap_gaits.graph.robot_graph`:
-one simulated module and one driver per module, the model node, the gait node and the
-rerun logger, each its own OS process talking over ROS 2. It runs the scene's gait for a
+one simulated module per module, one ``driver_container`` driving every module (or, with
+``--drivers separate``, one ``driver_node`` per module), the model node, the gait node and
+the rerun logger, each its own OS process talking over ROS 2. It runs the scene's gait for a
 fixed time, stops every process (also on Ctrl-C or when a node crashes; no orphans:
 each child runs in its own process group, which is signalled and reaped), and prints a
 summary: commands sent by the gait node and received by each driver by their own
@@ -58,7 +59,7 @@ import numpy as np
 from softsnap_model.geometry import rib_centers
 from softsnap_model.scene import SceneError, load_scene
 
-from .graph import NodeSpec, robot_graph
+from .graph import DRIVER_MODES, NodeSpec, robot_graph
 from .isolation import Slot, claim_slot
 
 STOP_TIMEOUT_S = 10.0  # per process, after SIGINT, before SIGKILL
@@ -152,7 +153,9 @@ class Process:
         self.log_path = log_dir / f'{spec.name}.log'
         self._log = open(self.log_path, 'wb')
         # pass_fds: the slot's lock (isolation.py) stays held while any child lives.
-        self.popen = subprocess.Popen([str(exe), *spec.arguments, *spec.ros_args()], stdout=self._log,
+        # A driver_container's drivers get their parameters from a file beside the log.
+        ros_args = spec.ros_args(spec.write_node_params(log_dir))
+        self.popen = subprocess.Popen([str(exe), *spec.arguments, *ros_args], stdout=self._log,
                                       stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                                       env=env, start_new_session=True, pass_fds=pass_fds)
 
@@ -863,7 +866,7 @@ def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
                         gait_rate_hz=args.gait_rate, model_rate_hz=args.model_rate,
                         recording=recording, rerun=not args.no_rerun, sim_ports=sim_ports,
                         bag=bag, physics=args.physics,
-                        sim_robot_parameters=sim_robot_parameters)
+                        sim_robot_parameters=sim_robot_parameters, drivers=args.drivers)
     # The observer in this process and every child use the slot's domain.
     os.environ['ROS_DOMAIN_ID'] = str(slot.domain_id)
     env = dict(os.environ, PYTHONUNBUFFERED='1')
@@ -1058,8 +1061,8 @@ def _report_start_failure(args, scene, processes, crashed, not_ready, exit_codes
         for module, lacks in not_ready.items():
             print(f'  {module}: {", ".join(lacks)}', file=sys.stderr)
         # The logs of the processes those modules depend on.
-        names = {f'sim_{m}' for m in not_ready} | {f'driver_{m}' for m in not_ready} | {
-            'model_node', 'gait_node', 'sim_robot'}
+        names = {f'sim_{m}' for m in not_ready} | {f'{m}_driver' for m in not_ready} | {
+            'driver_container', 'model_node', 'gait_node', 'sim_robot'}
         for p in processes:
             if p.spec.name in names:
                 print(f'\n{p.spec.name} (still running); its last output:\n{p.tail()}',
@@ -1088,6 +1091,9 @@ def build_parser() -> argparse.ArgumentParser:
                              'payloads, locomotion) instead of one sim_module per module')
     parser.add_argument('--time-factor', type=float, default=1.0,
                         help='with --physics: simulated seconds per wall second (default 1)')
+    parser.add_argument('--drivers', choices=DRIVER_MODES, default='container',
+                        help='container: every module\'s driver in one driver_container process '
+                             '(default); separate: one driver_node process per module')
     parser.add_argument('--scene-ports', action='store_true',
                         help="simulated modules on the scene's fixed ports (default: free ports "
                              "of this demo's slot, so several demos can run at once)")

@@ -9,7 +9,11 @@ once. For a scene with modules ``m1..mN`` in namespace ``/<scene>``:
 - or, with ``physics=True``, one ``sim_robot``: the whole robot in MuJoCo, serving every
   module's firmware protocol on its port and publishing ``sim/base_pose`` and
   ``model/shape/simulated``;
-- ``driver_<m>``: one driver per module, bridging it to ``<m>/cable_length/*`` topics;
+- ``<m>_driver``: one driver per module, bridging it to ``<m>/cable_length/*`` topics.
+  By default (``drivers='container'``) every driver is a node of one ``driver_container``
+  process (node ``driver_container``; it shares a process's fixed cost among the modules,
+  docs/driver.md); with ``drivers='separate'`` each is its own ``driver_node`` process.
+  The node names, topics, services and parameters are the same in both;
 - ``model_node``: forward/inverse services and the commanded/predicted shapes;
 - ``gait_node``: the scene's gait, publishing ``<m>/cable_length/command``;
 - ``rerun_logger``: records predicted versus commanded shapes to an ``.rrd`` file;
@@ -17,8 +21,9 @@ once. For a scene with modules ``m1..mN`` in namespace ``/<scene>``:
   to a rosbag2 directory (:mod:`softsnap_gaits.bag`).
 
 With ``physics=True`` every node but ``sim_robot`` and the bag recorder gets
-``use_sim_time: true``: ``sim_robot`` publishes ``/clock``, so the gait, the drivers'
-stamps and stall timing, the model and the recording follow simulated time. The bag
+``use_sim_time: true`` (a container's drivers each in their own entry of its parameters
+file): ``sim_robot`` publishes ``/clock``, so the gait, the drivers' stamps and stall
+timing, the model and the recording follow simulated time. The bag
 recorder keeps the wall clock: it stores each message's receive time from the middleware
 (the system clock), as ``ros2 bag record`` does without ``--use-sim-time``, and records
 ``/clock`` with the rest, so a replay has the simulated time too.
@@ -32,13 +37,30 @@ from typing import Any, Mapping
 from softsnap_model.forward import reachable_range
 from softsnap_model.scene import Scene
 
-__all__ = ['NodeSpec', 'robot_graph']
+__all__ = ['DRIVER_MODES', 'NodeSpec', 'driver_parameters', 'robot_graph',
+           'with_driver_parameters']
+
+#: Values of ``robot_graph(drivers=...)``: every driver in one ``driver_container``
+#: process, or one ``driver_node`` process per module.
+DRIVER_MODES = ('container', 'separate')
 
 
 @dataclasses.dataclass(frozen=True)
 class NodeSpec:
-    """One node of the graph: what ``ros2 run`` starts and its ROS parameters.
+    """One process of the graph: what ``ros2 run`` starts and its ROS parameters.
 
+    `name` is the node the process is named after (``-r __node:=name``) and `parameters`
+    are that node's own (``-p key:=value``). `node_parameters` are parameters of the
+    nodes a process creates besides (the drivers of a ``driver_container``, and the
+    container's ``modules``), by node name. They go in a parameters file keyed by each
+    node's fully qualified name (``/<scene>/yellow_driver: ros__parameters: {...}``,
+    :meth:`write_node_params`), which rcl applies to that node alone. A node-specific
+    rule on the command line (``-p yellow_driver:port:=8101``) would not do: rcl matches
+    its node name against the fully qualified name and accepts no ``/`` in it, so it
+    never reaches a node in a namespace. The demo runner passes the file with
+    ``--params-file`` (:meth:`ros_args`), the launch files as one more entry of launch_ros's
+    ``parameters`` (:func:`softsnap_gaits.launching.node_action_kwargs`), which launch_ros
+    also turns into ``--params-file``: a container gets the same parameters either way.
     `arguments` are the executable's own arguments, before ``--ros-args``.
     """
 
@@ -48,13 +70,38 @@ class NodeSpec:
     namespace: str
     parameters: dict[str, Any]
     arguments: tuple[str, ...] = ()
+    node_parameters: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
 
-    def ros_args(self) -> list[str]:
-        """Command-line arguments: ``--ros-args -r __node:=... -r __ns:=... -p k:=v ...``."""
+    def ros_args(self, params_file: str | Path | None = None) -> list[str]:
+        """Command-line arguments: ``--ros-args -r __node:=... -r __ns:=... -p k:=v ...``,
+        then ``--params-file params_file`` (the file of :meth:`write_node_params`, required
+        when `node_parameters` is not empty; ValueError without it)."""
         args = ['--ros-args', '-r', f'__node:={self.name}', '-r', f'__ns:={self.namespace}']
         for key, value in self.parameters.items():
             args += ['-p', f'{key}:={_param_text(value)}']
+        if self.node_parameters:
+            if params_file is None:
+                raise ValueError(f'{self.name} needs the parameters file of its nodes '
+                                 f'{sorted(self.node_parameters)} (write_node_params)')
+            args += ['--params-file', str(params_file)]
         return args
+
+    def node_params_yaml(self) -> str:
+        """The parameters file of `node_parameters` (YAML text, keys fully qualified)."""
+        import yaml
+        ns = self.namespace.rstrip('/')
+        return yaml.safe_dump({f'{ns}/{node}': {'ros__parameters': dict(params)}
+                               for node, params in self.node_parameters.items()},
+                              default_flow_style=False, sort_keys=False)
+
+    def write_node_params(self, directory: str | Path) -> Path | None:
+        """Write :meth:`node_params_yaml` to ``<directory>/<name>.params.yaml``; its path,
+        or None when the process has no `node_parameters`."""
+        if not self.node_parameters:
+            return None
+        path = Path(directory) / f'{self.name}.params.yaml'
+        path.write_text(self.node_params_yaml())
+        return path
 
 
 def _param_text(value: Any) -> str:
@@ -75,8 +122,9 @@ def robot_graph(scene: Scene, *, simulate: bool = True, gait: str | None = None,
                 autostart: bool = True,
                 sim_ports: Mapping[str, int] | None = None,
                 bag: str | Path | None = None, physics: bool = False,
-                sim_robot_parameters: Mapping[str, Any] | None = None) -> list[NodeSpec]:
-    """Nodes that run a scene's robot, in start order (modules and drivers first).
+                sim_robot_parameters: Mapping[str, Any] | None = None,
+                drivers: str = 'container') -> list[NodeSpec]:
+    """Processes that run a scene's robot, in start order (modules and drivers first).
 
     Parameters
     ----------
@@ -107,10 +155,23 @@ def robot_graph(scene: Scene, *, simulate: bool = True, gait: str | None = None,
     bag : path, optional
         Record every topic of the ROS domain (but ``/parameter_events``) to this rosbag2
         directory, which must not exist; no recorder if None.
+    drivers : {'container', 'separate'}
+        ``'container'``: one ``driver_container`` process drives every module (its drivers'
+        parameters in a parameters file, :class:`NodeSpec`); ``'separate'``: one
+        ``driver_node`` process per module. Both name module m's driver ``<m>_driver``.
+
+    Raises
+    ------
+    ValueError
+        `drivers` is not one of :data:`DRIVER_MODES`, or `physics` without `simulate`, or
+        `sim_ports` not consecutive with `physics`.
     """
+    if drivers not in DRIVER_MODES:
+        raise ValueError(f"drivers must be one of {', '.join(DRIVER_MODES)}, got {drivers!r}")
     ns = f'/{scene.name}'
     scene_ref = str(scene.path)
     nodes: list[NodeSpec] = []
+    driver_params: dict[str, dict[str, Any]] = {}   # by driver node name, in scene order
     if physics:
         if not simulate:
             raise ValueError('physics needs simulated modules (simulate=True), not real ones')
@@ -124,12 +185,19 @@ def robot_graph(scene: Scene, *, simulate: bool = True, gait: str | None = None,
         low_mm, straight_mm = reachable_range(scene.skeleton, module.threading_mm)
         # The driver never commands beyond what the model can reach or the scene allows.
         max_contraction_mm = min(module.max_contraction_mm, straight_mm - low_mm)
-        nodes.append(NodeSpec('softsnap_driver', 'driver_node', f'driver_{module.name}', ns, {
+        driver_params[f'{module.name}_driver'] = {
             'module': module.name, 'host': host, 'port': port,
             'counts_per_mm': float(module.counts_per_mm),
             'straight_length_m': straight_mm / 1000.0,
             'max_contraction_m': max_contraction_mm / 1000.0,
-            'poll_rate_hz': float(poll_rate_hz)}))
+            'poll_rate_hz': float(poll_rate_hz)}
+        if physics:
+            driver_params[f'{module.name}_driver']['use_sim_time'] = True
+    if drivers == 'separate':
+        nodes += [NodeSpec('softsnap_driver', 'driver_node', name, ns, params)
+                  for name, params in driver_params.items()]
+    else:
+        nodes.append(_container_spec(ns, driver_params))
     nodes.append(NodeSpec('softsnap_model', 'model_node', 'model_node', ns,
                           {'scene': scene_ref, 'rate': float(model_rate_hz)}))
     nodes.append(NodeSpec('softsnap_gaits', 'gait_node', 'gait_node', ns, {
@@ -148,10 +216,52 @@ def robot_graph(scene: Scene, *, simulate: bool = True, gait: str | None = None,
         nodes.append(NodeSpec('softsnap_gaits', 'bag', 'bag_recorder', ns, {}, arguments=(
             'record', '-o', str(bag), '--all', '--exclude', '^/parameter_events$')))
     if physics:
-        on_sim_time = {'driver_node', 'model_node', 'gait_node', 'rerun_logger'}
+        on_sim_time = {'model_node', 'gait_node', 'rerun_logger'}   # drivers have it already
         nodes = [dataclasses.replace(n, parameters={**n.parameters, 'use_sim_time': True})
                  if n.executable in on_sim_time else n for n in nodes]
     return nodes
+
+
+def _container_spec(ns: str, driver_params: Mapping[str, Mapping[str, Any]]) -> NodeSpec:
+    """One ``driver_container`` for the drivers of `driver_params` (by node name).
+
+    The container names module m's driver ``<m>_driver`` and sets its ``module`` itself
+    from ``modules``; every other parameter of a driver is in the parameters file under
+    that driver's name alone (NodeSpec). Nothing is given globally, so no driver's
+    parameter meets a global one of the same name."""
+    modules = [params['module'] for params in driver_params.values()]
+    nodes: dict[str, dict[str, Any]] = {'driver_container': {'modules': modules}}
+    for name, params in driver_params.items():
+        nodes[name] = {k: v for k, v in params.items() if k != 'module'}
+    return NodeSpec('softsnap_driver', 'driver_container', 'driver_container', ns, {},
+                    node_parameters=nodes)
+
+
+def driver_parameters(nodes: list[NodeSpec]) -> dict[str, dict[str, Any]]:
+    """Module name -> its driver's parameters (with ``module``), in either driver mode."""
+    out: dict[str, dict[str, Any]] = {}
+    for spec in nodes:
+        if spec.executable == 'driver_node':
+            out[spec.parameters['module']] = dict(spec.parameters)
+        elif spec.executable == 'driver_container':
+            for module in spec.node_parameters['driver_container']['modules']:
+                out[module] = {'module': module, **spec.node_parameters[f'{module}_driver']}
+    return out
+
+
+def with_driver_parameters(nodes: list[NodeSpec], **parameters: Any) -> list[NodeSpec]:
+    """`nodes` with `parameters` added to every driver's, in either driver mode (e.g.
+    ``command_timeout_s=0.0`` for a test that sends single commands)."""
+    out = []
+    for spec in nodes:
+        if spec.executable == 'driver_node':
+            spec = dataclasses.replace(spec, parameters={**spec.parameters, **parameters})
+        elif spec.executable == 'driver_container':
+            spec = dataclasses.replace(spec, node_parameters={
+                node: params if node == 'driver_container' else {**params, **parameters}
+                for node, params in spec.node_parameters.items()})
+        out.append(spec)
+    return out
 
 
 def _sim_robot_spec(scene: Scene, ns: str, scene_ref: str, sim_ports: Mapping[str, int] | None,

@@ -1,17 +1,19 @@
 """ROS 2 launch support: the launch files turn :func:`robot_graph` into launch actions.
 
-``ros2 launch softsnap_gaits <scene>.launch.py [simulate:=true] [physics:=true] [gait:=...] [recording:=...]``
+``ros2 launch softsnap_gaits <scene>.launch.py [simulate:=true] [physics:=true] [gait:=...] [recording:=...] [drivers:=container|separate]``
 starts the same graph as the demo runner (:mod:`softsnap_gaits.demo`): there is one
 description of the graph, in :mod:`softsnap_gaits.graph`. The ``launch`` packages are
 imported only when a launch file runs (they are not on PyPI; a ROS 2 install has them).
 """
 from __future__ import annotations
 
+import tempfile
+from pathlib import Path
 from typing import Any
 
 from softsnap_model.scene import load_scene
 
-from .graph import NodeSpec, robot_graph
+from .graph import DRIVER_MODES, NodeSpec, robot_graph
 
 #: Launch arguments and their defaults (strings, as ros2 launch passes them).
 LAUNCH_ARGUMENTS = {
@@ -22,6 +24,8 @@ LAUNCH_ARGUMENTS = {
     'model_rate': ('100.0', 'prediction rate, Hz'),
     'recording': ('', ".rrd path ('' = runs/<robot>-<UTC time>.rrd)"),
     'rerun': ('true', 'start the rerun logger'),
+    'drivers': ('container', "container: every driver in one driver_container process; "
+                             "separate: one driver_node process per module"),
     'sim_port_base': ('0', "simulated modules (and their drivers) on consecutive loopback ports "
                            "from this one; 0 = the scene's ports"),
 }
@@ -42,17 +46,35 @@ def graph_from_arguments(scene_name: str, arguments: dict[str, str]) -> list[Nod
         raise ValueError(f'sim_port_base must be 0 or a port from 1024 to '
                          f'{65535 - len(scene.modules)}, got {base}')
     sim_ports = {m.name: base + i for i, m in enumerate(scene.modules)} if base else None
+    if args['drivers'] not in DRIVER_MODES:
+        raise ValueError(f"launch argument drivers must be one of {', '.join(DRIVER_MODES)}, "
+                         f"got {args['drivers']!r}")
     return robot_graph(scene, simulate=_flag(args['simulate']),
                        gait=args['gait'] or None, gait_rate_hz=float(args['gait_rate']),
                        model_rate_hz=float(args['model_rate']),
                        recording=args['recording'] or None, rerun=_flag(args['rerun']),
-                       sim_ports=sim_ports, physics=_flag(args['physics']))
+                       sim_ports=sim_ports, physics=_flag(args['physics']),
+                       drivers=args['drivers'])
 
 
-def node_action_kwargs(spec: NodeSpec) -> dict[str, Any]:
-    """Keyword arguments of ``launch_ros.actions.Node`` for one node of the graph."""
+def node_action_kwargs(spec: NodeSpec, params_dir: str | Path | None = None) -> dict[str, Any]:
+    """Keyword arguments of ``launch_ros.actions.Node`` for one process of the graph.
+
+    `spec.parameters` (the named node's own) are one dict, which launch_ros writes to a
+    parameters file keyed by that node's fully qualified name. A process with
+    `spec.node_parameters` (a ``driver_container``'s drivers) gets its
+    :meth:`~softsnap_gaits.graph.NodeSpec.write_node_params` file as a second entry, a
+    ``pathlib.Path`` that launch_ros passes on as ``--params-file`` unchanged: the same
+    file the demo runner passes. It is written to `params_dir` (a new temporary
+    directory if None, as launch_ros does for dicts).
+    """
+    parameters: list[Any] = [dict(spec.parameters)]
+    if spec.node_parameters:
+        directory = params_dir if params_dir is not None else tempfile.mkdtemp(
+            prefix='softsnap_launch_params_')
+        parameters.append(spec.write_node_params(directory))
     kwargs = {'package': spec.package, 'executable': spec.executable, 'name': spec.name,
-              'namespace': spec.namespace, 'parameters': [dict(spec.parameters)],
+              'namespace': spec.namespace, 'parameters': parameters,
               'output': 'screen', 'emulate_tty': True}
     if spec.arguments:
         kwargs['arguments'] = list(spec.arguments)
