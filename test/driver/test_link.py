@@ -433,15 +433,22 @@ def received(server):
         return list(server.module.received_targets)
 
 
+def first_target_sent(server, link):
+    """Command the first target (it goes out at once) and wait until the module has it;
+    its count."""
+    base = CAL.command(0.19).count
+    link.command(CAL.length_m(base))
+    assert wait_for(lambda: targets(server) == [base])
+    return base
+
+
 def test_small_target_change_waits_for_the_poll_slot_and_a_large_one_goes_at_once(sim_server, link_to):
     """Target deadband: a change within target_deadband_counts of the module's target is
     sent as the next poll, never earlier (by the sim's own stamps); a larger one at once."""
     poll = 2.0
     server = sim_server()
     link = link_to(server, poll_period_s=poll, target_deadband_counts=DEADBAND_COUNTS)
-    base = CAL.command(0.19).count
-    link.command(CAL.length_m(base))                    # the first target: at once
-    assert wait_for(lambda: targets(server) == [base])
+    base = first_target_sent(server, link)
     link.command(CAL.length_m(base + DEADBAND_COUNTS))  # within the deadband: waits
     assert wait_for(lambda: targets(server)[-1] == base + DEADBAND_COUNTS, 4 * poll)
     first, small = received(server)
@@ -459,9 +466,7 @@ def test_stream_of_small_steps_needs_fewer_requests_and_ends_on_its_final_target
     poll = 0.1
     server = sim_server()
     link = link_to(server, poll_period_s=poll)          # default deadband: the firmware's
-    base = CAL.command(0.19).count
-    link.command(CAL.length_m(base))
-    assert wait_for(lambda: targets(server) == [base])
+    base = first_target_sent(server, link)
     steps, step = 75, 12                                # 50 Hz for 1.5 s, 0.13 mm a step
     for i in range(1, steps + 1):
         link.command(CAL.length_m(base + step * i), stamp_ns=i)
@@ -482,15 +487,13 @@ def test_stream_of_small_steps_needs_fewer_requests_and_ends_on_its_final_target
 
 
 def test_a_waiting_target_is_derived_again_with_a_calibration_changed_meanwhile(sim_server, link_to):
-    """The set re-derives a command accepted under another calibration (the accepted one
-    is reused only with the very calibration it was derived with): a target waiting for
-    its poll slot goes out in the new counts, or is refused if the new range excludes it."""
+    """A set derives its count with the calibration current when it goes out: a target
+    waiting for its poll slot goes out in a changed calibration's counts, or is refused
+    if the new range excludes it."""
     poll = 2.0
     server = sim_server()
     link = link_to(server, poll_period_s=poll)
-    base = CAL.command(0.19).count
-    link.command(CAL.length_m(base))
-    assert wait_for(lambda: targets(server) == [base])
+    base = first_target_sent(server, link)
     length = CAL.length_m(base + DEADBAND_COUNTS)       # within the deadband: waits
     link.command(length)
     finer = CableCalibration(counts_per_mm=89.13 * 1.01, straight_length_m=0.198,
@@ -523,9 +526,7 @@ def test_stop_is_not_delayed_by_a_waiting_target_and_drops_it(sim_server, link_t
     poll = 1.5
     server = sim_server()
     link = link_to(server, poll_period_s=poll)
-    base = CAL.command(0.19).count
-    link.command(CAL.length_m(base))
-    assert wait_for(lambda: targets(server) == [base])
+    base = first_target_sent(server, link)
     link.command(CAL.length_m(base + 10))               # waits for the poll slot
     time.sleep(0.3)                                     # (sent by now without the deadband)
     ok, message = link.request('stop')
