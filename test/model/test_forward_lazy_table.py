@@ -195,7 +195,8 @@ def test_a_single_solves_float_samples_are_the_numpy_tables_bit_for_bit():
     kinds = set()
     for sk, t in cases:
         forget_tables()
-        prob = fwd._problem(sk, key(sk, t))
+        with np.errstate(all='ignore'):     # coinciding holes: pair profiles divide 0 by 0
+            prob = fwd._problem(sk, key(sk, t))
         kinds.update(prob.kind)
         table = prob.path.complete()
         rows = fpath._float_rows(table.seg)

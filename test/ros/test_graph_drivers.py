@@ -75,9 +75,13 @@ def test_each_driver_gets_its_own_modules_parameters(drivers, start_node, ros_no
         return all(s and s[-1].online for s in states.values())
 
     assert ros_node.spin_until(online, 120.0), {m: s[-1:] for m, s in states.items()}
-    nodes = set(ros_node.get_node_names_and_namespaces())
+    # A node's name reaches a peer's graph on its own (the participant's node list), not
+    # with its first message: a driver whose states arrived may not be listed yet.
+    wanted = {(f'{module}_driver', ns) for module in expected}
+    assert ros_node.spin_until(
+        lambda: wanted <= set(ros_node.get_node_names_and_namespaces()), 30.0), \
+        sorted(ros_node.get_node_names_and_namespaces())
     for module, params in expected.items():
-        assert (f'{module}_driver', ns) in nodes, sorted(nodes)
         assert states[module][-1].module == module
         got = ParameterClient(ros_node, f'{ns}/{module}_driver').get('module', *CHECKED)
         assert got['module'] == (ParameterType.PARAMETER_STRING, module)
