@@ -174,7 +174,7 @@ class _PathTable:
         at = np.minimum(np.arange(blocks[0], blocks[-1] + 2) * _BLOCK, self.n_cells)
         approx = self._approx_lengths(self.lam[at])
         margin = 0.05 + 1e-6 * abs(length)
-        hit = ((approx[1:] <= length + margin) & (approx[:-1] >= length - margin)).nonzero()[0]
+        hit = _bracketing(approx, length, margin)
         if not hit.size:
             return blocks
         return range(blocks[0] + int(hit[0]), blocks[0] + int(hit[-1]) + 1)
@@ -189,12 +189,12 @@ class _PathTable:
         margin = _GUESS_MARGIN_MM + 1e-9 * abs(length)
         at = list(range(p, j, _BLOCK)) + [j]
         approx = self._approx_lengths(self.lam[at])
-        hit = ((approx[:-1] >= length - margin) & (approx[1:] <= length + margin)).nonzero()[0]
+        hit = _bracketing(approx, length, margin)
         if not hit.size or hit[-1] - hit[0] > 1:
             return None
         lo, hi = at[hit[0]], at[hit[-1] + 1]
         approx = self._approx_lengths(self.lam[lo:hi + 1])
-        hit = ((approx[:-1] >= length - margin) & (approx[1:] <= length + margin)).nonzero()[0]
+        hit = _bracketing(approx, length, margin)
         if not hit.size or hit[-1] - hit[0] >= _GUESS_CELLS:
             return None
         return lo + int(hit[0]), lo + int(hit[-1]) + 1
@@ -222,11 +222,7 @@ class _PathTable:
                 self._sample_built[at] = True
                 # The same values as lists, for the cell's polynomial (_build_cell).
                 self._run_lists = dict(zip(idx, zip(lam, *zip(*samples))))
-        built = self._exact[self._sample_built]
-        if (built[1:] > built[:-1]).any():
-            self._complete()
-            return
-        self._publish_block(first, last)
+        self._publish_built(first, last)
 
     def _build_blocks(self, blocks):
         """The samples of ``blocks`` (consecutive), in one pass, made searchable (the
@@ -234,6 +230,11 @@ class _PathTable:
         first = blocks[0] * _BLOCK
         last = min((blocks[-1] + 1) * _BLOCK, self.n_cells)
         self._build_samples(np.arange(first, last + 1))
+        self._publish_built(first, last)
+
+    def _publish_built(self, first, last):
+        """After samples ``first .. last`` were built: publish them (:meth:`_publish_block`),
+        or build the whole table should the built lengths ever rise along the path."""
         built = self._exact[self._sample_built]
         if (built[1:] > built[:-1]).any():
             self._complete()
@@ -352,6 +353,12 @@ class _PathTable:
             self._build_samples(near)
             self._unpublished = True    # the next publish must be a full one
         return float(np.interp(lam, self.lam[near], self._exact[near]))
+
+
+def _bracketing(approx, length, margin):
+    """Indices ``i`` of the intervals ``approx[i] .. approx[i + 1]`` (non-increasing
+    approximate lengths) that hold ``length`` within ``margin`` (mm)."""
+    return ((approx[:-1] >= length - margin) & (approx[1:] <= length + margin)).nonzero()[0]
 
 
 def _path_samples(mu, seg, s):
