@@ -92,16 +92,19 @@ def recorded(tmp_path_factory, root_conftest, start):
     tmp = tmp_path_factory.mktemp('bag_graph')
     env = dict(os.environ, ROS_HOME=str(tmp / 'ros_home'), PYTHONUNBUFFERED='1')
     scene = load_scene('brittle_star')
-    port = root_conftest.SLOT.free_port()
-    specs = {s.name: s for s in robot_graph(scene, rerun=False,
-                                            sim_ports={m.name: port for m in scene.modules})}
+    # One simulated module per driver: drivers sharing one module see each other's moves
+    # (a fall to 0 while their own target is far) as a reboot, refuse commands, and the
+    # graph's shapes stop changing (this failed CI at 11ac1a6).
+    ports = {m.name: root_conftest.SLOT.free_port() for m in scene.modules}
+    specs = {s.name: s for s in robot_graph(scene, rerun=False, sim_ports=ports)}
     bag = tmp / 'session'
     started_ns = time.time_ns()
     recorder = start(tmp, env, 'softsnap_gaits', 'bag', 'record', '-o', str(bag),
                       '--namespace', NS, '--ros-args', '-r', '__node:=bag_recorder')
     graph = [start(tmp, env, specs[n].package, specs[n].executable,
                    *specs[n].ros_args(specs[n].write_node_params(tmp)))
-             for n in ('sim_yellow', 'driver_container', 'model_node', 'gait_node')]
+             for n in (*(f'sim_{m.name}' for m in scene.modules),
+                       'driver_container', 'model_node', 'gait_node')]
     peer = _Peer('bag_test_peer')
     shapes = Counter()
     try:
