@@ -17,6 +17,16 @@ from typing import Callable, NoReturn
 from rclpy.executors import Executor, ExternalShutdownException
 from rclpy.node import Node
 
+from softsnap_driver.dds_profile import use_service_reply_profile
+
+
+def init_ros(**init_kwargs) -> None:
+    """``rclpy.init(**init_kwargs)`` with the service reply profile (every node's main)."""
+    import rclpy
+
+    use_service_reply_profile()
+    rclpy.init(**init_kwargs)
+
 
 def spin_until_shutdown(executor: Executor) -> None:
     """``executor.spin()``; returns normally when the context was shut down."""
@@ -92,7 +102,7 @@ def run_simulator_main(argv: list[str] | None, name: str, build_parser: Callable
 
     argv = sys.argv if argv is None else argv
     defaults = build_parser().parse_args(remove_ros_args(argv)[1:])
-    rclpy.init(args=argv)
+    init_ros(args=argv)
     node = None
     status = 0
     try:
@@ -122,7 +132,7 @@ def run_nodes_main(args: list[str] | None, program: str, build: Callable) -> int
     import rclpy
 
     cleanups: list[Callable] = []
-    rclpy.init(args=args)
+    init_ros(args=args)
     try:
         _spin_nodes(build(cleanups.append))
     except KeyboardInterrupt:

@@ -26,6 +26,8 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 
+from softsnap_driver.spinning import init_ros
+
 from .bag import (BagError, BagWriter, PlaybackClock, TopicFilter, bag_info,
                   playback_qos, read_messages, recording_qos)
 
@@ -159,8 +161,8 @@ def record(output: Path, selection: TopicFilter, discovery_period_s: float,
     recording = False
     try:
         # rclpy's own handlers would shut the context down under the writer; ours set a flag.
-        rclpy.init(args=['bag', *ros_args], context=context,
-                   signal_handler_options=SignalHandlerOptions.NO)
+        init_ros(args=['bag', *ros_args], context=context,
+                 signal_handler_options=SignalHandlerOptions.NO)
         node = BagRecorder(writer, selection, discovery_period_s, context=context)
         node.discover_callback()
         executor = SingleThreadedExecutor(context=context)
@@ -213,8 +215,8 @@ def play(bag: Path, rate: float, topics: tuple[str, ...] | None, loop: bool, del
     context = rclpy.Context()
     node = None
     try:
-        rclpy.init(args=['bag', *ros_args], context=context,
-                   signal_handler_options=SignalHandlerOptions.NO)
+        init_ros(args=['bag', *ros_args], context=context,
+                 signal_handler_options=SignalHandlerOptions.NO)
         node = BagPlayer(bag, topics, context=context)
         if not node.publishers_:
             raise BagError(f'nothing to play from {bag}: no selected topic with an installed type')

@@ -217,6 +217,7 @@ class Observer:
     def __init__(self, scene, namespace: str, physics: bool = False):
         import rclpy
         from rclpy.parameter import Parameter
+        from softsnap_driver.spinning import init_ros
         from softsnap_interfaces.msg import (CableLength, GaitPhase, ModelDiagnostics, ModuleShape,
                                              ModuleState)
 
@@ -228,7 +229,7 @@ class Observer:
         self.gait_sent: dict[int, dict[str, int]] = {}
         self.last_phase_arrival_s: float | None = None  # time.monotonic() of the latest phase
         self.context = rclpy.Context()
-        rclpy.init(context=self.context)
+        init_ros(context=self.context)
         # --physics: the observer's clock is sim_robot's /clock like every node's, so its
         # run window and the stamps it judges are on one time line.
         overrides = [Parameter('use_sim_time', Parameter.Type.BOOL, True)] if physics else []

@@ -33,7 +33,7 @@ from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParam
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from softsnap_driver.ros_parameters import SoftSnapNode
-from softsnap_driver.spinning import spin_until_shutdown
+from softsnap_driver.spinning import init_ros, spin_until_shutdown
 from softsnap_interfaces.msg import CableLength, GaitPhase
 from softsnap_interfaces.srv import SetGait
 from std_srvs.srv import Trigger
@@ -286,7 +286,7 @@ class GaitNode(SoftSnapNode):
 
 
 def main(args=None) -> int:
-    rclpy.init(args=args)
+    init_ros(args=args)
     node = None
     try:
         try:

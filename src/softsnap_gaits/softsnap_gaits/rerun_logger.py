@@ -56,7 +56,7 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 
 from softsnap_driver.ros_parameters import SoftSnapNode
-from softsnap_driver.spinning import exit_without_teardown, spin_until_shutdown
+from softsnap_driver.spinning import exit_without_teardown, init_ros, spin_until_shutdown
 from softsnap_interfaces.msg import CableLength, ModuleState, RobotShape
 from softsnap_model import recording
 
@@ -419,7 +419,7 @@ class RerunLoggerNode(SoftSnapNode):
 
 def main(args=None):
     """The ``rerun_logger`` executable; ends the process (status 0, or 2 on a bad setup)."""
-    rclpy.init(args=args)
+    init_ros(args=args)
     node = None
     status = 0
     try:

@@ -57,7 +57,8 @@ from visualization_msgs.msg import MarkerArray
 
 from softsnap_driver.cdr import CdrError, decode_cable_length
 from softsnap_driver.ros_parameters import SoftSnapNode
-from softsnap_driver.spinning import exit_without_teardown, inbox_node, spin_until_shutdown
+from softsnap_driver.spinning import (exit_without_teardown, inbox_node, init_ros,
+                                      spin_until_shutdown)
 from softsnap_interfaces.msg import CableLength, Design, ModelDiagnostics, ModuleShape, RobotShape
 from softsnap_interfaces.action import DesignThreading
 from softsnap_interfaces.srv import ForwardShape, InverseDesign
@@ -1136,7 +1137,7 @@ class ModelNode(SoftSnapNode):
 
 def main(args=None):
     # rclpy.init() is a context manager only from Kilted on; this form also runs on Jazzy.
-    rclpy.init(args=args)
+    init_ros(args=args)
     try:
         node = ModelNode()
     except (SceneError, ValueError) as error:
