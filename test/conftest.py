@@ -26,7 +26,7 @@ from softsnap_gaits.isolation import claim_slot  # noqa: E402  (no ROS imports)
 # benchmarks/ holds the helpers the benchmark scripts share with the tests (process_group);
 # appended, so a test's own modules come first.
 sys.path.append(str(REPO / 'benchmarks'))
-from process_group import stop_process_group  # noqa: E402  (no ROS imports)
+from process_group import stop_process_tree, tagged_env  # noqa: E402  (no ROS imports)
 
 SLOT, _slot_warning = claim_slot()
 if _slot_warning:
@@ -50,12 +50,18 @@ def executable(package: str, name: str) -> Path:
 
 
 class NodeProcess:
-    """A node started as its own OS process, stopped with SIGINT like Ctrl-C."""
+    """A node started as its own OS process, stopped with SIGINT like Ctrl-C.
+
+    stop() also stops whatever it started, in its process group or not, and whether the
+    node is still running or not (process_group.stop_process_tree: by a tag in the
+    environment every descendant inherits).
+    """
 
     def __init__(self, argv: list[str], log_path: Path, env: dict[str, str]):
         self.argv = argv
         self.log_path = log_path
         self._log = open(log_path, 'wb')
+        env, self.tag = tagged_env(env)
         self.proc = subprocess.Popen(argv, stdout=self._log, stderr=subprocess.STDOUT,
                                      stdin=subprocess.DEVNULL, env=env, start_new_session=True)
 
@@ -67,7 +73,7 @@ class NodeProcess:
         return self.log_path.read_text(errors='replace')
 
     def stop(self, timeout: float = 10.0) -> int:
-        returncode = stop_process_group(self.proc, timeout)
+        returncode = stop_process_tree(self.proc, self.tag, timeout)
         self._log.close()
         return returncode
 

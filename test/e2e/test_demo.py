@@ -1,4 +1,6 @@
 """End to end: the demo runs a whole simulated robot for a few seconds in separate processes."""
+from __future__ import annotations
+
 import json
 import os
 import signal
@@ -8,7 +10,13 @@ import time
 
 import pytest
 
+from process_group import is_alive, stop_process_tree, tagged_env, tagged_processes
+
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
+
+#: How long the runner may take to stop its nodes after SIGINT when a test ends, and
+#: then each node left, before SIGKILL (s).
+DEMO_STOP_TIMEOUT_S = 15.0
 
 
 def demo_env():
@@ -19,13 +27,69 @@ def demo_env():
     return env
 
 
+class Demo:
+    """The demo runner started by a test, and every process it starts.
+
+    The runner puts each node in a session of its own (softsnap_gaits.demo.Process), so
+    its process group does not hold them, and a runner that died (killed, or never
+    reaching its own cleanup) leaves them reparented, out of its process tree. So the
+    runner is started with a tag in its environment (process_group.tagged_env), which
+    every node inherits: stop() stops the runner, then every process still carrying the
+    tag, whether the test passed or failed early.
+    """
+
+    def __init__(self, *args: str):
+        env, self.tag = tagged_env(demo_env())
+        self.popen = subprocess.Popen(
+            [sys.executable, '-m', 'softsnap_gaits.demo', *args],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+            stdin=subprocess.DEVNULL, env=env, start_new_session=True)
+
+    @property
+    def pid(self) -> int:
+        return self.popen.pid
+
+    @property
+    def returncode(self) -> int | None:
+        return self.popen.returncode
+
+    def communicate(self, timeout: float) -> tuple[str, str]:
+        return self.popen.communicate(timeout=timeout)
+
+    def processes(self) -> list:
+        """The live processes the runner started (psutil.Process), wherever they are."""
+        return [p for p in tagged_processes(self.tag) if p.pid != self.popen.pid]
+
+    def stop(self) -> None:
+        """No process of this demo left running: the runner gets SIGINT (it stops its
+        nodes), then SIGKILL; then so does every process still carrying its tag."""
+        try:
+            stop_process_tree(self.popen, self.tag, DEMO_STOP_TIMEOUT_S)
+        finally:
+            for pipe in (self.popen.stdout, self.popen.stderr):
+                if pipe is not None:
+                    pipe.close()
+
+    def __enter__(self) -> Demo:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+
+def run_demo(*args: str, timeout: float) -> subprocess.CompletedProcess:
+    """Like subprocess.run(capture_output=True, text=True) of the runner, but nothing it
+    started outlives it (Demo.stop), also when it times out."""
+    with Demo(*args) as demo:
+        out, err = demo.communicate(timeout)
+    return subprocess.CompletedProcess(demo.popen.args, demo.returncode, out, err)
+
+
 @pytest.mark.parametrize('scene', ['brittle_star'])
 def test_demo_runs_the_robot_and_records_it(scene, tmp_path, read_rrd):
     run_dir = tmp_path / 'run'
-    proc = subprocess.run(
-        [sys.executable, '-m', 'softsnap_gaits.demo', '--scene', scene, '--seconds', '4',
-         '--run-dir', str(run_dir), '--json'],
-        capture_output=True, text=True, timeout=240, stdin=subprocess.DEVNULL, env=demo_env())
+    proc = run_demo('--scene', scene, '--seconds', '4', '--run-dir', str(run_dir), '--json',
+                    timeout=240)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     summary = json.loads(proc.stdout[proc.stdout.index('{'):])
     assert summary['scene'] == scene
@@ -104,9 +168,8 @@ def check_demo_bag(bag, summary):
 
 
 def test_demo_reports_a_bad_scene(tmp_path):
-    proc = subprocess.run([sys.executable, '-m', 'softsnap_gaits.demo', '--scene', 'no_such_robot',
-                           '--seconds', '1', '--run-dir', str(tmp_path)],
-                          capture_output=True, text=True, timeout=60, env=demo_env())
+    proc = run_demo('--scene', 'no_such_robot', '--seconds', '1', '--run-dir', str(tmp_path),
+                    timeout=60)
     assert proc.returncode == 2
     assert 'no_such_robot' in proc.stderr
     assert 'SoftSnap demo' not in proc.stdout  # no table
@@ -115,9 +178,8 @@ def test_demo_reports_a_bad_scene(tmp_path):
 def test_demo_reports_a_bad_scene_file(tmp_path):
     scene = tmp_path / 'broken.yaml'
     scene.write_text('name: broken\nmodules: [{name: a, threading: [R9]}]\n')
-    proc = subprocess.run([sys.executable, '-m', 'softsnap_gaits.demo', '--scene', str(scene),
-                           '--seconds', '1', '--run-dir', str(tmp_path / 'run')],
-                          capture_output=True, text=True, timeout=60, env=demo_env())
+    proc = run_demo('--scene', str(scene), '--seconds', '1', '--run-dir', str(tmp_path / 'run'),
+                    timeout=60)
     assert proc.returncode == 2, proc.stdout[-2000:] + proc.stderr[-2000:]
     assert 'broken.yaml' in proc.stderr
     assert 'SoftSnap demo' not in proc.stdout
@@ -146,10 +208,8 @@ def test_a_port_in_use_stops_the_demo_with_the_log_and_no_table(tmp_path, slot_p
     with socket.socket() as squatter:
         squatter.bind(('127.0.0.1', base))
         squatter.listen(1)
-        proc = subprocess.run(
-            [sys.executable, '-m', 'softsnap_gaits.demo', '--scene', str(scene), '--seconds', '2',
-             '--scene-ports', '--no-rerun', '--run-dir', str(tmp_path / 'run')],
-            capture_output=True, text=True, timeout=240, stdin=subprocess.DEVNULL, env=demo_env())
+        proc = run_demo('--scene', str(scene), '--seconds', '2', '--scene-ports', '--no-rerun',
+                        '--run-dir', str(tmp_path / 'run'), timeout=240)
     assert proc.returncode == 1, proc.stdout[-2000:] + proc.stderr[-3000:]
     assert 'sim_front_left exited early' in proc.stderr, proc.stderr[-3000:]
     assert f'127.0.0.1:{base}' in proc.stderr and 'Address already in use' in proc.stderr, \
@@ -163,10 +223,8 @@ def test_a_module_that_never_comes_online_stops_the_demo_with_what_is_missing(tm
     # Real modules (--real) at loopback ports where nothing listens: the drivers run, the
     # modules never answer.
     path = gripper_scene_on_ports(tmp_path, slot_port(4), host='127.0.0.1')
-    proc = subprocess.run(
-        [sys.executable, '-m', 'softsnap_gaits.demo', '--scene', str(path), '--real', '--seconds', '2',
-         '--ready-timeout', '8', '--no-rerun', '--run-dir', str(tmp_path / 'run'), '--json'],
-        capture_output=True, text=True, timeout=240, stdin=subprocess.DEVNULL, env=demo_env())
+    proc = run_demo('--scene', str(path), '--real', '--seconds', '2', '--ready-timeout', '8',
+                    '--no-rerun', '--run-dir', str(tmp_path / 'run'), '--json', timeout=240)
     assert proc.returncode == 1, proc.stdout[-2000:] + proc.stderr[-3000:]
     assert 'did not start within 8 s' in proc.stderr
     assert 'front_left: ' in proc.stderr and 'module online' in proc.stderr, proc.stderr[-3000:]
@@ -184,18 +242,15 @@ def test_two_demos_at_once_both_report_real_numbers(tmp_path):
     # the bag): without the two recorders, 2 x 8 processes (4 sims, the drivers'
     # container, model, gait, rerun logger) share the 2 cores.
     runs = [tmp_path / 'a', tmp_path / 'b']
-    demos = [subprocess.Popen(
-        [sys.executable, '-m', 'softsnap_gaits.demo', '--scene', 'gripper', '--seconds', '4',
-         '--run-dir', str(run), '--json', '--no-bag'],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, stdin=subprocess.DEVNULL,
-        env=demo_env()) for run in runs]
+    demos = [Demo('--scene', 'gripper', '--seconds', '4', '--run-dir', str(run), '--json',
+                  '--no-bag') for run in runs]
     outputs = []
     try:
         for demo in demos:
             outputs.append(demo.communicate(timeout=280))
     finally:
         for demo in demos:
-            demo.kill()
+            demo.stop()
     summaries = []
     for demo, (out, err) in zip(demos, outputs):
         assert demo.returncode == 0, out[-2000:] + err[-3000:]
@@ -295,12 +350,9 @@ def demo_children(run_dir):
     return found
 
 
-def start_demo(run_dir, seconds='60'):
-    return subprocess.Popen(
-        [sys.executable, '-m', 'softsnap_gaits.demo', '--scene', 'gripper', '--seconds', seconds,
-         '--run-dir', str(run_dir), '--no-rerun'],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, stdin=subprocess.DEVNULL,
-        env=demo_env())
+def start_demo(run_dir, seconds='60') -> Demo:
+    return Demo('--scene', 'gripper', '--seconds', seconds, '--run-dir', str(run_dir),
+                '--no-rerun')
 
 
 def wait_for_children(run_dir, count, timeout=60.0):
@@ -320,10 +372,10 @@ def test_ctrl_c_stops_every_process(tmp_path):
         # gripper: 4 sims + 1 driver_container + model + gait + bag recorder
         wait_for_children(run_dir, 4 + 1 + 3)
         time.sleep(2.0)  # let the gait run a little
-        demo.send_signal(signal.SIGINT)
+        demo.popen.send_signal(signal.SIGINT)
         out, err = demo.communicate(timeout=60)
     finally:
-        demo.kill()
+        demo.stop()
     assert demo.returncode == 130, err[-2000:]
     assert 'SoftSnap demo: gripper' in out  # the summary is still printed
     assert demo_children(run_dir) == []
@@ -339,8 +391,31 @@ def test_a_crashing_node_stops_the_demo_without_orphans(tmp_path):
         model.kill()  # SIGKILL: a crash, not a clean stop
         out, err = demo.communicate(timeout=60)
     finally:
-        demo.kill()
+        demo.stop()
     assert demo.returncode == 1
     assert 'model_node exited early' in err
     assert demo_children(run_dir) == []
     assert not psutil.pid_exists(model.pid) or model.status() == psutil.STATUS_ZOMBIE
+
+
+def test_stop_leaves_no_process_of_a_runner_that_was_killed(tmp_path):
+    """Regression: a test that failed before its SIGINT killed only the runner
+    (Popen.kill()); its nodes, each in a session of its own, ran on, loaded the machine
+    and broke later tests. Killed with SIGKILL, the runner cannot stop them itself."""
+    run_dir = tmp_path / 'run'
+    demo = start_demo(run_dir)
+    try:
+        # gripper: 4 sims + 1 driver_container + model + gait + bag recorder
+        children = wait_for_children(run_dir, 4 + 1 + 3)
+        assert {p.pid for p in children} <= {p.pid for p in demo.processes()}
+        os.kill(demo.pid, signal.SIGKILL)
+        demo.popen.wait(60)
+        demo.popen.kill()  # what the tests did before: nothing, once the runner is gone
+        orphans = [p for p in children if is_alive(p)]
+        # Precondition: the nodes outlived their runner (else this test proves nothing).
+        assert orphans, 'every node exited with its runner'
+    finally:
+        demo.stop()
+    assert [p.pid for p in orphans if is_alive(p)] == []
+    # Looked up apart from the tag: no process with this run's ROS_HOME is left.
+    assert demo_children(run_dir) == []

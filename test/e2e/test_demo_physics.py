@@ -1,22 +1,18 @@
 """End to end: the demo runs a robot in MuJoCo (--physics, sim_robot) and records it."""
 import json
 from pathlib import Path
-import subprocess
-import sys
 
 import pytest
 
-from test_demo import demo_env
+from test_demo import run_demo
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 
 def test_demo_with_physics_runs_the_gripper_on_sim_robot(tmp_path, read_rrd):
     run_dir = tmp_path / 'run'
-    proc = subprocess.run(
-        [sys.executable, '-m', 'softsnap_gaits.demo', '--scene', 'gripper', '--physics',
-         '--seconds', '5', '--run-dir', str(run_dir), '--json'],
-        capture_output=True, text=True, timeout=360, stdin=subprocess.DEVNULL, env=demo_env())
+    proc = run_demo('--scene', 'gripper', '--physics', '--seconds', '5', '--run-dir', str(run_dir),
+                    '--json', timeout=360)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     summary = json.loads(proc.stdout[proc.stdout.index('{'):])
     modules = ('front_left', 'back_left', 'back_right', 'front_right')

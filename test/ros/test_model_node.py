@@ -1,5 +1,6 @@
 """model_node in its own process, clients in the test process, over Fast DDS."""
 import math
+import time
 
 import numpy as np
 import pytest
@@ -261,3 +262,83 @@ def test_predictions_go_on_during_an_inverse_design(brittle_star_node, ros_node)
         assert future.result().success, future.result().message
         assert len(future.result().alternatives) == 3
     assert len(diagnostics) > n_before  # the diagnostics timer kept running
+
+
+def test_a_subscriber_that_joins_is_served_and_one_that_leaves_stops_the_work(
+        brittle_star_node, ros_node):
+    """The node asks DDS who listens only every SUBSCRIBERS_REFRESH_S: a late subscriber
+    still gets shapes (with rib centres), markers and joint states, and once it leaves the
+    node stops building them. Judged by the node's own counters (/diagnostics)."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from sensor_msgs.msg import JointState
+    from softsnap_interfaces.msg import CableLength, ModuleShape
+    from visualization_msgs.msg import MarkerArray
+    scene = load_scene('brittle_star')
+    yellow = scene.module('yellow')
+    reports = []  # (node stamp ns, counters) of every model status
+
+    def report(msg):
+        for status in msg.status:
+            if status.name == 'softsnap/brittle_star/model':
+                stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+                reports.append((stamp_ns, {kv.key: int(kv.value) for kv in status.values
+                                           if kv.value.isdigit()}))
+
+    ros_node.create_subscription(DiagnosticArray, '/diagnostics', report, 50)
+    pub = ros_node.create_publisher(CableLength, f'{NS}/yellow/cable_length/command', 10)
+    assert ros_node.spin_until(lambda: pub.get_subscription_count() > 0 and reports, 20.0), \
+        brittle_star_node.output()
+    sent = [0]
+
+    def commanding(predicate, timeout):
+        """Spin until predicate(), sending a new length (two, alternately) every 50 ms so
+        that every prediction has a new yellow shape to solve."""
+        def step():
+            sent[0] += 1
+            msg = CableLength(cable_length=(yellow.straight_length_mm - 10.0 - 20.0 * (sent[0] % 2))
+                              / 1000.0)
+            msg.header.stamp = ros_node.get_clock().now().to_msg()
+            pub.publish(msg)
+            return ros_node.spin_until(predicate, 0.05)
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if step():
+                return True
+        return False
+
+    def since(index, key):
+        return reports[-1][1][key] - reports[index][1][key]
+
+    # Nobody listens: shapes solved without rib centres, no markers, no joint states.
+    start = len(reports) - 1
+    assert commanding(lambda: since(start, 'solves') >= 5 and since(start, 'skipped rib points') >= 5,
+                      60.0), (reports[-1], brittle_star_node.output()[-2000:])
+    assert reports[-1][1]['marker arrays published'] == 0
+    assert reports[-1][1]['joint states published'] == 0
+
+    # A late subscriber of each: served.
+    shapes, arrays, joints = [], [], []
+    subscriptions = [
+        ros_node.create_subscription(ModuleShape, f'{NS}/yellow/shape/commanded', shapes.append, 10),
+        ros_node.create_subscription(MarkerArray, f'{NS}/model/markers', arrays.append, 10),
+        ros_node.create_subscription(JointState, f'{NS}/model/joint_states/commanded',
+                                     joints.append, 10)]
+    assert commanding(lambda: shapes and len(shapes[-1].rib_centers) == scene.skeleton.n_ribs
+                      and arrays and joints, 60.0), brittle_star_node.output()[-2000:]
+
+    # They leave: over a second of the node's time in which it solved new yellow shapes
+    # without rib centres, it published no markers and no joint states.
+    for subscription in subscriptions:
+        ros_node.destroy_subscription(subscription)
+    left = len(reports)
+
+    def stopped():
+        # The latest report against every earlier one since they left.
+        t1, b = reports[-1]
+        return any(t1 - t0 >= 1_000_000_000
+                   and b['skipped rib points'] - a['skipped rib points'] >= 5
+                   and b['marker arrays published'] == a['marker arrays published']
+                   and b['joint states published'] == a['joint states published']
+                   for t0, a in reports[left:-1])
+
+    assert commanding(stopped, 60.0), (reports[left - 1:], brittle_star_node.output()[-2000:])

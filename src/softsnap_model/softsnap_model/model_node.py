@@ -362,10 +362,11 @@ class ModelNode(SoftSnapNode):
         self.service_failures = 0
         self._last_msgs: dict[tuple[str, str], tuple] = {}  # (shape, its message)
         self._solve_time_reported = (0, 0.0)
-        self._subscriber_counts: dict = {}  # publisher -> subscription count (cached)
+        # Who subscribes, cached together (_refresh_subscribers): publisher -> subscription
+        # count, and the shape outputs' listeners built from those same counts.
+        self._subscriber_counts: dict = {}
+        self._listeners_cache: _Listeners | None = None
         self._subscribers_at = -math.inf    # monotonic s of the last refresh
-        self._listeners_cache: _Listeners | None = None  # see _listeners
-        self._listeners_at = -math.inf
         self._pose_msgs: dict[tuple, Pose] = {}
         # Shape messages are published as CDR bytes kept ready and updated in place
         # (shape_wire says why), if rclpy reads those bytes back as the messages the
@@ -518,28 +519,35 @@ class ModelNode(SoftSnapNode):
                 f'refused {source} length for {module!r}: {error}; keeping the last valid shape',
                 throttle_duration_sec=1.0)
 
-    def _subscribers(self, publisher) -> int:
-        """Subscription count of one of our publishers, refreshed every SUBSCRIBERS_REFRESH_S.
+    def _refresh_subscribers(self) -> None:
+        """Forget the subscription counts and the listeners built from them once they are
+        SUBSCRIBERS_REFRESH_S old; both are asked again when next needed.
 
         Asking DDS costs a few microseconds a publisher, and every prediction asked it for
-        the robot's and every module's publishers. A new subscriber is served within
-        SUBSCRIBERS_REFRESH_S (discovery itself takes longer).
+        the robot's and every module's publishers. One refresh for both caches: a
+        subscriber that joins or leaves is seen within SUBSCRIBERS_REFRESH_S (discovery
+        itself takes longer), by the counts and the listeners alike.
         """
         now = time.monotonic()
         if now - self._subscribers_at > SUBSCRIBERS_REFRESH_S:
-            self._subscriber_counts.clear()
             self._subscribers_at = now
+            self._subscriber_counts.clear()
+            self._listeners_cache = None
+
+    def _subscribers(self, publisher) -> int:
+        """Subscription count of one of our publishers (cached, see _refresh_subscribers)."""
+        self._refresh_subscribers()
         count = self._subscriber_counts.get(publisher)
         if count is None:
             count = self._subscriber_counts[publisher] = publisher.get_subscription_count()
         return count
 
     def _listeners(self) -> _Listeners:
-        """Who listens to the shape outputs, refreshed with the subscription counts (one
-        look-up a prediction instead of one per topic and shape)."""
-        listeners, now = self._listeners_cache, time.monotonic()
-        if listeners is None or now - self._listeners_at > SUBSCRIBERS_REFRESH_S:
-            self._listeners_at = now
+        """Who listens to the shape outputs (one look-up a prediction instead of one per
+        topic and shape; cached with the counts, see _refresh_subscribers)."""
+        self._refresh_subscribers()
+        listeners = self._listeners_cache
+        if listeners is None:  # refreshed, or the rib_centers mode changed
             modules = {source: {m.name: self.module_publishers[(m.name, source)]
                                 for m in self.scene.modules
                                 if self._subscribers(self.module_publishers[(m.name, source)])}
