@@ -24,17 +24,27 @@ import tempfile
 
 import numpy as np
 
+from process_group import stop_process_tree, tagged_env
+
 
 def run_demo(rate_hz: float, seconds: float, scene: str, drivers: str = 'container') -> dict:
+    # The runner starts every node in a session of its own: on a timeout or Ctrl-C,
+    # stopping the runner alone would leave them running (and loading the next run).
+    env, tag = tagged_env(dict(os.environ))
     with tempfile.TemporaryDirectory() as run_dir:
-        out = subprocess.run(
+        proc = subprocess.Popen(
             [sys.executable, '-m', 'softsnap_gaits.demo', '--scene', scene, '--seconds', str(seconds),
              '--gait-rate', str(rate_hz), '--model-rate', str(max(100.0, rate_hz)),
              '--drivers', drivers, '--run-dir', run_dir, '--json'],
-            capture_output=True, text=True, timeout=seconds + 180, stdin=subprocess.DEVNULL)
-    if out.returncode != 0:
-        raise RuntimeError(f'demo failed ({out.returncode}):\n{out.stdout[-2000:]}\n{out.stderr[-2000:]}')
-    return json.loads(out.stdout[out.stdout.index('{'):])
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, stdin=subprocess.DEVNULL,
+            env=env, start_new_session=True)
+        try:
+            stdout, stderr = proc.communicate(timeout=seconds + 180)
+        finally:
+            stop_process_tree(proc, tag)
+    if proc.returncode != 0:
+        raise RuntimeError(f'demo failed ({proc.returncode}):\n{stdout[-2000:]}\n{stderr[-2000:]}')
+    return json.loads(stdout[stdout.index('{'):])
 
 
 def main() -> None:
