@@ -71,7 +71,8 @@ def _node_specs(slot_port):
     from softsnap_gaits.graph import robot_graph
     from softsnap_model.scene import load_scene
     scene = load_scene('brittle_star')
-    specs = robot_graph(scene, rerun=False, sim_ports={m.name: slot_port() for m in scene.modules})
+    port = slot_port()   # one node runs at a time: one port is enough
+    specs = robot_graph(scene, rerun=False, sim_ports={m.name: port for m in scene.modules})
     return {s.name: s for s in specs}
 
 

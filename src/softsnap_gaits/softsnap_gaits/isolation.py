@@ -50,15 +50,23 @@ class Slot:
     def free_port(self, count: int = 1, host: str = '127.0.0.1') -> int:
         """The first of `count` consecutive ports of this slot's block, none listened on.
 
-        Ports are handed out once per slot (a claim lasts one run), in block order.
+        Ports are handed out in block order; once the block is used up, again from its
+        start (a whole test suite needs more than PORT_BLOCK ports, and the ones handed
+        out first are long closed by then), skipping those still listened on.
+        RuntimeError if one lap over the block finds no `count` free ports in a row.
         """
-        while self._next_port + count <= PORT_BLOCK:
+        laps = 0
+        while laps < 2:
+            if self._next_port + count > PORT_BLOCK:
+                self._next_port = 0
+                laps += 1
+                continue
             first = self._next_port
             taken = [i for i in range(first, first + count) if not port_is_free(self.ports[i], host)]
             self._next_port = (taken[-1] + 1) if taken else first + count
             if not taken:
                 return self.ports[first]
-        raise RuntimeError(f'no {count} free consecutive ports left in '
+        raise RuntimeError(f'no {count} free consecutive ports in '
                            f'{self.ports.start}-{self.ports.stop - 1}')
 
     def release(self) -> None:
