@@ -15,47 +15,47 @@ on the problems they meet, as thread CPU (``time.thread_time``) per call:
 - ``single``: cold ``solve_forward`` (no warm start; tables already built) over the paper
   threadings at six contractions each.
 
-With ``--before REV`` that revision's ``softsnap_model`` (``git archive``) runs in a child
-process taking turns with the current code, round by round (which goes first
-alternates); the ratio after/before of the round medians is printed per case, with the
-load average at start and end.
-ROS-free.
+With ``--before REV`` that revision's ``softsnap_model`` (``git archive``) is imported in
+the same process under another name, and the two take turns in blocks of calls
+(``--rounds`` blocks each, which goes first alternating), so that a change in the
+machine's load hits both alike. Printed per case: µs per call (median [range] over the
+blocks) and the ratio after/before (median [range] of the blocks' ratios), with the load
+average at start and end. ROS-free.
 
-Usage: .venv/bin/python benchmarks/batch_engine_bench.py [--rounds 5] [--before REV]
+Usage: .venv/bin/python benchmarks/batch_engine_bench.py [--rounds 20] [--before REV]
        [--cases prepared10 single ...]
 """
 from __future__ import annotations
 
 import argparse
-import json
-import os
+import importlib
+import shutil
 import statistics
-import subprocess
 import sys
 import time
-from pathlib import Path
 
 from benchlib import checkout_src, load_line
 
 CASES = ('prepared10', 'prepared10_slack', 'batch1000', 'mixed100', 'sweep200', 'single')
-#: Timed calls per case and round (after a warm-up of a tenth of it).
-CALLS = {'prepared10': 2000, 'prepared10_slack': 2000, 'batch1000': 100, 'mixed100': 400,
-         'sweep200': 200, 'single': 3000}
+#: Calls per block of each case (one warm-up block runs first, untimed).
+CALLS = {'prepared10': 200, 'prepared10_slack': 200, 'batch1000': 10, 'mixed100': 40,
+         'sweep200': 20, 'single': 300}
 
 
-def _workloads():
-    """name -> a function of the call index that makes one call."""
+def _workloads(pkg):
+    """name -> a function of the call index that makes one call, with package ``pkg``
+    (``softsnap_model`` or an earlier revision of it imported under another name)."""
     import numpy as np
 
-    from softsnap_model import Skeleton, solve_forward, solve_forward_batch, sweep
-    from softsnap_model.forward import PreparedBatch, reachable_range
-    from softsnap_model.reference import PAPER_THREADINGS
     from softsnap_model.scene import load_scene
 
-    scene = load_scene('brittle_star')
+    forward = importlib.import_module(pkg.__name__ + '.forward')
+    paper_threadings = importlib.import_module(pkg.__name__ + '.reference').PAPER_THREADINGS
+    sk = pkg.Skeleton()     # the brittle star's skeleton (the scene's is built by the
+    scene = load_scene('brittle_star')      # current package: only its threadings are used)
     rows = [tuple(m.threading_mm) for m in scene.modules for _ in range(2)]
-    straight = [m.straight_length_mm for m in scene.modules for _ in range(2)]
-    prepared = PreparedBatch(scene.skeleton, rows)
+    straight = [sk.straight_length_mm(t) for t in rows]
+    prepared = forward.PreparedBatch(sk, rows)
 
     def tick_lengths(tick, slack=False):
         out = [s - (30.0 + 20.0 * ((tick * 0.013 + 0.037 * i) % 1.0)) - 0.7 * (i % 2)
@@ -66,9 +66,8 @@ def _workloads():
 
     ticks = [tick_lengths(t) for t in range(500)]
     slack_ticks = [tick_lengths(t, slack=True) for t in range(500)]
-    sk = Skeleton()
-    paper = [list(t) for t in PAPER_THREADINGS.values()]
-    ranges = [reachable_range(sk, t) for t in paper]
+    paper = [list(t) for t in paper_threadings.values()]
+    ranges = [forward.reachable_range(sk, t) for t in paper]
     rng = np.random.default_rng(7)
     red, (red_lo, red_hi) = paper[0], ranges[0]
     batch_lengths = red_hi - rng.uniform(0.02, 0.98, (20, 1000)) * (red_hi - red_lo)
@@ -82,75 +81,61 @@ def _workloads():
     return {
         'prepared10': lambda i: prepared.solve(rows, ticks[i % 500]),
         'prepared10_slack': lambda i: prepared.solve(rows, slack_ticks[i % 500]),
-        'batch1000': lambda i: solve_forward_batch(sk, red, batch_lengths[i % 20]),
-        'mixed100': lambda i: solve_forward_batch(sk, *mixed[i % 20]),
-        'sweep200': lambda i: sweep(sk, red, contractions),
-        'single': lambda i: solve_forward(sk, *singles[i % len(singles)]),
+        'batch1000': lambda i: forward.solve_forward_batch(sk, red, batch_lengths[i % 20]),
+        'mixed100': lambda i: forward.solve_forward_batch(sk, *mixed[i % 20]),
+        'sweep200': lambda i: forward.sweep(sk, red, contractions),
+        'single': lambda i: forward.solve_forward(sk, *singles[i % len(singles)]),
     }
 
 
-def measure(cases: list[str]) -> dict[str, float]:
-    """µs of thread CPU per call of each case (one pass, after a warm-up)."""
-    work = _workloads()
-    out = {}
-    for name in cases:
-        call, calls = work[name], CALLS[name]
-        for i in range(calls // 10):
-            call(i)
-        start = time.thread_time()
-        for i in range(calls):
-            call(i)
-        out[name] = (time.thread_time() - start) / calls * 1e6
-    return out
+def _block(call, calls: int, first: int) -> float:
+    """µs of thread CPU per call over ``calls`` calls."""
+    start = time.thread_time()
+    for i in range(first, first + calls):
+        call(i)
+    return (time.thread_time() - start) / calls * 1e6
 
 
-def run_version(code_dir: Path | None, cases: list[str]) -> dict[str, float]:
-    """One measurement in a fresh interpreter (``code_dir``: the old sources first)."""
-    env = dict(os.environ)
-    if code_dir is not None:
-        env['PYTHONPATH'] = os.pathsep.join(
-            [str(code_dir / 'src' / 'softsnap_model'), env.get('PYTHONPATH', '')]).rstrip(
-            os.pathsep)
-    out = subprocess.run([sys.executable, __file__, '--child', *cases], env=env, check=True,
-                         capture_output=True, text=True).stdout
-    return json.loads(out)
+def _import_before(rev: str):
+    """``softsnap_model`` of git revision ``rev``, imported as ``softsnap_model_before``."""
+    root = checkout_src(rev)
+    shutil.copytree(root / 'src' / 'softsnap_model' / 'softsnap_model',
+                    root / 'softsnap_model_before')
+    sys.path.insert(0, str(root))
+    return importlib.import_module('softsnap_model_before')
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument('--rounds', type=int, default=5)
+    parser.add_argument('--rounds', type=int, default=20, help='timed blocks per version')
     parser.add_argument('--before', default='', help='git revision to compare against')
     parser.add_argument('--cases', nargs='+', default=list(CASES), choices=CASES)
-    parser.add_argument('--child', nargs='+', help=argparse.SUPPRESS)
     args = parser.parse_args()
-    if args.child:
-        print(json.dumps(measure(args.child)))
-        return 0
     print(load_line('start'), flush=True)
-    versions: dict[str, Path | None] = {'after': None}
+    import softsnap_model
+    versions = {'after': softsnap_model}
     if args.before:
-        versions = {'before': checkout_src(args.before), 'after': None}
-    results = {label: {name: [] for name in args.cases} for label in versions}
-    for round_ in range(args.rounds):
-        # Alternate which version goes first, so that a trend in the load favours neither.
-        for label, code_dir in list(versions.items())[::1 if round_ % 2 == 0 else -1]:
-            figures = run_version(code_dir, args.cases)
-            for name, us in figures.items():
-                results[label][name].append(us)
-            print(f'  round {round_ + 1}: {label:6s} ' + ', '.join(
-                f'{name} {us:.0f}' for name, us in figures.items()), flush=True)
-    print(f'\nµs of thread CPU per call, median [range] of {args.rounds} rounds')
+        versions = {'before': _import_before(args.before), 'after': softsnap_model}
+    work = {label: _workloads(pkg) for label, pkg in versions.items()}
+    print(f'µs of thread CPU per call, median [range] of {args.rounds} blocks per version')
     for name in args.cases:
-        line = f'  {name:17s}'
+        calls = CALLS[name]
+        times = {label: [] for label in versions}
         for label in versions:
-            values = results[label][name]
+            _block(work[label][name], calls, 0)      # warm-up
+        for round_ in range(args.rounds):
+            order = list(versions)[::1 if round_ % 2 == 0 else -1]
+            for label in order:
+                times[label].append(_block(work[label][name], calls, (round_ + 1) * calls))
+        line = f'  {name:17s}'
+        for label, values in times.items():
             line += (f' {label} {statistics.median(values):8.1f} '
                      f'[{min(values):.1f}-{max(values):.1f}]')
         if args.before:
-            ratio = (statistics.median(results['after'][name])
-                     / statistics.median(results['before'][name]))
-            line += f'  after/before {ratio:.3f}'
-        print(line)
+            ratios = [a / b for a, b in zip(times['after'], times['before'])]
+            line += (f'  after/before {statistics.median(ratios):.3f} '
+                     f'[{min(ratios):.2f}-{max(ratios):.2f}]')
+        print(line, flush=True)
     if args.before:
         print(f'  (before = {args.before})')
     print(load_line('end'))

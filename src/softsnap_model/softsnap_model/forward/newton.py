@@ -126,11 +126,12 @@ def _evaluate(P, L_t, lam, b):
     lamc = lam[:, None]
     if P['has_mirror']:
         mirror = P['mirror']
-        kick = mirror & (b <= 0.0) & (lamc > P['lam_c'])
+        held = mirror & (b <= 0.0)
+        kick = held & (lamc > P['lam_c'])
         if kick.any():
             r = np.nonzero(kick.any(axis=1))[0]
             b[r] = np.where(kick[r], _kick_b(P, lam[r], r), b[r])
-        held = mirror & (b <= 0.0)
+            held = mirror & (b <= 0.0)
     else:
         held = np.zeros(b.shape, dtype=bool)
     contact = (b >= P['b_end']) & (lamc >= P['lam_end'])
@@ -144,10 +145,12 @@ def _evaluate(P, L_t, lam, b):
                 contact=contact), fixed
 
 
-def _unmet(state, tol_mm, tol_rad):
+def _unmet(state, tol_mm, tol_rad, active=None):
     """Rows of an evaluation that miss the inner targets (constraint ``tol_mm`` per row,
-    stationarity ``tol_rad``): Newton steps on these, and stops when there are none."""
-    return (np.abs(state['g']) > tol_mm) | (state['stat'] > tol_rad)
+    stationarity ``tol_rad``), among the ``active`` ones (all if None): Newton steps on
+    these, and stops when there are none."""
+    unmet = (np.abs(state['g']) > tol_mm) | (state['stat'] > tol_rad)
+    return unmet if active is None else active & unmet
 
 
 def _stopped(P, state, iters):
@@ -169,20 +172,20 @@ def _newton(P, L_t, lam, b, lam_lo, lam_hi, max_iter, tol_mm, tol_rad, active=No
     segments with ``b = 0`` and ``lambda <= lam_c`` are held straight; segments at
     ``b_end`` with ``lambda >= lam_end`` are held at contact. O(n) per iteration.
 
-    ``tol_mm`` is the per-row constraint target (:func:`_constraint_targets`). ``first``
-    is the caller's :func:`_evaluate` of ``(lam, b)`` when it made one: the first
-    iteration uses it instead of evaluating again.
+    ``tol_mm`` is the per-row constraint target (:func:`_constraint_targets`), ``active``
+    the rows to iterate (all if None). ``first`` is the caller's :func:`_evaluate` of
+    ``(lam, b)`` when it made one: the first iteration uses it instead of evaluating
+    again.
     """
     b_end, two_k = P['b_end'], P['two_k']
     iters = np.zeros(L_t.shape, dtype=int)
-    active = np.ones(L_t.shape, dtype=bool) if active is None else active.copy()
     for it in range(max_iter + 1):
         if first is None:
             state, fixed = _evaluate(P, L_t, lam, b)
         else:
             (state, fixed), first = first, None
         g, lp, l_aa = state['g'], state['lp'], state['l_aa']
-        active &= _unmet(state, tol_mm, tol_rad)
+        active = _unmet(state, tol_mm, tol_rad, active)
         n_active = int(np.count_nonzero(active))
         if it == max_iter or n_active == 0:
             break
@@ -325,9 +328,11 @@ def _solve_arrays_inner(P, L_t, max_iter, tol_mm, tol_rad, start=None, early_exi
     slack = L_t >= P['straight']
     lam, b, lam_lo, lam_hi = _start_from_table(P, L_t) if start is None else start
     tol_mm = _constraint_targets(L_t, tol_mm)
-    some_slack = slack.any()
-    if some_slack:
+    if slack.any():
         lam = np.where(slack, 0.0, lam)
+        active = ~slack      # slack rows are not iterated
+    else:
+        slack = active = None      # the common case: no row to mask
     if P['has_mirror']:
         # Linear interpolation in lambda badly underestimates b ~ sqrt(lambda - lam_c)
         # just past a pitchfork; start mirror segments from their own branch instead.
@@ -335,9 +340,8 @@ def _solve_arrays_inner(P, L_t, max_iter, tol_mm, tol_rad, start=None, early_exi
         if past.any():
             r = np.nonzero(past.any(axis=1))[0]
             b[r] = np.where(past[r], _kick_b(P, lam[r], r), b[r])
-    active = ~slack      # slack rows are not iterated
     first = _evaluate(P, L_t, lam, b) if early_exit else None
-    if first is not None and not (active & _unmet(first[0], tol_mm, tol_rad)).any():
+    if first is not None and not _unmet(first[0], tol_mm, tol_rad, active).any():
         # Newton would stop at its first evaluation without a step: skip its loop.
         st = _stopped(P, first[0], np.zeros(L_t.shape, dtype=int))
     else:
@@ -364,12 +368,14 @@ def _finish(P, st, slack):
 
     ``converged`` is the acceptance test against the public contracts: constraint and
     stationarity residuals within them and a strict local minimum (every curvature
-    positive, segments at contact aside). Slack rows are straight, with no tension and
-    nothing to certify.
+    positive, segments at contact aside). ``slack`` is the mask of the slack rows (None
+    if there is none): they are straight, with no tension and nothing to certify.
     """
     lam, b, g, stat, contact = st['lam'], st['b'], st['g'], st['stat'], st['contact']
-    min_curv = np.min(np.where(contact, np.inf, st['curv']), axis=1)
-    if slack.any():
+    min_curv = np.where(contact, np.inf, st['curv']).min(axis=1)
+    if slack is None:
+        slack = np.zeros(g.shape, dtype=bool)
+    else:
         lam = np.where(slack, 0.0, lam)
         b = np.where(slack[:, None], 0.0, b)
         g = np.where(slack, 0.0, g)
@@ -380,7 +386,7 @@ def _finish(P, st, slack):
     abs_g = np.abs(g)
     is_min = min_curv > 0
     converged = (abs_g <= CONSTRAINT_TOL_MM) & (stat <= STATIONARITY_TOL_RAD) & is_min
-    return dict(angles=angles, tension=lam, energy=np.sum(P['k'] * angles * angles, axis=1),
+    return dict(angles=angles, tension=lam, energy=(P['k'] * angles * angles).sum(axis=1),
                 iterations=st['iters'], converged=converged, constraint_residual=abs_g,
                 stationarity_residual=stat, residual=np.maximum(abs_g, stat),
                 is_minimum=is_min, min_curvature=min_curv, slack=slack, at_contact=contact)
