@@ -112,13 +112,14 @@ def _constraint_targets(L_t, tol_mm):
     return np.maximum(tol_mm, _CONSTRAINT_ULPS * np.spacing(np.abs(L_t)))
 
 
-def _evaluate(P, L_t, lam, b):
+def _evaluate(P, L_t, lam, b, kick=True):
     """One evaluation of the KKT system at ``(lam, b)``, as every Newton iteration
     starts: ``(state, fixed)``.
 
     Past its buckling tension a mirror segment at ``b = 0`` sits on the unstable trivial
-    root: it is first restarted on its branch (``b`` changed in place); the other
-    straight mirror segments are held. ``state`` holds the point, the lengths and their
+    root: with ``kick`` it is first restarted on its branch (``b`` changed in place;
+    the start of :func:`_solve_arrays_inner` has done that already). The other straight
+    mirror segments are held. ``state`` holds the point, the lengths and their
     derivatives, the constraint ``g`` (mm) and the stationarity residual ``stat`` (rad,
     over the free segments) per row, and the held and contact masks; ``fixed`` is held
     or at contact.
@@ -127,11 +128,11 @@ def _evaluate(P, L_t, lam, b):
     if P['has_mirror']:
         mirror = P['mirror']
         held = mirror & (b <= 0.0)
-        kick = held & (lamc > P['lam_c'])
-        if kick.any():
-            r = np.nonzero(kick.any(axis=1))[0]
-            b[r] = np.where(kick[r], _kick_b(P, lam[r], r), b[r])
-            held = mirror & (b <= 0.0)
+        if kick:
+            kicked = held & (lamc > P['lam_c'])
+            if kicked.any():
+                _restart_on_branch(P, lam, b, kicked)
+                held = mirror & (b <= 0.0)
     else:
         held = np.zeros(b.shape, dtype=bool)
     contact = (b >= P['b_end']) & (lamc >= P['lam_end'])
@@ -143,6 +144,12 @@ def _evaluate(P, L_t, lam, b):
     stat = np.abs(f).max(axis=1)
     return dict(lam=lam, b=b, length=length, lp=lp, l_aa=l_aa, g=g, stat=stat, held=held,
                 contact=contact), fixed
+
+
+def _restart_on_branch(P, lam, b, segments):
+    """Set the mirror ``segments`` (mask) of ``b`` to their branch at tension ``lam``."""
+    r = np.nonzero(segments.any(axis=1))[0]
+    b[r] = np.where(segments[r], _kick_b(P, lam[r], r), b[r])
 
 
 def _unmet(state, tol_mm, tol_rad, active=None):
@@ -265,6 +272,8 @@ def _curvature(P, lam, b, lp, l_aa, held):
     eq = (lp - b * l_aa) / lp
     near_pitchfork = (P['lam_c'] > 0) & (b < 1e-3)
     eq = np.where(near_pitchfork, 2.0 * P['beta'] * b * b, eq)
+    if not P['has_mirror']:
+        return eq       # nothing held: only mirror segments can be
     straight = 1.0 + lam[:, None] * l_aa / (2.0 * P['k'])
     return np.where(held, straight, eq)
 
@@ -334,13 +343,15 @@ def _solve_arrays_inner(P, L_t, max_iter, tol_mm, tol_rad, start=None, early_exi
     else:
         slack = active = None      # the common case: no row to mask
     if P['has_mirror']:
-        # Linear interpolation in lambda badly underestimates b ~ sqrt(lambda - lam_c)
-        # just past a pitchfork; start mirror segments from their own branch instead.
-        past = P['mirror'] & (lam[:, None] > P['lam_c']) & (lam[:, None] < P['lam_1'])
-        if past.any():
-            r = np.nonzero(past.any(axis=1))[0]
-            b[r] = np.where(past[r], _kick_b(P, lam[r], r), b[r])
-    first = _evaluate(P, L_t, lam, b) if early_exit else None
+        # Mirror segments past their buckling tension start on their branch: straight
+        # ones (the unstable trivial root, see _evaluate) and those in their first table
+        # cell, where linear interpolation in lambda badly underestimates
+        # b ~ sqrt(lambda - lam_c) just past the pitchfork.
+        lamc = lam[:, None]
+        restart = P['mirror'] & (lamc > P['lam_c']) & ((lamc < P['lam_1']) | (b <= 0.0))
+        if restart.any():
+            _restart_on_branch(P, lam, b, restart)
+    first = _evaluate(P, L_t, lam, b, kick=False) if early_exit else None
     if first is not None and not _unmet(first[0], tol_mm, tol_rad, active).any():
         # Newton would stop at its first evaluation without a step: skip its loop.
         st = _stopped(P, first[0], np.zeros(L_t.shape, dtype=int))
