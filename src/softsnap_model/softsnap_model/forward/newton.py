@@ -119,10 +119,10 @@ def _evaluate(P, L_t, lam, b, kick=True):
     Past its buckling tension a mirror segment at ``b = 0`` sits on the unstable trivial
     root: with ``kick`` it is first restarted on its branch (``b`` changed in place;
     the start of :func:`_solve_arrays_inner` has done that already). The other straight
-    mirror segments are held. ``state`` holds the point, the lengths and their
-    derivatives, the constraint ``g`` (mm) and the stationarity residual ``stat`` (rad,
-    over the free segments) per row, and the held and contact masks; ``fixed`` is held
-    or at contact.
+    mirror segments are held. ``state`` holds the point, the first and second
+    derivatives of the segment lengths, the constraint ``g`` (mm) and the stationarity
+    residual ``stat`` (rad, over the free segments) per row, and the held and contact
+    masks; ``fixed`` is held or at contact.
     """
     lamc = lam[:, None]
     if P['has_mirror']:
@@ -142,7 +142,7 @@ def _evaluate(P, L_t, lam, b, kick=True):
     f = b + lamc * lp * P['inv_two_k']
     f[fixed] = 0.0
     stat = np.abs(f).max(axis=1)
-    return dict(lam=lam, b=b, length=length, lp=lp, l_aa=l_aa, g=g, stat=stat, held=held,
+    return dict(lam=lam, b=b, lp=lp, l_aa=l_aa, g=g, stat=stat, held=held,
                 contact=contact), fixed
 
 
