@@ -4,12 +4,16 @@ Every row must be what solve_forward gives for it alone, whatever else is stacke
 solved in the same call, and a bad row is refused with solve_forward's reason while the
 other rows are solved.
 """
+import functools
+
 import numpy as np
 import pytest
 
-from softsnap_model import Skeleton, InfeasibleLengthError, solve_forward, solve_forward_batch
+from softsnap_model import (Skeleton, InfeasibleLengthError, solve_forward, solve_forward_batch,
+                            sweep)
 from softsnap_model.forward import PreparedBatch, PreparedBatchResult, reachable_range
 from softsnap_model.forward import batch as batch_module
+from softsnap_model.forward import newton as newton_module
 from softsnap_model.predictor import RobotPredictor
 from softsnap_model.reference import PAPER_THREADINGS
 from softsnap_model.scene import load_scene
@@ -162,30 +166,54 @@ def test_predictor_refuses_a_bad_group_at_tick_time_and_solves_the_others():
     assert predictor.shapes('predicted')[scene.module_names.index('blue')] is None
 
 
-def _general_and_started(prepared, threadings, lengths):
-    """(general path's result dict, the started path's or None) for one call's rows."""
-    from softsnap_model.forward import newton
-    uid, reasons = prepared._rows([tuple(t) for t in threadings])
-    assert not reasons
-    rows = prepared._rows_of(uid)
-    started = prepared._start(rows, lengths)
-    copy = tuple(np.array(x, copy=True) for x in started)
-    with np.errstate(all='ignore'):
-        fast = newton._solve_started(rows[0], lengths, started)
-    for before, after in zip(copy, started):
-        np.testing.assert_array_equal(before, after)    # the start is left as it was
-    general = newton._solve_arrays(rows[0], lengths, start=copy)
-    return general, fast
+class _NewtonCalls:
+    """Counts calls of newton._newton: none in a solve means it took the early exit."""
+
+    def __init__(self, monkeypatch):
+        self.calls = 0
+        newton = newton_module._newton
+
+        def counted(*args, **kwargs):
+            self.calls += 1
+            return newton(*args, **kwargs)
+        monkeypatch.setattr(newton_module, '_newton', counted)
+
+    def exited_early(self, solve):
+        """(solve(), whether it took the early exit)."""
+        before = self.calls
+        result = solve()
+        return result, self.calls == before
 
 
-def test_a_certified_table_start_skips_newton_and_is_the_general_path_bit_for_bit():
-    # Issue 17, sixth pass: most ticks' table starts are the answer already; the lean
-    # path must then give every field exactly as the general path does, and decline
-    # (None) whatever needs the general path: slack rows, straight mirror segments past
-    # buckling, starts that are not certified.
+def _with_the_full_loop(monkeypatch, solve):
+    """solve() with the early exit turned off in every batch entry point."""
+    with monkeypatch.context() as patch:
+        patch.setattr(batch_module, '_solve_arrays',
+                      functools.partial(newton_module._solve_arrays, early_exit=False))
+        return solve()
+
+
+def assert_bit_identical(result, full):
+    assert type(result) is type(full)
+    for name, value in vars(full).items():
+        got = getattr(result, name)
+        if isinstance(value, np.ndarray):
+            assert got.dtype == value.dtype and got.shape == value.shape, name
+            assert got.tobytes() == value.tobytes(), name    # bits, incl. the sign of 0
+        else:
+            assert got == value, name
+
+
+def test_a_certified_table_start_exits_before_newton_and_is_the_full_loop_bit_for_bit(
+        monkeypatch):
+    # Issue 17, seventh pass: most ticks' table starts are the answer already; the solver
+    # core then certifies Newton's first evaluation without entering its loop, and every
+    # field must be what the loop gives, in every batch entry point. Starts that need a
+    # Newton step take the loop.
     table = {**PAPER, 'alternating': ALTERNATING}
     names = list(table)
     prepared = PreparedBatch(SK, [tuple(t) for t in table.values()])
+    newton = _NewtonCalls(monkeypatch)
     rng = np.random.default_rng(6)
     taken = declined = 0
     for _ in range(60):
@@ -197,31 +225,53 @@ def test_a_certified_table_start_skips_newton_and_is_the_general_path_bit_for_bi
         lengths = low + np.exp(rng.uniform(np.log(1e-6), 0.0, 10)) * (straight - low) * 0.999
         if rng.uniform() < 1 / 6:
             lengths[rng.integers(0, 10)] = straight[0] + 1.0
-        general, fast = _general_and_started(prepared, picked, lengths)
-        if fast is None:
-            declined += 1
-            continue
-        taken += 1
-        assert set(fast) == set(general)
-        for key, value in general.items():
-            np.testing.assert_array_equal(fast[key], value, err_msg=key)
-            assert fast[key].dtype == value.dtype, key
-    assert taken >= 20 and declined >= 5, (taken, declined)
+        rows = [tuple(t) for t in picked]
+        for solve in (lambda: prepared.solve(rows, lengths),
+                      lambda: solve_forward_batch(SK, picked, lengths)):
+            result, early = newton.exited_early(solve)
+            assert_bit_identical(result, _with_the_full_loop(monkeypatch, solve))
+            if early:
+                taken += 1
+                assert not result.iterations.any() and result.converged.all()
+            else:
+                declined += 1
+                assert result.iterations.any()
+    assert taken >= 40 and declined >= 10, (taken, declined)
+    # A sweep of a threading without mirror segments, short of contact: one early exit.
+    low, top = reachable_range(SK, PAPER['red'])
+    contractions = np.linspace(1.0, 0.9 * (top - low), 50)
+    result, early = newton.exited_early(lambda: sweep(SK, PAPER['red'], contractions))
+    assert early and not result.iterations.any()
+    assert_bit_identical(result, _with_the_full_loop(
+        monkeypatch, lambda: sweep(SK, PAPER['red'], contractions)))
 
 
-def test_the_started_path_declines_slack_and_mirror_buckling_rows():
+def test_the_early_exit_takes_slack_rows_and_declines_mirror_buckling_rows(monkeypatch):
+    newton = _NewtonCalls(monkeypatch)
     prepared = PreparedBatch(SK, [tuple(PAPER['yellow']), tuple(ALTERNATING)])
     straight = SK.straight_length_mm(PAPER['yellow'])
-    general, fast = _general_and_started(prepared, [PAPER['yellow']] * 2,
-                                         np.array([straight - 20.0, straight + 1.0]))
-    assert fast is None and general['slack'].tolist() == [False, True]
+    rows = [tuple(PAPER['yellow'])] * 2
+    taut, early = newton.exited_early(lambda: prepared.solve(rows, [straight - 20.0] * 2))
+    assert early
+    # A slack row is straight at zero tension, not iterated: it does not stop the exit.
+    for lengths in ([straight - 20.0, straight + 1.0], [straight - 20.0, straight]):
+        result, early = newton.exited_early(lambda: prepared.solve(rows, lengths))
+        assert early and result.slack.tolist() == [False, True]
+        assert result.converged.all() and result.tension[1] == 0.0
+        assert not result.angles[1].any()
+        assert_bit_identical(result, _with_the_full_loop(
+            monkeypatch, lambda: prepared.solve(rows, lengths)))
+        np.testing.assert_array_equal(result.angles[0], taut.angles[0])
     # Alternating threading: its mirror segments are straight until they buckle, then
-    # start from their own branch; a sweep over the range crosses that.
+    # restart on their own branch, where the start is poor and Newton steps; lengths
+    # over the range cross that.
     low, top = reachable_range(SK, ALTERNATING)
-    lengths = np.linspace(low + 1e-3, top - 1e-3, 400)
-    outcomes = [_general_and_started(prepared, [ALTERNATING], lengths[i:i + 1])
-                for i in range(lengths.size)]
-    assert any(fast is None for _, fast in outcomes)
-    for general, fast in outcomes:
-        if fast is not None:
-            np.testing.assert_array_equal(fast['angles'], general['angles'])
+    outcomes = []
+    for length in np.linspace(low + 1e-3, top - 1e-3, 200):
+        result, early = newton.exited_early(
+            lambda: prepared.solve([tuple(ALTERNATING)], [length]))
+        outcomes.append(early)
+        assert_bit_identical(result, _with_the_full_loop(
+            monkeypatch, lambda: prepared.solve([tuple(ALTERNATING)], [length])))
+        assert result.converged[0] and (result.iterations[0] == 0) == early
+    assert not all(outcomes) and any(outcomes)

@@ -15,7 +15,7 @@ import numpy as np
 
 from ..skeleton import Skeleton
 from .api import _check_skeleton, _frames
-from .newton import _START_POWERS, _solve_arrays, _solve_started
+from .newton import _START_POWERS, _solve_arrays
 from .path import _PER_ITEM, _check_length, _problem, _stack, _threading_tuple
 from .results import MAX_ITER, BatchResult, PreparedBatchResult, SweepResult
 
@@ -412,13 +412,10 @@ class PreparedBatch:
         return self._solve(rows, lengths, max_iter, PreparedBatchResult, refused=('',) * nb)
 
     def _solve(self, rows, lengths, max_iter, cls, **extra):
+        # Most ticks' table starts are the answer already: the batch engine then
+        # certifies them without a Newton step (its early exit).
         P = rows[0]
-        start = self._start(rows, lengths)
-        with np.errstate(all='ignore'):     # as _solve_arrays: masked entries only
-            # Most ticks: the table start is every row's certified answer already.
-            out = _solve_started(P, lengths, start)
-        if out is None:
-            out = _solve_arrays(P, lengths, max_iter=int(max_iter), start=start)
+        out = _solve_arrays(P, lengths, max_iter=int(max_iter), start=self._start(rows, lengths))
         return _batch_result(cls, P, out, lengths, **extra)
 
     def _reason(self, u: int, length: float) -> str:

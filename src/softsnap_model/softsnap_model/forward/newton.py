@@ -1,10 +1,13 @@
-"""Newton solve and certification on the path tables.
+"""Newton solve and certification on the path tables: the batch engine.
 
 Owns the start from the path tables, the bordered Newton on the KKT system vectorised
-over a batch (:mod:`.single` has its plain-float variant for one solve), the
+over a batch (:mod:`.single` has its plain-float variant for one solve), with its early
+exit when the start is already the answer (:func:`_solve_arrays_inner`), the
 second-order check (:func:`_curvature`), the acceptance test against the public
-contracts and the robust fallback (exact per-segment solves, safeguarded Newton on the
-tension) for whatever Newton cannot certify.
+contracts (:func:`_finish`) and the robust fallback (exact per-segment solves,
+safeguarded Newton on the tension) for whatever Newton cannot certify. Every batch
+solve goes through :func:`_solve_arrays`: ``solve_forward_batch``, ``sweep``,
+``PreparedBatch`` and the single solve's fallback.
 """
 from __future__ import annotations
 
@@ -101,7 +104,72 @@ def _branch_eval(b, P):
     return length, lp, lpp
 
 
-def _newton(P, L_t, lam, b, lam_lo, lam_hi, max_iter, tol_mm, tol_rad, active=None):
+def _constraint_targets(L_t, tol_mm):
+    """Per-row constraint target of the Newton loops (mm): ``tol_mm``, or
+    :data:`_CONSTRAINT_ULPS` ulp of the cable length where that is larger."""
+    # 1e-12 mm is ~2 ulp of a 3.5 m cable (192 ribs), below what a sum of 191 lengths
+    # resolves.
+    return np.maximum(tol_mm, _CONSTRAINT_ULPS * np.spacing(np.abs(L_t)))
+
+
+def _evaluate(P, L_t, lam, b, kick=True):
+    """One evaluation of the KKT system at ``(lam, b)``, as every Newton iteration
+    starts: ``(state, fixed)``.
+
+    Past its buckling tension a mirror segment at ``b = 0`` sits on the unstable trivial
+    root: with ``kick`` it is first restarted on its branch (``b`` changed in place;
+    the start of :func:`_solve_arrays_inner` has done that already). The other straight
+    mirror segments are held. ``state`` holds the point, the first and second
+    derivatives of the segment lengths, the constraint ``g`` (mm) and the stationarity
+    residual ``stat`` (rad, over the free segments) per row, and the held and contact
+    masks; ``fixed`` is held or at contact.
+    """
+    lamc = lam[:, None]
+    if P['has_mirror']:
+        mirror = P['mirror']
+        held = mirror & (b <= 0.0)
+        if kick:
+            kicked = held & (lamc > P['lam_c'])
+            if kicked.any():
+                _restart_on_branch(P, lam, b, kicked)
+                held = mirror & (b <= 0.0)
+    else:
+        held = np.zeros(b.shape, dtype=bool)
+    contact = (b >= P['b_end']) & (lamc >= P['lam_end'])
+    fixed = held | contact
+    length, lp, l_aa = _branch_eval(b, P)
+    g = length.sum(axis=1) - L_t
+    f = b + lamc * lp * P['inv_two_k']
+    f[fixed] = 0.0
+    stat = np.abs(f).max(axis=1)
+    return dict(lam=lam, b=b, lp=lp, l_aa=l_aa, g=g, stat=stat, held=held,
+                contact=contact), fixed
+
+
+def _restart_on_branch(P, lam, b, segments):
+    """Set the mirror ``segments`` (mask) of ``b`` to their branch at tension ``lam``."""
+    r = np.nonzero(segments.any(axis=1))[0]
+    b[r] = np.where(segments[r], _kick_b(P, lam[r], r), b[r])
+
+
+def _unmet(state, tol_mm, tol_rad, active=None):
+    """Rows of an evaluation that miss the inner targets (constraint ``tol_mm`` per row,
+    stationarity ``tol_rad``), among the ``active`` ones (all if None): Newton steps on
+    these, and stops when there are none."""
+    unmet = (np.abs(state['g']) > tol_mm) | (state['stat'] > tol_rad)
+    return unmet if active is None else active & unmet
+
+
+def _stopped(P, state, iters):
+    """``state`` (an evaluation Newton stops at) with its curvatures and iteration counts."""
+    state['curv'] = _curvature(P, state['lam'], state['b'], state['lp'], state['l_aa'],
+                               state['held'])
+    state['iters'] = iters
+    return state
+
+
+def _newton(P, L_t, lam, b, lam_lo, lam_hi, max_iter, tol_mm, tol_rad, active=None,
+            first=None):
     """Bordered Newton on the KKT system, active sets following the branch rule.
 
     Free segments solve ``k phi(b) = lambda`` with ``phi(b) = 2 b / -l'(b)``, which is
@@ -110,35 +178,21 @@ def _newton(P, L_t, lam, b, lam_lo, lam_hi, max_iter, tol_mm, tol_rad, active=No
     at a buckling point (there ``l'/phi'`` stays finite while both vanish). Mirror
     segments with ``b = 0`` and ``lambda <= lam_c`` are held straight; segments at
     ``b_end`` with ``lambda >= lam_end`` are held at contact. O(n) per iteration.
+
+    ``tol_mm`` is the per-row constraint target (:func:`_constraint_targets`), ``active``
+    the rows to iterate (all if None). ``first`` is the caller's :func:`_evaluate` of
+    ``(lam, b)`` when it made one: the first iteration uses it instead of evaluating
+    again.
     """
-    lam_c, lam_end, b_end = P['lam_c'], P['lam_end'], P['b_end']
-    two_k, inv_two_k = P['two_k'], P['inv_two_k']
-    mirror = P['mirror']
-    has_mirror = P['has_mirror']
+    b_end, two_k = P['b_end'], P['two_k']
     iters = np.zeros(L_t.shape, dtype=int)
-    active = np.ones(L_t.shape, dtype=bool) if active is None else active.copy()
-    held = np.zeros(b.shape, dtype=bool)
-    # The constraint target scales with the cable: 1e-12 mm is ~2 ulp of a 3.5 m cable
-    # (192 ribs), below what a sum of 191 lengths resolves.
-    tol_mm = np.maximum(tol_mm, _CONSTRAINT_ULPS * np.spacing(np.abs(L_t)))
     for it in range(max_iter + 1):
-        lamc = lam[:, None]
-        if has_mirror:
-            # Past its buckling tension a mirror segment at b = 0 sits on the unstable
-            # trivial root: restart it on its branch.
-            kick = mirror & (b <= 0.0) & (lamc > lam_c)
-            if kick.any():
-                r = np.nonzero(kick.any(axis=1))[0]
-                b[r] = np.where(kick[r], _kick_b(P, lam[r], r), b[r])
-            held = mirror & (b <= 0.0)
-        contact = (b >= b_end) & (lamc >= lam_end)
-        fixed = held | contact
-        length, lp, l_aa = _branch_eval(b, P)
-        g = length.sum(axis=1) - L_t
-        f = b + lamc * lp * inv_two_k
-        f[fixed] = 0.0
-        stat = np.abs(f).max(axis=1)
-        active &= (np.abs(g) > tol_mm) | (stat > tol_rad)
+        if first is None:
+            state, fixed = _evaluate(P, L_t, lam, b)
+        else:
+            (state, fixed), first = first, None
+        g, lp, l_aa = state['g'], state['lp'], state['l_aa']
+        active = _unmet(state, tol_mm, tol_rad, active)
         n_active = int(np.count_nonzero(active))
         if it == max_iter or n_active == 0:
             break
@@ -146,10 +200,9 @@ def _newton(P, L_t, lam, b, lam_lo, lam_hi, max_iter, tol_mm, tol_rad, active=No
             # Most rows are done: iterate on the rest only (converged rows keep this
             # evaluation, which is what certifies them).
             return _newton_rest(P, L_t, lam, b, lam_lo, lam_hi, max_iter - it, tol_mm,
-                                tol_rad, active, iters, dict(
-                                    lam=lam, b=b, length=length, lp=lp, l_aa=l_aa, g=g,
-                                    stat=stat, held=held, contact=contact))
+                                tol_rad, active, iters, state)
         iters += active
+        lamc = lam[:, None]
         inv = 1.0 / lp
         ft = -two_k * b * inv - lamc                  # k phi(b) - lambda
         jac = two_k * (b * l_aa - lp) * inv * inv     # k phi'(b) > 0 on the branch
@@ -174,9 +227,7 @@ def _newton(P, L_t, lam, b, lam_lo, lam_hi, max_iter, tol_mm, tol_rad, active=No
             lam_hi = np.where(out & (g < 0), np.minimum(lam_hi, lam), lam_hi)
         lam = new_lam
         b = np.fmin(np.fmax(b, 0.0), b_end)   # fmax also maps a NaN step to 0
-    curv = _curvature(P, lam, b, lp, l_aa, held)
-    return dict(lam=lam, b=b, length=length, lp=lp, l_aa=l_aa, g=g, stat=stat,
-                held=held, contact=contact, curv=curv, iters=iters)
+    return _stopped(P, state, iters)
 
 
 def _newton_rest(P, L_t, lam, b, lam_lo, lam_hi, max_iter, tol_mm, tol_rad, active,
@@ -189,10 +240,9 @@ def _newton_rest(P, L_t, lam, b, lam_lo, lam_hi, max_iter, tol_mm, tol_rad, acti
     out = {key: val.copy() for key, val in state.items()}
     for key in out:
         out[key][rows] = st[key]
-    out['iters'] = iters.copy()
-    out['iters'][rows] += st['iters']
-    out['curv'] = _curvature(P, out['lam'], out['b'], out['lp'], out['l_aa'], out['held'])
-    return out
+    merged = iters.copy()
+    merged[rows] += st['iters']
+    return _stopped(P, out, merged)
 
 
 def _kick_b(P, lam, rows=None):
@@ -222,6 +272,8 @@ def _curvature(P, lam, b, lp, l_aa, held):
     eq = (lp - b * l_aa) / lp
     near_pitchfork = (P['lam_c'] > 0) & (b < 1e-3)
     eq = np.where(near_pitchfork, 2.0 * P['beta'] * b * b, eq)
+    if not P['has_mirror']:
+        return eq       # nothing held: only mirror segments can be
     straight = 1.0 + lam[:, None] * l_aa / (2.0 * P['k'])
     return np.where(held, straight, eq)
 
@@ -256,121 +308,96 @@ def _robust(P, L_t, lam_lo, lam_hi, max_iter=200):
 
 
 def _solve_arrays(P, L_t, max_iter=MAX_ITER, tol_mm=_INNER_TOL_MM, tol_rad=_INNER_TOL_RAD,
-                  start=None):
+                  start=None, early_exit=True):
     """Solve a batch; returns a dict of result arrays (angles, tension, residuals...).
 
     ``start`` is ``(lambda, b, lam_lo, lam_hi)`` as :func:`_start_from_table` gives it,
-    when the caller computed it another way (``batch.PreparedBatch``).
+    when the caller computed it another way (``batch.PreparedBatch``); its ``b`` may be
+    changed in place. ``early_exit=False`` runs Newton's loop even when the start is
+    certified (the same answers bit for bit; for tests).
     """
     # One floating-point context for the whole solve: divisions by zero only occur in
     # masked-out entries (held or contact segments) and are never used.
     with np.errstate(all='ignore'):
-        return _solve_arrays_inner(P, L_t, max_iter, tol_mm, tol_rad, start)
+        return _solve_arrays_inner(P, L_t, max_iter, tol_mm, tol_rad, start, early_exit)
 
 
-def _solve_arrays_inner(P, L_t, max_iter, tol_mm, tol_rad, start=None):
+def _solve_arrays_inner(P, L_t, max_iter, tol_mm, tol_rad, start=None, early_exit=True):
+    """:func:`_solve_arrays` inside its floating-point context.
+
+    Newton's first evaluation is made here. When it already meets the inner targets on
+    every row (slack rows aside), Newton would stop at it without a step: that is the
+    common case (the quintic table start is accurate to about 1e-12 rad), and then the
+    loop and its bookkeeping are skipped (an early exit, bit-identical to running it).
+    Otherwise Newton starts from that evaluation. A small batch (the model node's ten
+    rows) costs numpy's per-call overhead, not arithmetic, so fewer calls is what
+    counts. The robust fallback takes whatever the acceptance test
+    (:func:`_finish`'s ``converged``) refuses.
+    """
     slack = L_t >= P['straight']
     lam, b, lam_lo, lam_hi = _start_from_table(P, L_t) if start is None else start
-    lam = np.where(slack, 0.0, lam)
-    if P['has_mirror']:
-        # Linear interpolation in lambda badly underestimates b ~ sqrt(lambda - lam_c)
-        # just past a pitchfork; start mirror segments from their own branch instead.
-        past = P['mirror'] & (lam[:, None] > P['lam_c']) & (lam[:, None] < P['lam_1'])
-        if past.any():
-            r = np.nonzero(past.any(axis=1))[0]
-            b[r] = np.where(past[r], _kick_b(P, lam[r], r), b[r])
-    st = _newton(P, L_t, lam, b, lam_lo, lam_hi, max_iter, tol_mm, tol_rad, active=~slack)
-    ok = _accept(st, slack)
-    bad = ~ok
-    if bad.any():
-        # Fallback on the items Newton could not certify.
-        sub = {key: (val[bad] if key in _PER_ITEM else val) for key, val in P.items()}
-        # Sub-batches keep the tables of every threading; only the row map is sliced.
-        lam_r, b_r, lo_r, hi_r = _robust(sub, L_t[bad], lam_lo[bad], lam_hi[bad])
-        st_r = _newton(sub, L_t[bad], lam_r, b_r, lo_r, hi_r, 4, tol_mm, tol_rad)
-        for key in st:
-            st[key] = st[key].copy()
-            st[key][bad] = st_r[key]
-        st['iters'][bad] += max_iter
-    return _finish(P, L_t, st, slack)
-
-
-def _solve_started(P, L_t, start, tol_mm=_INNER_TOL_MM, tol_rad=_INNER_TOL_RAD):
-    """:func:`_solve_arrays` for a batch whose table start is already every row's
-    certified answer; None if some row is not (then the caller runs the general path).
-
-    That is the common case of the model node's ticks: the quintic start is accurate to
-    about 1e-12 rad, so :func:`_newton` stops at its first evaluation without a step.
-    This runs the same operations as that first evaluation, :func:`_accept` and
-    :func:`_finish` (so the result is bit-identical), minus what only serves rows that
-    need more: slack rows, mirror segments to kick onto their branch, iteration
-    bookkeeping and the ``np.where`` per field for slack rows. A ten-row batch is
-    numpy's per-call cost, not arithmetic, so fewer calls is what counts (the model
-    node's tick: 0.78x). ``start`` is not modified. The caller holds the
-    ``np.errstate`` of :func:`_solve_arrays`.
-    """
-    lam, b = start[0], start[1]
-    if (L_t >= P['straight']).any():
-        return None
-    lamc = lam[:, None]
-    if P['has_mirror']:
-        mirror = P['mirror']
-        # A straight mirror segment past buckling (kicked before and in the Newton loop)
-        # or just past it in its first table cell (restarted from its branch): general.
-        if (mirror & (lamc > P['lam_c']) & ((lamc < P['lam_1']) | (b <= 0.0))).any():
-            return None
-        held = mirror & (b <= 0.0)
+    tol_mm = _constraint_targets(L_t, tol_mm)
+    if slack.any():
+        lam = np.where(slack, 0.0, lam)
+        active = ~slack      # slack rows are not iterated
     else:
-        held = np.zeros(b.shape, dtype=bool)
-    contact = (b >= P['b_end']) & (lamc >= P['lam_end'])
-    fixed = held | contact
-    length, lp, l_aa = _branch_eval(b, P)
-    g = length.sum(axis=1) - L_t
-    f = b + lamc * lp * P['inv_two_k']
-    f[fixed] = 0.0
-    stat = np.abs(f).max(axis=1)
-    tol_mm = np.maximum(tol_mm, _CONSTRAINT_ULPS * np.spacing(np.abs(L_t)))
+        slack = active = None      # the common case: no row to mask
+    if P['has_mirror']:
+        # Mirror segments past their buckling tension start on their branch: straight
+        # ones (the unstable trivial root, see _evaluate) and those in their first table
+        # cell, where linear interpolation in lambda badly underestimates
+        # b ~ sqrt(lambda - lam_c) just past the pitchfork.
+        lamc = lam[:, None]
+        restart = P['mirror'] & (lamc > P['lam_c']) & ((lamc < P['lam_1']) | (b <= 0.0))
+        if restart.any():
+            _restart_on_branch(P, lam, b, restart)
+    first = _evaluate(P, L_t, lam, b, kick=False) if early_exit else None
+    if first is not None and not _unmet(first[0], tol_mm, tol_rad, active).any():
+        # Newton would stop at its first evaluation without a step: skip its loop.
+        st = _stopped(P, first[0], np.zeros(L_t.shape, dtype=int))
+    else:
+        st = _newton(P, L_t, lam, b, lam_lo, lam_hi, max_iter, tol_mm, tol_rad,
+                     active=active, first=first)
+    out = _finish(P, st, slack)
+    if out['converged'].all():
+        return out
+    # Fallback on the items Newton could not certify.
+    bad = ~out['converged']
+    sub = {key: (val[bad] if key in _PER_ITEM else val) for key, val in P.items()}
+    # Sub-batches keep the tables of every threading; only the row map is sliced.
+    lam_r, b_r, lo_r, hi_r = _robust(sub, L_t[bad], lam_lo[bad], lam_hi[bad])
+    st_r = _newton(sub, L_t[bad], lam_r, b_r, lo_r, hi_r, 4, tol_mm[bad], tol_rad)
+    for key in st:
+        st[key] = st[key].copy()
+        st[key][bad] = st_r[key]
+    st['iters'][bad] += max_iter
+    return _finish(P, st, slack)
+
+
+def _finish(P, st, slack):
+    """The result arrays of a stopped Newton state ``st`` (:func:`_stopped`).
+
+    ``converged`` is the acceptance test against the public contracts: constraint and
+    stationarity residuals within them and a strict local minimum (every curvature
+    positive, segments at contact aside). ``slack`` is the mask of the slack rows (None
+    if there is none): they are straight, with no tension and nothing to certify.
+    """
+    lam, b, g, stat, contact = st['lam'], st['b'], st['g'], st['stat'], st['contact']
+    min_curv = np.where(contact, np.inf, st['curv']).min(axis=1)
+    if slack is None:
+        slack = np.zeros(g.shape, dtype=bool)
+    else:
+        lam = np.where(slack, 0.0, lam)
+        b = np.where(slack[:, None], 0.0, b)
+        g = np.where(slack, 0.0, g)
+        stat = np.where(slack, 0.0, stat)
+        min_curv = np.where(slack, 1.0, min_curv)
+        contact = contact & ~slack[:, None]
+    angles = P['direction'] * b
     abs_g = np.abs(g)
-    if not ((abs_g <= tol_mm) & (stat <= tol_rad)).all():
-        return None
-    curv = _curvature(P, lam, b, lp, l_aa, held)
-    min_curv = np.min(np.where(contact, np.inf, curv), axis=1)
     is_min = min_curv > 0
     converged = (abs_g <= CONSTRAINT_TOL_MM) & (stat <= STATIONARITY_TOL_RAD) & is_min
-    if not converged.all():
-        return None     # not certified: the general path's robust fallback
-    angles = P['direction'] * b
-    nb = L_t.shape[0]
-    return dict(angles=angles, tension=lam, energy=np.sum(P['k'] * angles * angles, axis=1),
-                iterations=np.zeros(nb, dtype=int), converged=converged,
-                constraint_residual=abs_g, stationarity_residual=stat,
-                residual=np.maximum(abs_g, stat), is_minimum=is_min, min_curvature=min_curv,
-                slack=np.zeros(nb, dtype=bool), at_contact=contact)
-
-
-def _accept(st, slack):
-    curv_ok = np.all(np.where(st['contact'], True, st['curv'] > 0), axis=1)
-    return slack | ((np.abs(st['g']) <= CONSTRAINT_TOL_MM)
-                    & (st['stat'] <= STATIONARITY_TOL_RAD) & curv_ok)
-
-
-def _finish(P, L_t, st, slack):
-    k = P['k']
-    lam = np.where(slack, 0.0, st['lam'])
-    b = np.where(slack[:, None], 0.0, st['b'])
-    angles = P['direction'] * b
-    length = np.where(slack[:, None], np.hypot(P['s'], P['d2'] - P['d1']), st['length'])
-    contact = st['contact'] & ~slack[:, None]
-    g = np.where(slack, 0.0, st['g'])
-    stat = np.where(slack, 0.0, st['stat'])
-    curv = np.where(contact | slack[:, None], np.inf, st['curv'])
-    min_curv = np.where(slack, 1.0, np.min(curv, axis=1))
-    is_min = min_curv > 0
-    converged = slack | ((np.abs(g) <= CONSTRAINT_TOL_MM) & (stat <= STATIONARITY_TOL_RAD)
-                         & is_min)
-    energy = np.sum(k * angles * angles, axis=1)
-    del length
-    return dict(angles=angles, tension=lam, energy=energy, iterations=st['iters'],
-                converged=converged, constraint_residual=np.abs(g),
-                stationarity_residual=stat, residual=np.maximum(np.abs(g), stat),
+    return dict(angles=angles, tension=lam, energy=(P['k'] * angles * angles).sum(axis=1),
+                iterations=st['iters'], converged=converged, constraint_residual=abs_g,
+                stationarity_residual=stat, residual=np.maximum(abs_g, stat),
                 is_minimum=is_min, min_curvature=min_curv, slack=slack, at_contact=contact)
