@@ -78,6 +78,16 @@ class NodeProcess:
         return returncode
 
 
+_ROOT_CONFTEST = sys.modules[__name__]   # later conftest files take the module name
+
+
+@pytest.fixture(scope='session')
+def root_conftest():
+    """This module (NodeProcess, executable, the session's SLOT): several conftest files
+    share the module name, so `import conftest` may find another one."""
+    return _ROOT_CONFTEST
+
+
 @pytest.fixture
 def start_node(tmp_path):
     """Factory: start_node('softsnap_model', 'model_node', '--ros-args', '-p', 'x:=1')."""

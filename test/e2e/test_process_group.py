@@ -13,7 +13,6 @@ import subprocess
 import sys
 import time
 
-from conftest import NodeProcess
 from process_group import is_alive, stop_process_group, stop_process_tree, tagged_env, \
     tagged_processes
 
@@ -51,8 +50,8 @@ def test_a_process_tree_is_stopped_with_children_out_of_its_group():
         parent.stdout.close()
 
 
-def test_node_process_stop_stops_the_children_of_a_crashed_node(tmp_path):
-    node = NodeProcess([sys.executable, '-c', PARENT], tmp_path / 'parent.log', dict(os.environ))
+def test_node_process_stop_stops_the_children_of_a_crashed_node(tmp_path, root_conftest):
+    node = root_conftest.NodeProcess([sys.executable, '-c', PARENT], tmp_path / 'parent.log', dict(os.environ))
     try:
         deadline = time.monotonic() + 60.0
         while not node.output().strip() and time.monotonic() < deadline:

@@ -69,13 +69,6 @@ class _Peer:
 
 
 @pytest.fixture(scope='module')
-def root_conftest(request):
-    """The test tree's root conftest module (NodeProcess, executable, this session's SLOT):
-    several conftest files share the module name, so it is looked up by its path."""
-    return request.config.pluginmanager.get_plugin(str(Path(__file__).resolve().parents[1] / 'conftest.py'))
-
-
-@pytest.fixture(scope='module')
 def start(root_conftest):
     """start(tmp, env, package, executable, *args) -> NodeProcess (stopped by the caller)."""
     def start(tmp: Path, env: dict, package: str, name: str, *args: str):
