@@ -47,6 +47,14 @@ def test_the_profile_is_used_only_where_the_user_chose_none(environ, chosen):
         assert environ == before
 
 
+def test_a_profile_missing_from_the_install_is_not_pointed_to(monkeypatch, tmp_path):
+    from softsnap_driver import dds_profile
+    monkeypatch.setattr(dds_profile, 'SERVICE_REPLY_PROFILE', tmp_path / 'absent.xml')
+    environ = {}
+    assert dds_profile.use_service_reply_profile(environ) is None
+    assert environ == {}
+
+
 def test_the_profile_file_sets_the_reply_wait_and_nothing_else():
     root = ET.parse(SERVICE_REPLY_PROFILE).getroot()
     assert root.tag == f'{FASTDDS_NS}profiles'

@@ -26,13 +26,15 @@ def use_service_reply_profile(environ=os.environ) -> Path | None:
     goal sent by a client that had just started never got its goal response). The
     profile makes that wait SERVICE_REPLY_WAIT_S.
 
-    Leaves `environ` alone (returns None) when another RMW than Fast DDS is selected or
-    a profiles file is already set: the user's own file then decides. Returns the
-    profile's path when it set it.
+    Leaves `environ` alone (returns None) when another RMW than Fast DDS is selected, a
+    profiles file is already set (the user's own file then decides) or the profile is
+    missing from the install (Fast DDS would log an error for a file it cannot read).
+    Returns the profile's path when it set it.
     """
     rmw = environ.get('RMW_IMPLEMENTATION', '')
-    if (rmw and not rmw.startswith('rmw_fastrtps')) or any(
-            name in environ for name in PROFILES_FILE_VARIABLES):
+    if ((rmw and not rmw.startswith('rmw_fastrtps'))
+            or any(name in environ for name in PROFILES_FILE_VARIABLES)
+            or not SERVICE_REPLY_PROFILE.is_file()):
         return None
     for name in PROFILES_FILE_VARIABLES:
         environ[name] = str(SERVICE_REPLY_PROFILE)
