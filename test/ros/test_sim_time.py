@@ -162,8 +162,11 @@ def test_a_stopped_clock_freezes_the_gait_but_not_the_drivers_safety(
 
     def commanding():
         # ... and this watcher has /clock too (best effort: its first samples may be missed).
+        # ... and its own command subscriptions: the drivers' counters can pass 20 before a
+        # loaded watcher matched the command topics (CI: none seen for a module).
         return watch.online() and len(watch.clock_ns) > 5 and all(
-            s[-1].targets_sent > 3 and s[-1].commands_received > 20 for s in watch.states.values())
+            s[-1].targets_sent > 3 and s[-1].commands_received > 20 for s in watch.states.values()
+        ) and all(len(c) > 5 for c in watch.commands.values())
 
     assert ros_node.spin_until(lambda: _alive(procs) or commanding(), TIMEOUT_S), \
         {n: p.output()[-1500:] for n, p in procs.items()}

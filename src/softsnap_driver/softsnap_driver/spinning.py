@@ -41,7 +41,7 @@ def spin_until_shutdown(executor: Executor) -> None:
 
 #: After ROS is closed, how long a fast exit keeps the process before it ends (s), and
 #: the latest it ends, counted from when spinning ended (s): see exit_without_teardown.
-EXIT_LINGER_S = 0.3
+EXIT_LINGER_S = 0.8
 EXIT_BY_S = 1.5
 
 
@@ -56,7 +56,8 @@ def exit_without_teardown(status: int, context, spinning_ended: float) -> NoRetu
     The process first stays ``EXIT_LINGER_S``, never past ``spinning_ended + EXIT_BY_S``
     (monotonic s): ended at once, 2 of 39 model_node exits during two long designs on
     the loaded machine stayed in a peer's ROS graph until the DDS lease ran out (20 s),
-    0 of 70 with the linger. Why is not proven: the participant and its threads are gone
+    0 of 70 with a 0.3 s linger, and then 1 in a clean-clone CI run with other tests
+    loading the machine (exit after 0.42 s): the linger is now 0.8 s. Why is not proven: the participant and its threads are gone
     by then, so the farewell was sent; the likely loss is a reader that had not yet read
     it from the shared-memory transport, whose data lives in the writer's process.
     Output is flushed first.
