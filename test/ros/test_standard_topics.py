@@ -225,7 +225,9 @@ def test_driver_diagnostics_and_battery_follow_the_simulated_module(start_node, 
     assert ros_node.spin_until(lambda: batteries[-1].present and states[-1].online, 20.0)
     battery = batteries[-1]
     assert battery.voltage == pytest.approx(states[-1].battery_voltage, abs=0.02)
-    assert 3.3 < battery.voltage < 3.45          # full 3.45 V minus the idle draw
+    # Full 3.45 V minus the idle draw, which the module's first samples (and its mV
+    # rounding) may not show yet: at most the full voltage (a float32 field).
+    assert 3.3 < battery.voltage <= float(np.float32(3.45))
     assert battery.power_supply_technology == BatteryState.POWER_SUPPLY_TECHNOLOGY_LION
     assert np.isnan(battery.percentage)
     assert ros_node.spin_until(

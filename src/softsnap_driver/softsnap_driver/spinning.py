@@ -28,13 +28,27 @@ def init_ros(**init_kwargs) -> None:
     rclpy.init(**init_kwargs)
 
 
+#: How long an exception out of spin() waits for a shutdown already under way (s).
+SHUTDOWN_GRACE_S = 2.0
+
+
 def spin_until_shutdown(executor: Executor) -> None:
-    """``executor.spin()``; returns normally when the context was shut down."""
+    """``executor.spin()``; returns normally when the context was shut down.
+
+    An exception out of ``spin()`` is a shutdown if the context is shut down, or is within
+    SHUTDOWN_GRACE_S: rclpy shuts it down from its own signal thread, and a take racing
+    with that ended model_node with exit status 1 ("Unable to convert call argument '0'
+    to Python object" from ``take_message``, a clean-clone CI run, loaded machine) while
+    the context was still ok. A real failure is raised after that wait.
+    """
     try:
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except Exception:
+        deadline = time.monotonic() + SHUTDOWN_GRACE_S
+        while executor.context.ok() and time.monotonic() < deadline:
+            time.sleep(0.01)
         if executor.context.ok():
             raise  # a real failure, not a shutdown
 
