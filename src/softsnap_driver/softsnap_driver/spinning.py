@@ -71,9 +71,10 @@ def exit_without_teardown(status: int, context, spinning_ended: float) -> NoRetu
     (monotonic s): ended at once, 2 of 39 model_node exits during two long designs on
     the loaded machine stayed in a peer's ROS graph until the DDS lease ran out (20 s),
     0 of 70 with a 0.3 s linger, and then 1 in a clean-clone CI run with other tests
-    loading the machine (exit after 0.42 s): the linger is now 0.8 s. Why is not proven: the participant and its threads are gone
-    by then, so the farewell was sent; the likely loss is a reader that had not yet read
-    it from the shared-memory transport, whose data lives in the writer's process.
+    loading the machine (exit after 0.42 s): the linger is now 0.8 s. Why is not proven:
+    the participant and its threads are gone by then, so the farewell was sent; the
+    likely loss is a reader that had not yet read it from the shared-memory transport,
+    whose data lives in the writer's process.
     Output is flushed first.
     """
     gc.collect()  # drop the last references to ROS handles so the context can go
