@@ -32,23 +32,50 @@ def init_ros(**init_kwargs) -> None:
 SHUTDOWN_GRACE_S = 2.0
 
 
+def _sigint_shuts_down() -> bool:
+    """Whether rclpy's own SIGINT handler is installed (it then shuts the contexts down)."""
+    from rclpy.signals import SignalHandlerOptions, get_current_signal_handlers_options
+
+    return get_current_signal_handlers_options() in (SignalHandlerOptions.SIGINT,
+                                                     SignalHandlerOptions.ALL)
+
+
+def _await_shutdown(context) -> None:
+    """Wait up to SHUTDOWN_GRACE_S for ``context`` to be shut down."""
+    deadline = time.monotonic() + SHUTDOWN_GRACE_S
+    while context.ok() and time.monotonic() < deadline:
+        time.sleep(0.01)
+
+
 def spin_until_shutdown(executor: Executor) -> None:
     """``executor.spin()``; returns normally when the context was shut down.
 
-    An exception out of ``spin()`` is a shutdown if the context is shut down, or is within
-    SHUTDOWN_GRACE_S: rclpy shuts it down from its own signal thread, and a take racing
-    with that ended model_node with exit status 1 ("Unable to convert call argument '0'
-    to Python object" from ``take_message``, a clean-clone CI run, loaded machine) while
-    the context was still ok. A real failure is raised after that wait.
+    On SIGINT rclpy's signal thread first triggers every executor's signal guard
+    condition, then shuts the contexts down, while Python raises KeyboardInterrupt in
+    the main thread, possibly before that thread is done. The executor (and with it that
+    guard condition, through its ``__del__`` or ``shutdown()``) must not go while the
+    signal thread may still trigger it: a guard condition destroyed under it is a use
+    after free: the likely cause of a driver_container's SIGSEGV (-11) on the physics
+    demo's SIGINT in a CI run, and reproduced with the window widened
+    (benchmarks/sigint_race_stress.py). So a KeyboardInterrupt returns once the context
+    is shut down (rclpy's handler installed, within SHUTDOWN_GRACE_S), which the signal
+    thread does last.
+
+    Any other exception out of ``spin()`` is a shutdown if the context is shut down, or
+    is within SHUTDOWN_GRACE_S: a take racing with rclpy's signal thread ended model_node
+    with exit status 1 ("Unable to convert call argument '0' to Python object" from
+    ``take_message``, a clean-clone CI run, loaded machine) while the context was still
+    ok. A real failure is raised after that wait.
     """
     try:
         executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
+    except ExternalShutdownException:
         pass
+    except KeyboardInterrupt:
+        if _sigint_shuts_down():
+            _await_shutdown(executor.context)
     except Exception:
-        deadline = time.monotonic() + SHUTDOWN_GRACE_S
-        while executor.context.ok() and time.monotonic() < deadline:
-            time.sleep(0.01)
+        _await_shutdown(executor.context)
         if executor.context.ok():
             raise  # a real failure, not a shutdown
 
