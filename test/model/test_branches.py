@@ -169,9 +169,13 @@ def test_higher_local_minimum_exists_beside_the_answer():
 
     # Start from the answer with segment 0 bent against its first-order preference
     # (its holes -6.5 -> 10 mm pull it clockwise).
-    # Rounded to 1e-12 rad: at ftol=1e-15 SLSQP's line search stops with status 8 or
-    # succeeds depending on the last bits of its start (a few-ulp change of the solver's
-    # answer flipped it); the test is about the minimum, not that line search.
+    # At ftol=1e-15 SLSQP's line search stops with status 8 ("positive directional
+    # derivative", nothing left to gain at this precision) or succeeds depending on the
+    # last bits of its start: a few-ulp change of the solver's answer flipped it, and so
+    # did numpy's SIMD paths on another CPU (AVX-512) with the same start rounded to
+    # 1e-12 rad. The test is about the minimum, not that line search: either end is
+    # taken, and what follows certifies the point on its own (stationarity, multipliers,
+    # curvature, feasible neighbours).
     start = np.round(res.angles, 12)
     start[0] = -start[0]
     other = optimize.minimize(lambda a: a @ a, start, jac=lambda a: 2 * a, method='SLSQP',
@@ -179,7 +183,7 @@ def test_higher_local_minimum_exists_beside_the_answer():
                               constraints=[dict(type='eq', fun=constraint,
                                                 jac=constraint_jac)],
                               options=dict(ftol=1e-15, maxiter=500))
-    assert other.success, other.message
+    assert other.success or other.status == 8, other.message
     a = other.x
     assert a @ a == pytest.approx(22.80, abs=0.005)
     assert a @ a > res.energy + 2.0
