@@ -172,8 +172,9 @@ def test_higher_local_minimum_exists_beside_the_answer():
     # At ftol=1e-15 SLSQP's line search stops with status 8 ("positive directional
     # derivative", nothing left to gain at this precision) or succeeds depending on the
     # last bits of its start: a few-ulp change of the solver's answer flipped it, and so
-    # did numpy's SIMD paths on another CPU (AVX-512) with the same start rounded to
-    # 1e-12 rad. The test is about the minimum, not that line search: either end is
+    # did OpenBLAS's kernels with the same start rounded to 1e-12 rad (status 8 with
+    # OPENBLAS_CORETYPE=SkylakeX, the choice on an AVX-512 CPU; success with Haswell or
+    # Prescott). The test is about the minimum, not that line search: either end is
     # taken, and what follows certifies the point on its own (stationarity, multipliers,
     # curvature, feasible neighbours).
     start = np.round(res.angles, 12)
