@@ -67,8 +67,11 @@ class Probe:
         node.create_subscription(PoseStamped, f'{NS}/sim/base_pose', self.poses.append, 50)
 
     def ready(self):
+        # A measured length too: a driver's first state can be online before the module
+        # is calibrated, with a NaN length (a test once commanded NaN - 30 mm from it).
         return (self.shapes and self.poses
-                and all(s and s[-1].online for s in self.states.values())
+                and all(s and s[-1].online and np.isfinite(s[-1].measured_cable_length)
+                        for s in self.states.values())
                 and all(p.get_subscription_count() > 0 for p in self.commands.values()))
 
     def command(self, module, length_m):
