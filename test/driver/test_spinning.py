@@ -17,7 +17,8 @@ from softsnap_driver.spinning import SHUTDOWN_GRACE_S, spin_until_shutdown
 
 
 def _executor_raising(exception: BaseException):
-    """(executor, context, node): a node whose timer raises ``exception`` on its first call."""
+    """Yields (executor, context) of a node whose timer raises ``exception`` on its first
+    call, then closes them (both fixtures' body)."""
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
 
@@ -31,38 +32,30 @@ def _executor_raising(exception: BaseException):
     node.create_timer(0.05, fail)
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(node)
-    return executor, context, node
+    yield executor, context
+    executor.shutdown()
+    node.destroy_node()
+    rclpy.try_shutdown(context=context)
 
 
 @pytest.fixture
 def failing_executor():
     """(executor, context): a node whose timer raises RuntimeError on its first call."""
-    import rclpy
-
-    executor, context, node = _executor_raising(
+    yield from _executor_raising(
         RuntimeError('Unable to convert call argument (stand-in for a failed take)'))
-    yield executor, context
-    executor.shutdown()
-    node.destroy_node()
-    rclpy.try_shutdown(context=context)
 
 
 @pytest.fixture
 def interrupted_executor():
     """(executor, context): a node whose timer raises KeyboardInterrupt (a Ctrl-C) on its
     first call; rclpy's signal handlers are put back as they were afterwards."""
-    import rclpy
     from rclpy.signals import (get_current_signal_handlers_options, install_signal_handlers,
                                uninstall_signal_handlers)
 
     before = get_current_signal_handlers_options()
-    executor, context, node = _executor_raising(KeyboardInterrupt())
-    yield executor, context
+    yield from _executor_raising(KeyboardInterrupt())
     uninstall_signal_handlers()     # installing only adds handlers
     install_signal_handlers(before)
-    executor.shutdown()
-    node.destroy_node()
-    rclpy.try_shutdown(context=context)
 
 
 def test_a_ctrl_c_returns_once_the_signal_thread_has_shut_the_context_down(interrupted_executor):
