@@ -135,6 +135,12 @@ def test_demo_runs_the_robot_and_records_it(scene, tmp_path, read_rrd):
             assert len(points) == 12
             assert max(abs(c) for p in points for c in p) < 0.25
         assert len(rec.scalars(f'plots/cable_length_mm/{module}/commanded')) >= 3
+        # The run starts once rerun_logger reports messages from every topic it records,
+        # so the recording spans the run. Regression: it had subscribed (the ROS graph
+        # showed it) but the publishers found it up to 3 s later: a CI run's recording
+        # had no commanded shape of a module, runs here only the last 1.6-2.4 s of 4.
+        stamps = rec.times(f'plots/cable_length_mm/{module}/commanded')
+        assert (stamps[-1] - stamps[0]) * 1e-9 > 0.8 * summary['seconds'], (module, stamps)
     check_demo_bag(run_dir / 'bag', summary)
 
 

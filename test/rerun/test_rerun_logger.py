@@ -256,9 +256,17 @@ def test_malformed_message_bytes_are_logged_and_the_node_keeps_recording(
     from rclpy.serialization import serialize_message
     from softsnap_interfaces.msg import CableLength
 
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+
     output = tmp_path / 'junk.rrd'
     proc = start_node('softsnap_gaits', 'rerun_logger', '--ros-args', '-r', f'__ns:={NS}',
                       '-p', f'output:={output}', '-p', 'rate:=0.0', '-p', 'modules:=[yellow]')
+    statuses = []  # the logger's /diagnostics statuses, as (level, message, values)
+    ros_node.create_subscription(
+        DiagnosticArray, '/diagnostics',
+        lambda msg: statuses.extend((s.level, s.message, {kv.key: kv.value for kv in s.values})
+                                    for s in msg.status
+                                    if s.name == 'softsnap/brittle_star/rerun_logger'), 50)
     _, poses = scene_poses()
     pubs = publishers(ros_node, ['yellow'])
     wait_matched(ros_node, pubs, proc)
@@ -275,6 +283,15 @@ def test_malformed_message_bytes_are_logged_and_the_node_keeps_recording(
     wait_for_rows(output, 'robot/yellow/predicted/spine', 1, ros_node)
     wait_for_rows(output, 'plots/cable_length_mm/yellow/commanded', 1, ros_node)
     assert proc.alive()
+    # Its status counts what it took per topic, and what it could not log (WARN).
+    predicted, command = f'{NS}/model/shape/predicted', f'{NS}/yellow/cable_length/command'
+    assert ros_node.spin_until(lambda: statuses and statuses[-1][2].get(predicted) == '3'
+                               and statuses[-1][2].get(command) == '2', timeout=20.0), statuses
+    level, message, values = statuses[-1]
+    assert level == DiagnosticStatus.WARN and 'not logged' in message, statuses[-1]
+    assert values['messages not logged (count)'] == '3', values
+    assert values['messages logged (count)'] == '2', values
+    assert values[f'{NS}/model/shape/commanded'] == '0' and values['output'] == str(output)
     assert proc.stop() == 0, log_of(proc)
     log = log_of(proc)
     assert 'message not logged' in log and 'model/shape/predicted' in log, log

@@ -186,15 +186,30 @@ class Process:
         self._log.close()
 
 
-def recorder_subscribed(observer: Observer) -> bool:
-    """True once the observer's graph shows rerun_logger's shape subscription."""
-    namespace = observer.node.get_namespace()
-    try:  # its subscriptions live on its inbox node (rerun_logger.py)
-        topics = observer.node.get_subscriber_names_and_types_by_node('rerun_logger_inbox',
-                                                                      namespace)
-    except Exception:  # rclpy's NodeNameNonExistentError: not discovered yet
-        return False
-    return any(name == f'{namespace}/model/shape/commanded' for name, _ in topics)
+def recorder_topics(scene, physics: bool) -> list[str]:
+    """The topics (relative to the robot's namespace) whose messages must reach
+    rerun_logger before the run starts: everything the recording shows."""
+    topics = ['model/shape/commanded', 'model/shape/predicted']
+    if physics:
+        topics += ['model/shape/simulated', 'sim/base_pose']
+    for m in scene.modules:
+        topics += [f'{m.name}/cable_length/command', f'{m.name}/cable_length/measured',
+                   f'{m.name}/state']
+    return topics
+
+
+def recorder_missing(observer: Observer, physics: bool) -> list[str]:
+    """The topics of `recorder_topics` rerun_logger has taken nothing from yet, by its
+    latest /diagnostics status (every topic until one arrives).
+
+    Its subscriptions in the observer's ROS graph prove nothing about the publishers:
+    on a loaded machine they discovered them up to 3 s later, and a CI run's 4 s
+    recording had no commanded shape of a module.
+    """
+    namespace = observer.node.get_namespace().rstrip('/')
+    taken = observer.recorder_taken
+    return [t for t in recorder_topics(observer.scene, physics)
+            if taken.get(f'{namespace}/{t}', 0) <= 0]
 
 
 def stop_gait(processes: list[Process]) -> None:
@@ -263,6 +278,10 @@ class Observer:
         self.node.create_subscription(ModelDiagnostics, 'model/diagnostics',
                                       lambda msg: setattr(self, 'diagnostics', msg), 10)
         self.node.create_subscription(GaitPhase, 'gait/phase', self._phase, STREAM_DEPTH)
+        # rerun_logger's status: messages taken per topic (full name -> count).
+        from diagnostic_msgs.msg import DiagnosticArray
+        self.recorder_taken: dict[str, int] = {}
+        self.node.create_subscription(DiagnosticArray, '/diagnostics', self._diagnostics, 50)
         # --physics: the world poses of the robot and its payload, (stamp ns, x, y, z) m,
         # and the gait's phases (stamp ns, cycle, phase); kept over the whole run.
         self.base_positions: list = []
@@ -285,6 +304,13 @@ class Observer:
             if s is not None and len(shape.rib_centers):
                 centres = np.array([(p.x, p.y, p.z) for p in shape.rib_centers])
                 s.simulated_shapes.append((centres, float(shape.cable_length)))
+
+    def _diagnostics(self, msg) -> None:
+        name = f'softsnap/{self.scene.name}/rerun_logger'
+        for status in msg.status:
+            if status.name == name:
+                self.recorder_taken = {kv.key: int(kv.value) for kv in status.values
+                                       if kv.key.startswith('/') and kv.value.isdigit()}
 
     def _phase(self, msg) -> None:
         self.last_phase_arrival_s = time.monotonic()
@@ -916,14 +942,19 @@ def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
 
         def ready() -> bool:
             # The recorder too: on a loaded machine rerun_logger came up seconds after the
-            # nodes it records, and a short run's recording had no shapes at all.
-            return observer.ready() and (args.no_rerun or recorder_subscribed(observer))
+            # nodes it records, or took their messages seconds after it had subscribed,
+            # and a short run's recording lacked shapes.
+            return observer.ready() and (args.no_rerun
+                                         or not recorder_missing(observer, args.physics))
 
         deadline = time.monotonic() + args.ready_timeout
         while check_children() and not ready() and time.monotonic() < deadline:
             observer.spin_for(0.1)
         if check_children() and not observer.ready():
             not_ready = observer.missing()
+        elif check_children() and not ready():
+            not_ready = {'rerun_logger': ['nothing taken from ' + ', '.join(
+                recorder_missing(observer, args.physics))]}
         # Started: every process alive and every module seen end to end. Otherwise stop
         # here and say what failed; a table of a robot that never ran would be zeros.
         started = check_children() and not not_ready
@@ -1063,7 +1094,8 @@ def _report_start_failure(args, scene, processes, crashed, not_ready, exit_codes
             print(f'  {module}: {", ".join(lacks)}', file=sys.stderr)
         # The logs of the processes those modules depend on.
         names = {f'sim_{m}' for m in not_ready} | {f'{m}_driver' for m in not_ready} | {
-            'driver_container', 'model_node', 'gait_node', 'sim_robot'}
+            'driver_container', 'model_node', 'gait_node', 'sim_robot'} | (
+            {'rerun_logger'} & set(not_ready))
         for p in processes:
             if p.spec.name in names:
                 print(f'\n{p.spec.name} (still running); its last output:\n{p.tail()}',

@@ -8,7 +8,10 @@ Subscribes (relative names, so they live in the robot's namespace, e.g. /brittle
   <module>/cable_length/measured                 softsnap_interfaces/CableLength
   <module>/state                                 softsnap_interfaces/ModuleState
 
-and writes a .rrd file and/or streams to a viewer. Everything about rerun (entity paths,
+and writes a .rrd file and/or streams to a viewer. It reports on /diagnostics
+(diagnostic_msgs/DiagnosticArray, status ``softsnap/<robot>/rerun_logger``) every
+DIAGNOSTICS_PERIOD_S, and at once when a topic delivers its first message: how many
+messages it took per topic, logged, dropped and could not log. Everything about rerun (entity paths,
 colours, blueprint, units) lives in softsnap_model.recording; this node only adapts
 messages and parameters. The shape, length and state topics are taken raw (CDR bytes)
 and read by softsnap_driver.cdr, much cheaper than rclpy's deserialisation. See
@@ -39,12 +42,14 @@ Parameters (read-only except ``rate``):
 from __future__ import annotations
 
 import datetime as dt
+import math
 import sys
 import time
 from pathlib import Path
 
 import rclpy
 import rclpy.node
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                  SetParametersResult)
 from rclpy.clock import Clock, ClockType
@@ -55,6 +60,7 @@ from geometry_msgs.msg import PoseStamped
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 
+from softsnap_driver.diagnostics import RECENT_S
 from softsnap_driver.ros_parameters import SoftSnapNode
 from softsnap_driver.spinning import exit_without_teardown, init_ros, spin_until_shutdown
 from softsnap_interfaces.msg import CableLength, ModuleState, RobotShape
@@ -76,11 +82,46 @@ DEFAULT_FLUSH_PERIOD_S = 1.0
 #: 0.1 rather than 0.05 saved ~1% of a core (a timer wake costs ~0.5 ms under load); a
 #: recording needs no lower latency, and rows wait up to flush_period anyway.
 DRAIN_PERIOD_S = 0.1
+#: How often the node publishes its status on /diagnostics (s). A topic's first message
+#: also triggers one at once: that is how a waiting peer (the demo) learns that messages
+#: reach the recording, which a subscription seen in the ROS graph does not prove (the
+#: publishers may discover it seconds later on a loaded machine).
+DIAGNOSTICS_PERIOD_S = 1.0
 
 
 def stamp_ns(stamp) -> int:
     """Nanoseconds since the epoch of a builtin_interfaces/Time."""
     return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def recorder_status(name: str, output: Path | None, recorder: recording.RobotRecorder,
+                    taken: dict[str, int], not_logged: int, not_logged_recently: bool
+                    ) -> DiagnosticStatus:
+    """The logger's DiagnosticStatus: WARN while messages could not be logged within the
+    last RECENT_S (bytes no reader accepts, a shape with the wrong rib count), else OK.
+
+    Values: the output file and its size, the recorder's counters, and one value per
+    subscribed topic: key the topic's full name, value the messages taken from it.
+    """
+    try:
+        size = output.stat().st_size if output is not None else 0
+    except OSError:  # rerun creates the file asynchronously
+        size = 0
+    status = DiagnosticStatus(name=name, hardware_id='')
+    if not_logged_recently:
+        status.level = DiagnosticStatus.WARN
+        status.message = f'messages not logged within {RECENT_S:g} s (see the log)'
+    else:
+        status.level = DiagnosticStatus.OK
+        status.message = f'recording to {output}' if output is not None else 'streaming'
+    values = {'output': str(output or ''), 'file size (bytes)': size,
+              'messages logged (count)': recorder.logged,
+              'dropped by rate (count)': recorder.dropped,
+              'unchanged shapes not logged again (count)': recorder.unchanged,
+              'messages not logged (count)': not_logged,
+              **dict(sorted(taken.items()))}
+    status.values = [KeyValue(key=key, value=str(value)) for key, value in values.items()]
+    return status
 
 
 def default_output(robot: str, now: dt.datetime | None = None) -> Path:
@@ -181,6 +222,12 @@ class RerunLoggerNode(SoftSnapNode):
         self.scene_poses = {m.name: (m.base_position_m, m.base_orientation_xyzw)
                             for m in getattr(scene, 'modules', [])}
         self._closed = False
+        self.diagnostic_name = f'softsnap/{robot}/rerun_logger'
+        self.taken: dict[str, int] = {}  # full topic name -> messages taken
+        self.not_logged = 0  # messages taken but not logged (refused bytes or shapes)
+        self._not_logged_at = -math.inf  # time.monotonic() of the latest
+        self._diagnostics_due = 0.0  # time.monotonic() of the next periodic report
+        self.diagnostics_publisher = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self._last_shapes: dict[tuple[str, str], tuple] = {}  # (stamp ns, angles) last seen
         self._last_poses: tuple | None = None  # (module names, pose bytes) last handed on
         self.cdr_fallbacks = 0  # messages the cdr reader refused (rclpy decoded them)
@@ -254,6 +301,7 @@ class RerunLoggerNode(SoftSnapNode):
         subscription = self._inbox.create_subscription(msg_type, topic, lambda msg: None,
                                                        SUBSCRIPTION_QOS, raw=raw)
         self._drained.append((subscription, msg_type, raw, handler))
+        self.taken.setdefault(subscription.topic_name, 0)
         return subscription
 
     def _subscribe_module(self, module: str) -> None:
@@ -276,16 +324,40 @@ class RerunLoggerNode(SoftSnapNode):
         """Handle every message that arrived since the last drain, then flush if due."""
         if self._closed:
             return
+        first_messages = False
         for subscription, msg_type, raw, handler in list(self._drained):  # may grow meanwhile
+            count = 0
             with subscription.handle:
                 while (taken := subscription.handle.take_message(msg_type, raw)) is not None:
+                    count += 1
                     try:
                         handler(taken[0])
                     except Exception as exc:  # noqa: BLE001 - one bad message must not stop the rest
+                        self._count_not_logged()
                         self.get_logger().error(f'{subscription.topic_name}: message not logged: '
                                                 f'{exc!r}', throttle_duration_sec=5.0)
+            if count:
+                topic = subscription.topic_name
+                first_messages |= self.taken[topic] == 0
+                self.taken[topic] += count
         if self.recorder.flush_period_s:
             self.recorder.flush_if_due()
+        now = time.monotonic()
+        if first_messages or now >= self._diagnostics_due:
+            self._diagnostics_due = now + DIAGNOSTICS_PERIOD_S
+            self.publish_diagnostics(now)
+
+    def _count_not_logged(self) -> None:
+        self.not_logged += 1
+        self._not_logged_at = time.monotonic()
+
+    def publish_diagnostics(self, now: float) -> None:
+        """Publish the logger's status (`recorder_status`) on /diagnostics."""
+        status = recorder_status(self.diagnostic_name, self.output, self.recorder, self.taken,
+                                 self.not_logged, now - self._not_logged_at < RECENT_S)
+        msg = DiagnosticArray(status=[status])
+        msg.header.stamp = self.get_clock().now().to_msg()
+        self.diagnostics_publisher.publish(msg)
 
     # --- callbacks ----------------------------------------------------------------------
 
@@ -367,6 +439,7 @@ class RerunLoggerNode(SoftSnapNode):
                     self._last_shapes[(shape.module, source_of)] = (
                         shape_stamp, shape.angles.tobytes())
             except ValueError as exc:
+                self._count_not_logged()
                 self.get_logger().warning(f'{shape.module} {source} shape not logged: {exc}',
                                           throttle_duration_sec=5.0)
 
