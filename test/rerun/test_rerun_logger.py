@@ -270,6 +270,11 @@ def test_malformed_message_bytes_are_logged_and_the_node_keeps_recording(
     _, poses = scene_poses()
     pubs = publishers(ros_node, ['yellow'])
     wait_matched(ros_node, pubs, proc)
+    # Before any message: OK, recording to its file, every topic at 0.
+    assert ros_node.spin_until(lambda: statuses, timeout=20.0), proc.output()
+    level, message, values = statuses[0]
+    assert level == DiagnosticStatus.OK and message == f'recording to {output}', statuses[0]
+    assert values[f'{NS}/model/shape/predicted'] == '0' and values['messages logged (count)'] == '0'
     good = serialize_message(robot_shape('predicted', 0, ['yellow'], {'yellow'}, poses))
     length = CableLength(cable_length=0.19)
     stamp(length.header, STAMP0)

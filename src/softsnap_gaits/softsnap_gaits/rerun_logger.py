@@ -11,11 +11,12 @@ Subscribes (relative names, so they live in the robot's namespace, e.g. /brittle
 and writes a .rrd file and/or streams to a viewer. It reports on /diagnostics
 (diagnostic_msgs/DiagnosticArray, status ``softsnap/<robot>/rerun_logger``) every
 DIAGNOSTICS_PERIOD_S, and at once when a topic delivers its first message: how many
-messages it took per topic, logged, dropped and could not log. Everything about rerun (entity paths,
-colours, blueprint, units) lives in softsnap_model.recording; this node only adapts
-messages and parameters. The shape, length and state topics are taken raw (CDR bytes)
-and read by softsnap_driver.cdr, much cheaper than rclpy's deserialisation. See
-docs/rerun.md.
+messages it took per topic, logged, dropped and could not log.
+
+Everything about rerun (entity paths, colours, blueprint, units) lives in
+softsnap_model.recording; this node only adapts messages and parameters. The shape,
+length and state topics are taken raw (CDR bytes) and read by softsnap_driver.cdr, much
+cheaper than rclpy's deserialisation. See docs/rerun.md.
 
 Parameters (read-only except ``rate``):
   output      .rrd path; '' = runs/<robot>-<UTC time>.rrd under the current directory;
@@ -224,7 +225,7 @@ class RerunLoggerNode(SoftSnapNode):
         self._closed = False
         self.diagnostic_name = f'softsnap/{robot}/rerun_logger'
         self.taken: dict[str, int] = {}  # full topic name -> messages taken
-        self.not_logged = 0  # messages taken but not logged (refused bytes or shapes)
+        self.not_logged = 0  # messages (or a message's module shapes) taken, not logged
         self._not_logged_at = -math.inf  # time.monotonic() of the latest
         self._diagnostics_due = 0.0  # time.monotonic() of the next periodic report
         self.diagnostics_publisher = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
