@@ -114,6 +114,11 @@ def recorded(tmp_path_factory, root_conftest, start):
             'graph did not come up:\n' + '\n'.join(p.output()[-1500:] for p in graph))
         assert peer.spin_until(lambda: all(recorder_on(t) for t in EXPECTED), 60), (
             [t for t in EXPECTED if not recorder_on(t)], recorder.output()[-3000:])
+        # The graph shows the recorder's subscription once its node announces it; the
+        # probe's writer may match that reader later (in the demo, publishers took up to
+        # 3 s), and volatile samples sent before the match are lost.
+        assert peer.spin_until(lambda: probe.get_subscription_count() >= 1, 60), (
+            'the probe never matched the recorder', recorder.output()[-3000:])
         values = [0.1 + 0.001 * i for i in range(PROBE_COUNT)]
         for value in values:
             msg = CableLength(cable_length=value)
