@@ -44,7 +44,9 @@ def yellow_model(start_node, ros_node, rate_hz: float, shape_depth: int):
                                  shape_depth)
     ros_node.create_subscription(ModelDiagnostics, f'{NS}/model/diagnostics',
                                  diagnostics.append, 50)
-    pub = ros_node.create_publisher(CableLength, f'{NS}/yellow/cable_length/command', 10)
+    # Deep enough to hold every length a test sends: a sample the transport dropped on a
+    # loaded machine is sent again from the writer's history, if it is still there.
+    pub = ros_node.create_publisher(CableLength, f'{NS}/yellow/cable_length/command', 200)
     assert ros_node.spin_until(lambda: pub.get_subscription_count() > 0 and diagnostics,
                                20.0), node.output()
     return node, yellow, shapes, diagnostics, pub
@@ -87,7 +89,7 @@ def test_a_burst_on_all_ten_length_topics_is_taken_whole(start_node, ros_node):
         20.0), node.output()
     ros_node.spin_until(lambda: False, 1.0)  # the node sees our subscriptions too
     before = diagnostics[-1]
-    burst = 4  # per topic, within the subscriptions' queue depth (10)
+    burst = 4  # per topic, within the subscriptions' queue depth (LENGTH_QUEUE_DEPTH)
     newest = {}
     for i in range(burst):
         for (module, source), pub in pubs.items():
@@ -134,7 +136,9 @@ def test_the_rate_limit_holds_with_lengths_faster_than_the_rate(start_node, ros_
     assert ros_node.spin_until(lambda: shapes and stamp_ns(shapes[-1]) == stamp_ns(sent[-1]),
                                15.0), node.output()
     assert ros_node.spin_until(
-        lambda: diagnostics[-1].commanded_lengths[0] - taken_before == len(sent), 15.0)
+        lambda: diagnostics[-1].commanded_lengths[0] - taken_before == len(sent), 15.0), (
+        f'{diagnostics[-1].commanded_lengths[0] - taken_before} lengths taken of '
+        f'{len(sent)} sent', node.output())
     # Judged by the stamps of the lengths the shapes came from: a node solving every
     # length would publish about len(sent) shapes (10x the rate).
     span_s = (stamp_ns(shapes[-1]) - stamp_ns(shapes[0])) / 1e9

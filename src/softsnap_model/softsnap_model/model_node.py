@@ -86,8 +86,13 @@ TICK_STOP_WAIT_S = 0.5
 GATHER_FRACTION = 0.5
 #: Longest the idle prediction thread blocks without checking the context (s).
 IDLE_WAIT_MAX_S = 1.0
-#: While a long period runs, how often the length queues are taken (s): a queue of depth
-#: 10 then never overflows below 200 messages a second.
+#: Messages each length subscription holds in DDS until the prediction thread takes
+#: them: 2 s of a 50 Hz gait. 10 left 0.2 s of headroom at 50 Hz, and a CI run of a
+#: 5 Hz node fed 50 Hz counted fewer lengths taken than sent (a starved thread is the
+#: likely reason; not reproduced here under four CPU hogs).
+LENGTH_QUEUE_DEPTH = 100
+#: While a long period runs, how often the length queues are taken (s): the queues then
+#: never overflow below LENGTH_QUEUE_DEPTH / DRAIN_S messages a second.
 DRAIN_S = 0.05
 #: How long a publisher's subscription count is trusted before DDS is asked again (s).
 SUBSCRIBERS_REFRESH_S = 0.25
@@ -142,11 +147,11 @@ class PredictionThread:
     - active: predictions follow on a grid of ``period_s`` from there (in phase with the
       arrivals; at most one prediction per period, a late wake skips to the next
       boundary). Between two boundaries the thread sleeps without asking DDS: lengths
-      wait in the subscriptions' queues (``depth``) and are taken at the boundary from
-      every subscription (ten takes that find nothing cost a third of one wait-set
-      round, measured), and every ``DRAIN_S`` while a long period runs, so that no queue
-      overflows below 10 / DRAIN_S messages a second. A boundary that finds nothing to
-      solve turns the thread idle.
+      wait in the subscriptions' queues (``LENGTH_QUEUE_DEPTH``) and are taken at the
+      boundary from every subscription (ten takes that find nothing cost a third of one
+      wait-set round, measured), and every ``DRAIN_S`` while a long period runs, so that
+      no queue overflows below LENGTH_QUEUE_DEPTH / DRAIN_S messages a second. A boundary
+      that finds nothing to solve turns the thread idle.
 
     ``on_length(index, data)`` gets every message of ``subscriptions[index]`` as bytes,
     oldest first; ``predict()`` solves what is pending and returns False if nothing was;
@@ -380,8 +385,9 @@ class ModelNode(SoftSnapNode):
         self.wire_format = self._wire_matches_rclpy()
 
         # Lengths are a stream where only the newest matters: sensor-data QoS would drop
-        # messages under load; keep a small reliable queue so no command is lost silently.
+        # messages under load; a reliable queue keeps every command to be counted.
         qos = QoSProfile(depth=10)
+        length_qos = QoSProfile(depth=LENGTH_QUEUE_DEPTH)
         # Length topics are taken by the prediction thread instead of waking the executor
         # for every message: only the newest length per module matters for a prediction,
         # and rclpy's per-message dispatch (~0.2 ms) would otherwise dominate the node's
@@ -396,7 +402,8 @@ class ModelNode(SoftSnapNode):
         for module in self.scene.modules:
             for source in SOURCES:
                 subscription = self._inbox.create_subscription(
-                    CableLength, f'{module.name}/{LENGTH_TOPIC[source]}', lambda msg: None, qos)
+                    CableLength, f'{module.name}/{LENGTH_TOPIC[source]}', lambda msg: None,
+                    length_qos)
                 self._length_subscriptions.append((module.name, source, subscription))
                 self.module_publishers[(module.name, source)] = self.create_publisher(
                     ModuleShape, f'{module.name}/shape/{source}', qos)
