@@ -88,8 +88,8 @@ GATHER_FRACTION = 0.5
 IDLE_WAIT_MAX_S = 1.0
 #: Messages each length subscription holds in DDS until the prediction thread takes
 #: them: 2 s of a 50 Hz gait. 10 left 0.2 s of headroom at 50 Hz, and a CI run of a
-#: 5 Hz node fed 50 Hz counted fewer lengths taken than sent (a starved thread is the
-#: likely reason; not reproduced here under four CPU hogs).
+#: 5 Hz node fed 50 Hz counted fewer lengths taken than sent (not reproduced here under
+#: four CPU hogs; a starved process is the likely reason).
 LENGTH_QUEUE_DEPTH = 100
 #: While a long period runs, how often the length queues are taken (s): the queues then
 #: never overflow below LENGTH_QUEUE_DEPTH / DRAIN_S messages a second.
