@@ -14,14 +14,18 @@ from __future__ import annotations
 
 import math
 from dataclasses import fields
+from typing import TYPE_CHECKING
 
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from sensor_msgs.msg import BatteryState
 
-from .link import Counters, LinkReport
+if TYPE_CHECKING:  # annotations only: the model node and rerun_logger use key_values and
+    # RECENT_S without loading the link and the HTTP protocol client (~30 ms at start)
+    from .link import Counters, LinkReport
 
 __all__ = ['BATTERY_WARN_V', 'BATTERY_ERROR_V', 'RECENT_S', 'STALE_AFTER_S',
-           'BATTERY_DESIGN_CAPACITY_AH', 'DriverHealth', 'battery_state', 'diagnostic_name']
+           'BATTERY_DESIGN_CAPACITY_AH', 'DriverHealth', 'battery_state', 'diagnostic_name',
+           'key_values']
 
 #: Battery voltage (mean of the module's last 8 samples) below which the status is WARN
 #: (V): a single Li-ion cell (FACTS.md: 80130 Li-ion, 3.7 V nominal) is nearly empty.
@@ -54,7 +58,8 @@ def diagnostic_name(namespace: str, module: str) -> str:
     return '/'.join(part for part in ('softsnap', robot, module, 'driver') if part)
 
 
-def _key_values(values: dict) -> list[KeyValue]:
+def key_values(values: dict) -> list[KeyValue]:
+    """DiagnosticStatus values from a dict: floats to 6 significant digits, the rest str()."""
     out = []
     for key, value in values.items():
         if isinstance(value, float):
@@ -157,11 +162,11 @@ class DriverHealth:
             'report age (s)': float(max(age, 0.0)),
         }
         values.update({f'{f.name.replace("_", " ")} (count)': getattr(c, f.name)
-                       for f in fields(Counters)})
+                       for f in fields(c)})
         values['last error'] = report.last_error
         values['last error age (s)'] = (float(now_s - report.last_error_stamp)
                                         if math.isfinite(report.last_error_stamp) else 'none')
-        status.values = _key_values(values)
+        status.values = key_values(values)
         return status
 
 

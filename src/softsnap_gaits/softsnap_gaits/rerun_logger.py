@@ -50,7 +50,7 @@ from pathlib import Path
 
 import rclpy
 import rclpy.node
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                  SetParametersResult)
 from rclpy.clock import Clock, ClockType
@@ -61,7 +61,7 @@ from geometry_msgs.msg import PoseStamped
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 
-from softsnap_driver.diagnostics import RECENT_S
+from softsnap_driver.diagnostics import RECENT_S, key_values
 from softsnap_driver.ros_parameters import SoftSnapNode
 from softsnap_driver.spinning import exit_without_teardown, init_ros, spin_until_shutdown
 from softsnap_interfaces.msg import CableLength, ModuleState, RobotShape
@@ -121,7 +121,7 @@ def recorder_status(name: str, output: Path | None, recorder: recording.RobotRec
               'unchanged shapes not logged again (count)': recorder.unchanged,
               'messages not logged (count)': not_logged,
               **dict(sorted(taken.items()))}
-    status.values = [KeyValue(key=key, value=str(value)) for key, value in values.items()]
+    status.values = key_values(values)
     return status
 
 

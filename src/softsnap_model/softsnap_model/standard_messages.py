@@ -33,11 +33,13 @@ from typing import Iterable, Mapping, Sequence
 
 import numpy as np
 from builtin_interfaces.msg import Time
-from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import Point, Pose
 from sensor_msgs.msg import JointState
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker
+
+from softsnap_driver.diagnostics import key_values
 
 from . import geometry
 
@@ -277,11 +279,6 @@ def joint_states(shapes: Iterable) -> list[JointState]:
     return [by_stamp[stamp] for stamp in sorted(by_stamp)]
 
 
-def _key_values(values: Mapping[str, object]) -> list[KeyValue]:
-    return [KeyValue(key=key, value=(f'{value:.6g}' if isinstance(value, float) else str(value)))
-            for key, value in values.items()]
-
-
 @dataclass(frozen=True)
 class ModelHealth:
     """Model-node counters at one diagnostics report (counts since start; time in s)."""
@@ -324,7 +321,7 @@ def model_status(name: str, now: ModelHealth, before: ModelHealth | None,
     status = DiagnosticStatus(name=name, hardware_id='')
     status.level = DiagnosticStatus.WARN if problems else DiagnosticStatus.OK
     status.message = '; '.join(problems) if problems else 'ok'
-    status.values = _key_values({
+    status.values = key_values({
         'solves': now.solves,
         'skipped unchanged': now.skipped_unchanged,
         'skipped duplicate': now.skipped_duplicate,
