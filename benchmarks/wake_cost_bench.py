@@ -11,9 +11,9 @@ the CPUs free to idle and with them kept busy by a spinner at the lowest priorit
 
 - ``tick`` (ROS-free): the model node's prediction tick, :meth:`RobotPredictor.tick` of
   the brittle star with all ten lengths new (``predictor_tick_bench.py``'s pattern), in
-  one process pinned to CPU 0, timed by thread CPU time (``time.thread_time_ns``):
-  back to back; after a 10 ms sleep; after a 10 ms sleep with the spinner on CPU 0;
-  after 10 ms of busy waiting.
+  one process pinned to one CPU (the first this process may use), timed by thread
+  CPU time (``time.thread_time_ns``): back to back; after a 10 ms sleep; after a 10 ms
+  sleep with the spinner on that CPU; after 10 ms of busy waiting.
 - ``nodes``: ``node_cost_bench.py``'s cases (default ``baseline model5 driver``), each
   run with the CPUs free and with a spinner on every CPU, alternating. The node's CPU
   is read from the kernel as there. A spinner at nice 19 takes about 1.5 % of a core
@@ -44,7 +44,7 @@ from pathlib import Path
 from benchlib import load_line
 
 SLEEP_S = 0.01   # the node's 100 Hz period
-TICK_SETTINGS = ('back to back', 'after a 10 ms sleep', 'after a 10 ms sleep, CPU 0 kept busy',
+TICK_SETTINGS = ('back to back', 'after a 10 ms sleep', 'after a 10 ms sleep, its CPU kept busy',
                  'after 10 ms of busy waiting')
 
 
@@ -70,7 +70,7 @@ def spinners(cpus):
 
 def tick_round(ticks: int, setting: str) -> float:
     """Median µs of thread CPU per prediction tick in one setting (this process is
-    pinned to CPU 0 by the caller)."""
+    pinned to one CPU by the caller)."""
     from softsnap_model.predictor import RobotPredictor
     from softsnap_model.scene import load_scene
 
@@ -104,21 +104,24 @@ def tick_round(ticks: int, setting: str) -> float:
 
 
 def run_ticks(rounds: int, ticks: int) -> None:
-    os.sched_setaffinity(0, {0})
+    allowed = os.sched_getaffinity(0)
+    cpu = min(allowed)
+    os.sched_setaffinity(0, {cpu})
     results = {setting: [] for setting in TICK_SETTINGS}
     for _ in range(rounds):
         for setting in TICK_SETTINGS:
-            busy = [0] if 'kept busy' in setting else []
+            busy = [cpu] if 'kept busy' in setting else []
             with spinners(busy):
                 results[setting].append(tick_round(ticks, setting))
     first = statistics.median(results[TICK_SETTINGS[0]])
-    print(f'\nprediction tick (brittle star, 10 new lengths), µs of thread CPU, pinned to CPU 0; '
+    print(f'\nprediction tick (brittle star, 10 new lengths), µs of thread CPU, pinned to CPU '
+          f'{cpu}; '
           f'median [range] of {rounds} rounds of {ticks} ticks:')
     for setting, values in results.items():
         med = statistics.median(values)
         print(f'  {setting:40s} {med:8.0f} [{min(values):.0f}-{max(values):.0f}]'
               f'  {med / first:5.2f}x back to back')
-    os.sched_setaffinity(0, set(range(os.cpu_count())))
+    os.sched_setaffinity(0, allowed)
 
 
 def run_nodes(cases: list[str], repeats: int, warmup: float, seconds: float) -> None:
@@ -128,7 +131,7 @@ def run_nodes(cases: list[str], repeats: int, warmup: float, seconds: float) -> 
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     work = Path(tempfile.mkdtemp(prefix='wake_cost_'))
     conditions = {'CPUs free to idle': [], 'a nice-19 spinner on every CPU':
-                  list(range(os.cpu_count()))}
+                  sorted(os.sched_getaffinity(0))}
     results: dict[tuple[str, str], list[float]] = {}
     events: dict[tuple[str, str], list[float]] = {}
     for repeat in range(repeats):
