@@ -34,11 +34,12 @@ if _slot_warning:
 os.environ['ROS_DOMAIN_ID'] = str(SLOT.domain_id)
 os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
 os.environ.setdefault('RCUTILS_COLORIZED_OUTPUT', '0')
-# Service replies wait for a client that has just started to be discovered, in this
-# process and every process it starts, as in every node's main (init_ros).
-from softsnap_driver.dds_profile import use_service_reply_profile  # noqa: E402  (no ROS imports)
+# The nodes' Fast DDS profile (service replies wait for a client that has just started,
+# participants announced every second), in this process and every process it starts, as
+# in every node's main (init_ros).
+from softsnap_driver.dds_profile import use_node_profile  # noqa: E402  (no ROS imports)
 
-use_service_reply_profile()
+use_node_profile()
 
 
 def executable(package: str, name: str) -> Path:

@@ -17,14 +17,14 @@ from typing import Callable, NoReturn
 from rclpy.executors import Executor, ExternalShutdownException
 from rclpy.node import Node
 
-from softsnap_driver.dds_profile import use_service_reply_profile
+from softsnap_driver.dds_profile import use_node_profile
 
 
 def init_ros(**init_kwargs) -> None:
-    """``rclpy.init(**init_kwargs)`` with the service reply profile (every node's main)."""
+    """``rclpy.init(**init_kwargs)`` with the nodes' Fast DDS profile (every node's main)."""
     import rclpy
 
-    use_service_reply_profile()
+    use_node_profile()
     rclpy.init(**init_kwargs)
 
 
