@@ -39,17 +39,15 @@ PUBLISHERS = 5
 TOPIC = '/discovery_bench'
 
 
-def node_profile() -> str:
-    from softsnap_driver.dds_profile import NODE_PROFILE
-    return str(NODE_PROFILE)
-
-
 def env_for(domain: int, profile: bool) -> dict:
+    """A child's environment: ``domain``, loopback only, the nodes' profile or none."""
+    from softsnap_driver.dds_profile import PROFILES_FILE_VARIABLES, use_node_profile
+
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
-    for name in ('FASTRTPS_DEFAULT_PROFILES_FILE', 'FASTDDS_DEFAULT_PROFILES_FILE'):
+    for name in PROFILES_FILE_VARIABLES:
         env.pop(name, None)
-        if profile:
-            env[name] = node_profile()
+    if profile:
+        use_node_profile(env)
     return env
 
 

@@ -534,6 +534,35 @@ def case_baseline(code_dir, work: Path, warmup, seconds):
         stop(node)
 
 
+#: Modules each case serves (the tables' "per module" divides by it).
+PER_MODULE = {'baseline': 1, 'model5': 5, 'model_idle': 5, 'model50': 50, 'driver': 1,
+              'driver_idle': 1, 'drivers5': 5, 'container5': 5, 'rerun': 5}
+
+
+def run_case(case: str, code_dir, run_dir: Path, warmup: float, seconds: float, *,
+             scene50: Path | None = None, length_publishers: int = 5,
+             recording: Path | None = None) -> tuple[float, dict[str, float]]:
+    """(% of a core, the node's own counters per second) of one case (see the module's
+    docstring); ``model50`` needs the synthetic scene ``scene50``, ``rerun`` the
+    ``recording`` to write."""
+    if case == 'baseline':
+        return case_baseline(code_dir, run_dir, warmup, seconds)
+    if case == 'model5':
+        return case_model(code_dir, run_dir, 'brittle_star', True, warmup, seconds)
+    if case == 'model_idle':
+        return case_model(code_dir, run_dir, 'brittle_star', None, warmup, seconds)
+    if case == 'model50':
+        return case_model(code_dir, run_dir, str(scene50), True, warmup, seconds,
+                          length_publishers)
+    if case == 'driver':
+        return case_driver(code_dir, run_dir, warmup, seconds)
+    if case == 'driver_idle':
+        return case_driver(code_dir, run_dir, warmup, seconds, commands=False)
+    if case in ('drivers5', 'container5'):
+        return case_driver(code_dir, run_dir, warmup, seconds, 5, case == 'container5')
+    return case_rerun(code_dir, run_dir, warmup, seconds, recording)
+
+
 def entities(path: Path) -> set[str]:
     from rerun.chunk import RrdReader
     return {c.entity_path.lstrip('/') for c in RrdReader(str(path)).stream().to_chunks()}
@@ -603,26 +632,12 @@ def main() -> int:
                 run_dir = work / f'{case}-{label}-{repeat}'
                 run_dir.mkdir()
                 os.environ['NODE_COST_WORK'] = str(run_dir)
-                w, s = args.warmup, args.seconds
-                if case == 'baseline':
-                    cpu = case_baseline(code_dir, run_dir, w, s)
-                elif case == 'model5':
-                    cpu = case_model(code_dir, run_dir, 'brittle_star', True, w, s)
-                elif case == 'model_idle':
-                    cpu = case_model(code_dir, run_dir, 'brittle_star', None, w, s)
-                elif case == 'model50':
-                    cpu = case_model(code_dir, run_dir, str(scene50), True, w, s,
-                                     args.length_publishers)
-                elif case == 'driver':
-                    cpu = case_driver(code_dir, run_dir, w, s)
-                elif case == 'driver_idle':
-                    cpu = case_driver(code_dir, run_dir, w, s, commands=False)
-                elif case in ('drivers5', 'container5'):
-                    cpu = case_driver(code_dir, run_dir, w, s, 5, case == 'container5')
-                else:
+                if case == 'rerun':
                     recordings[label] = run_dir / 'robot.rrd'
-                    cpu = case_rerun(code_dir, run_dir, w, s, recordings[label])
-                cpu, rates = cpu
+                cpu, rates = run_case(case, code_dir, run_dir, args.warmup, args.seconds,
+                                      scene50=scene50,
+                                      length_publishers=args.length_publishers,
+                                      recording=recordings.get(label))
                 results.setdefault((case, label), []).append(cpu)
                 for name, rate in rates.items():
                     throughput.setdefault((case, label, name), []).append(rate)
@@ -630,8 +645,6 @@ def main() -> int:
                       + ''.join(f', {name} {rate:.0f}/s' for name, rate in rates.items()),
                       flush=True)
 
-    per_module = {'baseline': 1, 'model5': 5, 'model_idle': 5, 'model50': 50, 'driver': 1,
-                  'driver_idle': 1, 'drivers5': 5, 'container5': 5, 'rerun': 5}
     what = {'baseline': 'idle rclpy node, 100 Hz empty timer',
             'model5': 'model_node, 5 modules, 100 Hz, all lengths changing',
             'model_idle': 'model_node, 5 modules, 100 Hz, no lengths (idle)',
@@ -652,7 +665,7 @@ def main() -> int:
         ratio = (f'{statistics.median(after) / statistics.median(before):.2f}'
                  if before and after and statistics.median(before) > 0 else '-')
         print(f'{what[case]:56s} {summary(before):>22s} {summary(after):>22s} {ratio:>12s} '
-              f'{statistics.median(after) / per_module[case]:15.2f}%')
+              f'{statistics.median(after) / PER_MODULE[case]:15.2f}%')
     print('The nodes\' own counters over the same windows (median [range] per second), and '
           'CPU per event (the machine\'s load changes how many events a starved node takes):')
     for (case, label, name), rates in sorted(throughput.items()):
@@ -678,7 +691,7 @@ def main() -> int:
             per_length = cpu * 1e4 / rate['lengths'] if rate['lengths'] > 0 else math.nan
             line = (f'{case} {label}: offered {rate["published"]:.0f} lengths/s, took '
                     f'{rate["lengths"]:.0f}/s, {rate["solves"]:.0f} solves/s, {cpu:.1f}% of '
-                    f'one core ({cpu / per_module[case]:.2f}% per module), {per_length:.0f} µs '
+                    f'one core ({cpu / PER_MODULE[case]:.2f}% per module), {per_length:.0f} µs '
                     'of CPU per length')
             if case == 'model50':
                 # Serving: it takes (nearly) all that is offered, within one core.

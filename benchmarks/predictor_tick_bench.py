@@ -31,6 +31,21 @@ from benchlib import checkout_src, load_line
 ROOT = Path(__file__).resolve().parent.parent
 
 
+def length_feeder(predictor, scene):
+    """(feed, lengths per tick): ``feed(tick)`` submits a new commanded and measured length
+    of every module of ``scene`` to ``predictor``, node_cost_bench's ``model5`` pattern."""
+    topics = [(m.name, m.straight_length_mm, source, offset, 2 * index + t)
+              for index, m in enumerate(scene.modules)
+              for t, (source, offset) in enumerate((('commanded', 0.0), ('predicted', 0.7)))]
+
+    def feed(tick: int) -> None:
+        for name, straight, source, offset, i in topics:
+            contraction = 30.0 + 20.0 * ((tick * 0.013 + 0.037 * i) % 1.0)
+            predictor.submit(source, name, straight - contraction - offset)
+
+    return feed, len(topics)
+
+
 def measure(scene_name: str, ticks: int) -> tuple[float, int]:
     """(µs of thread CPU per tick, lengths per tick) over ``ticks`` ticks after a warm-up."""
     from softsnap_model.predictor import RobotPredictor
@@ -38,15 +53,8 @@ def measure(scene_name: str, ticks: int) -> tuple[float, int]:
 
     scene = load_scene(scene_name)
     predictor = RobotPredictor(scene)
-    topics = [(m.name, m.straight_length_mm, source, offset, 2 * index + t)
-              for index, m in enumerate(scene.modules)
-              for t, (source, offset) in enumerate((('commanded', 0.0), ('predicted', 0.7)))]
+    feed, lengths = length_feeder(predictor, scene)
     want = {'commanded': True, 'predicted': True}
-
-    def feed(tick: int) -> None:
-        for name, straight, source, offset, i in topics:
-            contraction = 30.0 + 20.0 * ((tick * 0.013 + 0.037 * i) % 1.0)
-            predictor.submit(source, name, straight - contraction - offset)
 
     for tick in range(200):   # warm-up: caches, first solves
         feed(tick)
@@ -57,7 +65,7 @@ def measure(scene_name: str, ticks: int) -> tuple[float, int]:
         start = time.thread_time()
         predictor.tick(want)
         cpu += time.thread_time() - start
-    return cpu / ticks * 1e6, len(topics)
+    return cpu / ticks * 1e6, lengths
 
 
 def run_version(code_dir: Path | None, scene: str, ticks: int) -> tuple[float, int]:

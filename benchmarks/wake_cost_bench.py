@@ -71,20 +71,13 @@ def spinners(cpus):
 def tick_round(ticks: int, setting: str) -> float:
     """Median µs of thread CPU per prediction tick in one setting (this process is
     pinned to one CPU by the caller)."""
+    from predictor_tick_bench import length_feeder
     from softsnap_model.predictor import RobotPredictor
     from softsnap_model.scene import load_scene
 
     scene = load_scene('brittle_star')
     predictor = RobotPredictor(scene)
-    topics = [(m.name, m.straight_length_mm, source, offset, 2 * index + t)
-              for index, m in enumerate(scene.modules)
-              for t, (source, offset) in enumerate((('commanded', 0.0), ('predicted', 0.7)))]
-
-    def feed(tick: int) -> None:
-        for name, straight, source, offset, i in topics:
-            contraction = 30.0 + 20.0 * ((tick * 0.013 + 0.037 * i) % 1.0)
-            predictor.submit(source, name, straight - contraction - offset)
-
+    feed, _ = length_feeder(predictor, scene)
     for tick in range(100):          # tables built, caches filled
         feed(tick)
         predictor.tick()
@@ -141,28 +134,19 @@ def run_nodes(cases: list[str], repeats: int, warmup: float, seconds: float) -> 
                 run_dir.mkdir()
                 os.environ['NODE_COST_WORK'] = str(run_dir)
                 with spinners(cpus):
-                    if case == 'baseline':
-                        cpu, rates = ncb.case_baseline(None, run_dir, warmup, seconds)
-                    elif case == 'model5':
-                        cpu, rates = ncb.case_model(None, run_dir, 'brittle_star', True,
-                                                    warmup, seconds)
-                    elif case == 'driver':
-                        cpu, rates = ncb.case_driver(None, run_dir, warmup, seconds)
-                    else:
-                        cpu, rates = ncb.case_driver(None, run_dir, warmup, seconds, 5, True)
+                    cpu, rates = ncb.run_case(case, None, run_dir, warmup, seconds)
                 results.setdefault((case, condition), []).append(cpu)
                 rate = rates.get('lengths', rates.get('commands', 0.0))
                 events.setdefault((case, condition), []).append(rate)
                 print(f'  repeat {repeat + 1}: {case:10s} {condition:32s} {cpu:6.2f}% of a core'
                       + ''.join(f', {k} {v:.0f}/s' for k, v in rates.items()), flush=True)
-    per_module = {'baseline': 1, 'model5': 5, 'driver': 1, 'container5': 5}
     idle, busy = conditions
     print(f'\nnode CPU, % of one core, median [range] of {repeats} runs of {seconds:g} s '
           '(per module in parentheses):')
     print(f'  {"case":12s} {idle:>28s} {busy:>34s} {"busy/free":>10s}')
     for case in cases:
         a, b = results[(case, idle)], results[(case, busy)]
-        n = per_module[case]
+        n = ncb.PER_MODULE[case]
 
         def cell(values):
             med = statistics.median(values)

@@ -18,6 +18,7 @@ test socket holding one of those ports receives them.
 """
 from __future__ import annotations
 
+import os
 import socket
 import statistics
 import time
@@ -166,7 +167,6 @@ def test_a_node_announces_its_participant_every_announcement_period(start_node, 
                                                                       slot_port):
     """A real node, its main choosing the profile, announces itself every
     ANNOUNCEMENT_PERIOD_S after its first burst (Fast DDS's default: every 3 s)."""
-    import os
     if os.environ.get('ROS_AUTOMATIC_DISCOVERY_RANGE') != 'LOCALHOST':
         pytest.skip('announcements are read on the loopback')
     spec = _node_specs(slot_port)['sim_yellow']
