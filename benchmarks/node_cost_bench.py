@@ -40,11 +40,14 @@ measuring window after a warm-up. Cases:
 messages and the rest of the environment are shared), interleaved with the current
 code, so both see the same machine load. Each case is repeated ``--repeats`` times;
 the table gives the median and range, and the ratio after/before of the medians.
-The load average is printed at the start and the end.
+The load average is printed at the start and the end. ``--threads`` also prints the CPU
+of each thread of the node process over the same windows (``/proc/<pid>/task``): Fast
+DDS names its threads (``dds.shm``, ``dds.ev``...), the Python ones all carry the
+interpreter's name, the main thread (the executor) marked ``(main)``.
 
 Usage: .venv/bin/python benchmarks/node_cost_bench.py [--seconds 10] [--repeats 3]
        [--before b3d97c3] [--cases baseline model5 model_idle model50 driver rerun]
-       [--length-publishers 5]
+       [--length-publishers 5] [--threads]
 (the model node alone: ``--cases model5 model_idle model50``)
 """
 from __future__ import annotations
@@ -164,13 +167,56 @@ def measure(proc: subprocess.Popen | list[subprocess.Popen], warmup: float, seco
     ps = [psutil.Process(p.pid) for p in procs]
     n0 = read_counters(counters) if counters else {}
     c0, t0 = sum(map(cpu_seconds, ps)), time.monotonic()
+    threads0 = thread_ticks(procs[0].pid)
     time.sleep(seconds)
     c1, t1 = sum(map(cpu_seconds, ps)), time.monotonic()
+    threads1 = thread_ticks(procs[0].pid)
     n1 = read_counters(counters) if counters else {}
     if any(p.poll() is not None for p in procs):
         raise RuntimeError(f'process ended early:\n{log.read_text()[-3000:]}')
     rates = {k: (n1[k] - n0.get(k, 0.0)) / (t1 - t0) for k in n1}
+    write_thread_shares(log.parent / THREADS_FILE, threads0, threads1, t1 - t0)
     return 100.0 * (c1 - c0) / (t1 - t0), rates
+
+
+#: Per-thread CPU of a case's (first) node process over the window, next to its log.
+THREADS_FILE = 'threads'
+
+
+def thread_ticks(pid: int) -> dict[tuple[int, str], int]:
+    """(thread id, name) -> CPU clock ticks (user + system) of every thread of ``pid``.
+
+    Python threads all show as the interpreter's name: the main thread (the executor in
+    our nodes) is told apart by its id, which is the process id.
+    """
+    out = {}
+    try:
+        tids = os.listdir(f'/proc/{pid}/task')
+    except OSError:
+        return out
+    for tid in tids:
+        try:
+            stat = Path(f'/proc/{pid}/task/{tid}/stat').read_text()
+        except OSError:
+            continue   # the thread ended meanwhile
+        name = stat[stat.index('(') + 1:stat.rindex(')')]
+        fields = stat[stat.rindex(')') + 2:].split()
+        if int(tid) == pid:
+            name += '(main)'
+        out[(int(tid), name)] = int(fields[11]) + int(fields[12])  # utime, stime
+    return out
+
+
+def write_thread_shares(path: Path, before: dict, after: dict, seconds: float) -> None:
+    """'name percent' lines: % of one core per thread name over the window, threads of
+    the same name summed (Fast DDS numbers some of its threads: the digits are dropped)."""
+    hz = os.sysconf('SC_CLK_TCK')
+    shares: dict[str, float] = {}
+    for (tid, name), ticks in after.items():
+        key = re.sub(r'\.\d+$', '', name).replace(' ', '_')
+        spent = 100.0 * (ticks - before.get((tid, name), 0)) / hz / seconds
+        shares[key] = shares.get(key, 0.0) + spent
+    path.write_text(''.join(f'{k} {v:.3f}\n' for k, v in sorted(shares.items())))
 
 
 # ------------------------------------------------------------------ load generators
@@ -595,6 +641,8 @@ def main() -> int:
                              'model node only)')
     parser.add_argument('--length-publishers', type=int, default=5,
                         help='processes sharing the 50-module length load (model50)')
+    parser.add_argument('--threads', action='store_true',
+                        help="also print each node process's CPU per thread (from /proc)")
     parser.add_argument('--child', nargs='+', help=argparse.SUPPRESS)
     args = parser.parse_args()
     os.environ.setdefault('ROS_DOMAIN_ID', str(random.randint(120, 200) % 101 + 100))
@@ -622,6 +670,7 @@ def main() -> int:
     results: dict[tuple[str, str], list[float]] = {}
     recordings: dict[str, Path] = {}
     throughput: dict[tuple[str, str, str], list[float]] = {}
+    per_thread: dict[tuple[str, str, str], list[float]] = {}
     for repeat in range(args.repeats):
         for case in args.cases:
             for label, code_dir in versions.items():
@@ -639,6 +688,8 @@ def main() -> int:
                                       length_publishers=args.length_publishers,
                                       recording=recordings.get(label))
                 results.setdefault((case, label), []).append(cpu)
+                for name, share in read_counters(run_dir / THREADS_FILE).items():
+                    per_thread.setdefault((case, label, name), []).append(share)
                 for name, rate in rates.items():
                     throughput.setdefault((case, label, name), []).append(rate)
                 print(f'  repeat {repeat + 1}: {case:10s} {label:6s} {cpu:6.1f}% of a core'
@@ -678,6 +729,12 @@ def main() -> int:
         five = statistics.median(results[('drivers5', 'after')])
         print(f'5 modules in one driver_container process: {one / 5:.2f}% of a core per module '
               f'against {five / 5:.2f}% in 5 driver_node processes ({one / five:.2f}x)')
+    if args.threads:
+        print('CPU per thread of the node process (of the first one for several), % of one '
+              'core, median [range]; Python threads other than the main one share a name:')
+        for (case, label, name), shares in sorted(per_thread.items()):
+            if statistics.median(shares) >= 0.05:
+                print(f'  {case} {label}: {name:24s} {summary(shares)}')
     if 'model_idle' in args.cases:
         idle = statistics.median(results[('model_idle', 'after')])
         print(f'model_node idle tick (after): {idle / 100 * 10:.3f} ms of CPU per 10 ms tick')

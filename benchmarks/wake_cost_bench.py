@@ -14,7 +14,8 @@ the CPUs free to idle and with them kept busy by a spinner at the lowest priorit
   one process pinned to one CPU (the first this process may use), timed by thread
   CPU time (``time.thread_time_ns``): back to back; after a 10 ms sleep; after a 10 ms
   sleep with the spinner on that CPU; after 10 ms of busy waiting.
-- ``nodes``: ``node_cost_bench.py``'s cases (default ``baseline model5 driver``), each
+- ``nodes``: ``node_cost_bench.py``'s cases (default ``baseline model5 driver``; also
+  ``container5`` and ``model50``, its synthetic 50-module scene), each
   run with the CPUs free and with a spinner on every CPU, alternating. The node's CPU
   is read from the kernel as there. A spinner at nice 19 takes about 1.5 % of a core
   from a nice-0 process it competes with, and a waking node preempts it.
@@ -24,7 +25,8 @@ node's CPU is its own work and how much the idle CPU's wake-up adds. Which of th
 user sees depends on their machine (bare metal, power states, other load).
 
 Usage: .venv/bin/python benchmarks/wake_cost_bench.py [--rounds 5] [--ticks 300]
-       [--nodes] [--cases baseline model5 driver] [--repeats 3] [--seconds 8]
+       [--nodes] [--cases baseline model5 model50 driver container5] [--repeats 3]
+       [--seconds 8]
 Prints median [range] over rounds, the ratio of each setting to the first one, and the
 load average at start and end.
 """
@@ -123,6 +125,7 @@ def run_nodes(cases: list[str], repeats: int, warmup: float, seconds: float) -> 
     os.environ.setdefault('ROS_DOMAIN_ID', str(random.randint(100, 200)))
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     work = Path(tempfile.mkdtemp(prefix='wake_cost_'))
+    scene50 = ncb.write_scene(work / 'synthetic_50.yaml', 50) if 'model50' in cases else None
     conditions = {'CPUs free to idle': [], 'a nice-19 spinner on every CPU':
                   sorted(os.sched_getaffinity(0))}
     results: dict[tuple[str, str], list[float]] = {}
@@ -134,7 +137,8 @@ def run_nodes(cases: list[str], repeats: int, warmup: float, seconds: float) -> 
                 run_dir.mkdir()
                 os.environ['NODE_COST_WORK'] = str(run_dir)
                 with spinners(cpus):
-                    cpu, rates = ncb.run_case(case, None, run_dir, warmup, seconds)
+                    cpu, rates = ncb.run_case(case, None, run_dir, warmup, seconds,
+                                              scene50=scene50)
                 results.setdefault((case, condition), []).append(cpu)
                 rate = rates.get('lengths', rates.get('commands', 0.0))
                 events.setdefault((case, condition), []).append(rate)
@@ -168,7 +172,7 @@ def main() -> int:
     parser.add_argument('--ticks', type=int, default=300, help='ticks per round')
     parser.add_argument('--nodes', action='store_true', help="also node_cost_bench's cases")
     parser.add_argument('--cases', nargs='+', default=['baseline', 'model5', 'driver'],
-                        choices=['baseline', 'model5', 'driver', 'container5'])
+                        choices=['baseline', 'model5', 'model50', 'driver', 'container5'])
     parser.add_argument('--repeats', type=int, default=3)
     parser.add_argument('--warmup', type=float, default=3.0)
     parser.add_argument('--seconds', type=float, default=8.0)
