@@ -1,4 +1,5 @@
 """RobotPredictor: the model node's core, tested directly with the real forward solver."""
+import dataclasses
 import math
 
 import numpy as np
@@ -6,7 +7,7 @@ import pytest
 
 from softsnap_model import geometry
 from softsnap_model.forward import reachable_range, solve_forward
-from softsnap_model.predictor import RobotPredictor
+from softsnap_model.predictor import ModulePrediction, RobotPredictor
 from softsnap_model.scene import load_scene
 
 
@@ -260,3 +261,33 @@ def test_small_ticks_are_solved_one_by_one_and_large_ones_in_one_batch(brittle_s
         for a, b in zip(first, second):
             assert a.module == b.module and np.array_equal(a.angles, b.angles)
             assert a.tension == b.tension
+
+
+def test_tick_shapes_are_frozen_module_predictions_built_field_by_field(snake):
+    # The tick builds its shapes without the dataclass's __init__ (its cost per shape):
+    # they must still be whole, frozen ModulePredictions, equal to ones built by it.
+    predictor = RobotPredictor(snake)
+    names = list(snake.module_names)
+    for i, name in enumerate(names):
+        # The first two modules share a length (one solve, two shapes).
+        contraction = 12.0 if i < 2 else 12.0 + 4.0 * i
+        predictor.submit('commanded', name, straight(snake, name) - contraction, stamp_ns=7 + i)
+    updated = predictor.tick(rib_centers={'commanded': True})
+    field_names = [f.name for f in dataclasses.fields(ModulePrediction)]
+    assert [s.module for s in updated['commanded']] == names
+    for shape in updated['commanded']:
+        assert type(shape) is ModulePrediction
+        assert sorted(vars(shape)) == sorted(field_names)
+        rebuilt = ModulePrediction(**{name: getattr(shape, name) for name in field_names})
+        assert repr(rebuilt) == repr(shape)
+        with pytest.raises(dataclasses.FrozenInstanceError):
+            shape.cable_length_mm = 1.0
+        assert shape.source == 'commanded' and shape.rib_centers_mm is not None
+    stamps = [s.stamp_ns for s in updated['commanded']]
+    assert stamps == [7 + i for i in range(len(names))]
+    # The snake's first two modules share a threading: one solve, whose time goes with
+    # one of its two shapes only.
+    assert snake.module(names[0]).threading_mm == snake.module(names[1]).threading_mm
+    first, second = updated['commanded'][:2]
+    assert (first.solve_time_s > 0.0) != (second.solve_time_s > 0.0)
+    assert predictor.counters.skipped_duplicate == 1
