@@ -11,7 +11,7 @@ machine (caches), hence the comparison with ``--before REV`` (that revision's
 ``softsnap_model`` extracted with ``git archive``, run in a child process, rounds
 interleaved with the current code).
 
-Usage: .venv/bin/python benchmarks/predictor_tick_bench.py [--scene brittle_star]
+Usage: .venv/bin/python benchmarks/predictor_tick_bench.py [--scene brittle_star|synthetic50]
        [--ticks 2000] [--rounds 5] [--before cf2cb37]
 Prints, per code version, the median [range] over rounds of µs of CPU per tick and per
 length, and the ratio after/before of the medians; the load average at start and end.
@@ -23,6 +23,7 @@ import os
 import statistics
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -82,7 +83,9 @@ def run_version(code_dir: Path | None, scene: str, ticks: int) -> tuple[float, i
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument('--scene', default='brittle_star')
+    parser.add_argument('--scene', default='brittle_star',
+                        help="a scene name or file; 'synthetic50': node_cost_bench's "
+                             'synthetic 50-module scene (its model50 case)')
     parser.add_argument('--ticks', type=int, default=2000)
     parser.add_argument('--rounds', type=int, default=5)
     parser.add_argument('--before', default='', help='git revision to compare against')
@@ -93,6 +96,10 @@ def main() -> int:
         print(us, lengths)
         return 0
     print(load_line('start'), flush=True)
+    if args.scene == 'synthetic50':
+        from node_cost_bench import write_scene
+        args.scene = str(write_scene(Path(tempfile.mkdtemp(prefix='tick_bench_')) /
+                                     'synthetic_50.yaml', 50))
     versions: dict[str, Path | None] = {'after': None}
     if args.before:
         versions = {'before': checkout_src(args.before), 'after': None}
