@@ -261,7 +261,7 @@ class ModuleLink:
         self._next_poll = 0.0
         self._last_report = -math.inf
         self._status: ModuleStatus | None = None
-        self._status_time = (0.0, 0.0)            # (clock, motion clock) of that reply
+        self._status_time = (0.0, 0.0)            # (clock, motion clock) its request left
         self._module_target: int | None = None   # what the module steers to, if known
         self._sent: tuple[int, int] | None = None  # (count, power) last acknowledged set
         self._may_move = False                   # a set went out since the last confirmed stop
@@ -513,6 +513,8 @@ class ModuleLink:
                   check_reboot: bool = True, check_stall: bool = True) -> ModuleStatus | None:
         """One request; updates online state, backoff, reboot check; reports."""
         client = self._client_for(config)
+        # When the request left: the module read its encoder between this and the reply.
+        sent, sent_motion = self._clock(), self._motion_clock()
         try:
             status = call(client)
         except ModuleError as exc:
@@ -531,10 +533,13 @@ class ModuleLink:
             self._clear_error('link', 'internal')
         motion_now = self._motion_clock()
         previous, (previous_time, previous_motion) = self._status, self._status_time
-        self._status, self._status_time = status, (now, motion_now)
+        self._status, self._status_time = status, (sent, sent_motion)
         if previous is not None and self._calibrated and check_reboot:
-            # The larger of the two elapsed times: a simulated time that lags (or stopped)
-            # must not make an ordinary move look faster than the motor (a false reboot).
+            # The longest time the module can have had between its two readings: from when
+            # the previous request left to this reply (a reply that waited in a busy
+            # server or socket must not make an ordinary move look faster than the motor:
+            # 50 simulated modules in one process gave false reboots). And the larger of
+            # the two clocks: a simulated time that lags (or stopped) must not either.
             elapsed = max(now - previous_time, motion_now - previous_motion)
             evidence = reboot_suspected(
                 previous.encoder_count, previous.encoder_errors, status.encoder_count,

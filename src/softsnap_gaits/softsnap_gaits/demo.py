@@ -59,13 +59,17 @@ import numpy as np
 from softsnap_model.geometry import rib_centers
 from softsnap_model.scene import SceneError, load_scene
 
-from .graph import DRIVER_MODES, NodeSpec, robot_graph
+from .graph import DRIVER_MODES, SIM_MODULE_MODES, NodeSpec, robot_graph
 from .isolation import Slot, claim_slot
 
 STOP_TIMEOUT_S = 10.0  # per process, after SIGINT, before SIGKILL
 #: --physics: the run ends early (and says so) if the simulated time stood still this long
 #: in wall seconds (sim_robot stalled or its /clock lost).
 CLOCK_STALL_S = 30.0
+#: Robots larger than this get one shared sim_module process by default: the paper's
+#: robots keep one process per module (as one ESP32 each), while 30 or more processes
+#: outrun localhost-only discovery (docs/scaling.md).
+SHARED_SIMS_ABOVE = 10
 READY_TIMEOUT_S = 60.0  # the whole graph up: discovery + first predicted shapes
 #: After the run (gait node stopped): the observer takes what is still queued for it, at
 #: most this long; it stops as soon as it has everything stamped in the run (a 4 s run:
@@ -859,6 +863,13 @@ def print_summary(summary: dict) -> None:
         print(f"bag: {summary['bag_error']}")
 
 
+def shared_sim_modules(mode: str, n_modules: int) -> str:
+    """``--sim-modules`` resolved: 'auto' shares one process above SHARED_SIMS_ABOVE modules."""
+    if mode != 'auto':
+        return mode
+    return 'shared' if n_modules > SHARED_SIMS_ABOVE else 'separate'
+
+
 def run(args: argparse.Namespace) -> int:
     scene = load_scene(args.scene)
     # A private slot: ROS domain id and loopback ports no other demo or test here uses.
@@ -881,8 +892,9 @@ def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
     # Simulated modules get free ports of the slot (their drivers the same ones); real
     # modules, and --scene-ports, keep the scene's addresses.
     sim_ports = None
+    sim_modules = shared_sim_modules(args.sim_modules, len(scene.modules))
     if not args.real and not args.scene_ports:
-        if args.physics:   # sim_robot serves consecutive ports
+        if args.physics or sim_modules == 'shared':   # one process serves consecutive ports
             first = slot.free_port(len(scene.modules))
             sim_ports = {m.name: first + i for i, m in enumerate(scene.modules)}
         else:
@@ -893,7 +905,8 @@ def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
                         gait_rate_hz=args.gait_rate, model_rate_hz=args.model_rate,
                         recording=recording, rerun=not args.no_rerun, sim_ports=sim_ports,
                         bag=bag, physics=args.physics,
-                        sim_robot_parameters=sim_robot_parameters, drivers=args.drivers)
+                        sim_robot_parameters=sim_robot_parameters, drivers=args.drivers,
+                        sim_modules=sim_modules)
     # The observer in this process and every child use the slot's domain.
     os.environ['ROS_DOMAIN_ID'] = str(slot.domain_id)
     env = dict(os.environ, PYTHONUNBUFFERED='1')
@@ -912,6 +925,7 @@ def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
     observer = None
     elapsed, usage_start, usage_end = 0.0, {}, {}
     window_ns = (0, 2**63)  # ROS time of the run: set below
+    startup_s = None
     crashed: list[Process] = []
     not_ready: dict[str, list[str]] = {}
     started = False
@@ -924,6 +938,7 @@ def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
         print(f'starting {len(specs)} processes for {scene.name} ({len(scene.modules)} modules; '
               f'ROS domain {slot.domain_id}; modules on {ports}; logs in {run_dir})', flush=True)
         observer = Observer(scene, f'/{scene.name}', physics=args.physics)
+        launched_at = time.monotonic()
         for spec in specs:
             processes.append(Process(spec, run_dir, env, pass_fds=(slot.lock_fd,)))
             if spec.executable == 'sim_robot':
@@ -958,6 +973,7 @@ def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
         # Started: every process alive and every module seen end to end. Otherwise stop
         # here and say what failed; a table of a robot that never ran would be zeros.
         started = check_children() and not not_ready
+        startup_s = time.monotonic() - launched_at
         if started:
             observer.reset()
             start = time.monotonic()
@@ -1021,6 +1037,8 @@ def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
               'stalled?): the run ended early', file=sys.stderr)
     summary.update(_bag_summary(bag))
     summary['started'] = started
+    # First process launched -> every module seen end to end (and the recorder taking).
+    summary['startup_seconds'] = startup_s
     summary['ros_domain_id'] = slot.domain_id
     if args.physics:
         sim = next((p for p in processes if p.spec.executable == 'sim_robot'), None)
@@ -1094,7 +1112,7 @@ def _report_start_failure(args, scene, processes, crashed, not_ready, exit_codes
             print(f'  {module}: {", ".join(lacks)}', file=sys.stderr)
         # The logs of the processes those modules depend on.
         names = {f'sim_{m}' for m in not_ready} | {f'{m}_driver' for m in not_ready} | {
-            'driver_container', 'model_node', 'gait_node', 'sim_robot'} | (
+            'driver_container', 'model_node', 'gait_node', 'sim_robot', 'sim_modules'} | (
             {'rerun_logger'} & set(not_ready))
         for p in processes:
             if p.spec.name in names:
@@ -1127,6 +1145,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--drivers', choices=DRIVER_MODES, default='container',
                         help='container: every module\'s driver in one driver_container process '
                              '(default); separate: one driver_node process per module')
+    parser.add_argument('--sim-modules', choices=('auto', *SIM_MODULE_MODES), default='auto',
+                        help='separate: one sim_module process per simulated module; shared: one '
+                             f'process for all; auto (default): shared above {SHARED_SIMS_ABOVE} '
+                             'modules')
     parser.add_argument('--scene-ports', action='store_true',
                         help="simulated modules on the scene's fixed ports (default: free ports "
                              "of this demo's slot, so several demos can run at once)")
