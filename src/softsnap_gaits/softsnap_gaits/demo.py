@@ -233,7 +233,13 @@ def stop_gait(processes: list[Process]) -> None:
 class Observer:
     """An rclpy node that counts and measures what flows through the robot's topics."""
 
-    def __init__(self, scene, namespace: str, physics: bool = False):
+    def __init__(self, scene, namespace: str, physics: bool = False, streams: str = 'modules'):
+        """`streams`: 'modules' takes every module's command, measured-length and shape
+        topics; 'robot' (large robots) takes the shapes from the two RobotShape topics
+        (one message a tick for all modules, not one per module) and no command or
+        measured-length streams: at 50 modules those were ~7,000 messages a second,
+        more than this one Python process takes, and its backlog read as latency.
+        Command counts still come from the nodes' own counters either way."""
         import rclpy
         from rclpy.parameter import Parameter
         from softsnap_driver.spinning import init_ros
@@ -266,8 +272,24 @@ class Observer:
                 message_lost=lambda status, s=s: setattr(s, 'lost', s.lost + status.total_count_change))
             self.node.create_subscription(msg_type, topic, callback, depth, event_callbacks=events)
 
+        self.streams = streams
+        # 'robot' streams: (module, source) -> stamp (ns) of the last shape taken from a
+        # RobotShape, so a module's unchanged shape in the next tick is not counted again.
+        self._robot_stamps: dict[tuple[str, str], int] = {}
+        if streams == 'robot':
+            from softsnap_interfaces.msg import RobotShape
+            for source, take in (('commanded', self._take_commanded),
+                                 ('predicted', self._take_predicted)):
+                self.node.create_subscription(
+                    RobotShape, f'model/shape/{source}',
+                    lambda data, source=source, take=take: self._robot_shape(data, source, take),
+                    STREAM_DEPTH, raw=True)
         for m in scene.modules:
             s = self.stats[m.name]
+            if streams == 'robot':
+                self.node.create_subscription(ModuleState, f'{m.name}/state',
+                                              lambda msg, s=s: self._state(s, msg), STREAM_DEPTH)
+                continue
             subscribe(CableLength, f'{m.name}/cable_length/command',
                       lambda msg, s=s: self._command(s, msg), s, STREAM_DEPTH)
             subscribe(CableLength, f'{m.name}/cable_length/measured',
@@ -337,31 +359,55 @@ class Observer:
     def _tip_mm(self, angles) -> np.ndarray:
         return rib_centers(np.asarray(angles, dtype=float), self.spacing_mm)[-1]
 
-    def _age_ms(self, msg) -> float:
+    def _age_ms(self, stamp_ns: int) -> float:
         """Arrival time minus the stamp of the length the shape was solved from, ms."""
-        stamp = msg.header.stamp.sec * 1e9 + msg.header.stamp.nanosec
-        return (self.node.get_clock().now().nanoseconds - stamp) / 1e6
+        return (self.node.get_clock().now().nanoseconds - stamp_ns) / 1e6
 
     def _commanded(self, s: ModuleStats, msg) -> None:
-        s.commanded_shapes += 1
-        s.command_to_shape_ms.append(self._age_ms(msg))
-        s.last_commanded_angles = np.asarray(msg.angles, dtype=float)
-        if len(msg.angles):
-            s.commanded_tips.append((_stamp_ns(msg), float(msg.cable_length),
-                                     s.last_commanded_angles))
-        if msg.solve_time > 0.0:
-            s.solve_times_s.append(msg.solve_time)
+        self._take_commanded(s, _stamp_ns(msg), msg.cable_length, msg.angles, msg.solve_time)
 
     def _predicted(self, s: ModuleStats, msg) -> None:
+        self._take_predicted(s, _stamp_ns(msg), msg.cable_length, msg.angles, msg.solve_time)
+
+    def _take_commanded(self, s: ModuleStats, stamp_ns: int, cable_length_m: float, angles,
+                        solve_time_s: float) -> None:
+        s.commanded_shapes += 1
+        s.command_to_shape_ms.append(self._age_ms(stamp_ns))
+        s.last_commanded_angles = np.asarray(angles, dtype=float)
+        if len(angles):
+            s.commanded_tips.append((stamp_ns, float(cable_length_m), s.last_commanded_angles))
+        if solve_time_s > 0.0:
+            s.solve_times_s.append(solve_time_s)
+
+    def _take_predicted(self, s: ModuleStats, stamp_ns: int, cable_length_m: float, angles,
+                        solve_time_s: float) -> None:
         s.predicted_shapes += 1
-        s.measured_to_shape_ms.append(self._age_ms(msg))
-        if msg.solve_time > 0.0:
-            s.solve_times_s.append(msg.solve_time)
-        if len(msg.angles):
-            s.predicted_tips.append((_stamp_ns(msg), float(msg.cable_length),
-                                     np.asarray(msg.angles, dtype=float)))
+        s.measured_to_shape_ms.append(self._age_ms(stamp_ns))
+        if solve_time_s > 0.0:
+            s.solve_times_s.append(solve_time_s)
+        if len(angles):
+            s.predicted_tips.append((stamp_ns, float(cable_length_m),
+                                     np.asarray(angles, dtype=float)))
             if s.commanded_tips:
                 s.tip_error_pairs.append((len(s.predicted_tips) - 1, len(s.commanded_tips) - 1))
+
+    def _robot_shape(self, data: bytes, source: str, take) -> None:
+        """Every module shape of a raw RobotShape that is new since the last one taken
+        (read from its bytes: rclpy's deserialisation of a 50-module shape took ~9 ms)."""
+        from softsnap_driver import cdr
+        try:
+            robot = cdr.decode_robot_shape(data)
+        except cdr.CdrError:
+            from rclpy.serialization import deserialize_message
+            from softsnap_interfaces.msg import RobotShape
+            robot = cdr.from_message(deserialize_message(data, RobotShape))
+        for shape in robot.modules:
+            s = self.stats.get(shape.module)
+            key = (shape.module, source)
+            if s is None or self._robot_stamps.get(key) == shape.stamp_ns:
+                continue
+            self._robot_stamps[key] = shape.stamp_ns
+            take(s, shape.stamp_ns, shape.cable_length, shape.angles, shape.solve_time)
 
     def spin_for(self, seconds: float) -> None:
         deadline = time.monotonic() + seconds
@@ -736,8 +782,11 @@ def summarise(scene, observer: Observer, seconds: float, recording: Path | None,
         measured = _in_window(s.measured_stamps_ns, window_ns)
         # What the observer never saw is None ("not observed"), never a 0 or NaN that
         # would read as a measurement.
+        # (With 'robot' streams the observer takes no command or measured-length stream.)
+        streams = [] if observer.streams == 'robot' else [
+            ('gait commands', s.command_stamps_ns), ('measured lengths', s.measured_stamps_ns)]
         unobserved = [what for what, seen in (
-            ('gait commands', s.command_stamps_ns), ('measured lengths', s.measured_stamps_ns),
+            *streams,
             ('commanded shapes', s.commanded_shapes), ('predicted shapes', s.predicted_shapes),
             ('driver state', state is not None),
             ('command counters', counted is not None)) if not seen]
@@ -776,6 +825,7 @@ def summarise(scene, observer: Observer, seconds: float, recording: Path | None,
     diag = observer.diagnostics
     return {
         'scene': scene.name, 'seconds': seconds, 'modules': modules,
+        'observer_streams': observer.streams,
         'model': None if diag is None else {
             'solves': diag.solves, 'skipped_unchanged': diag.skipped_unchanged,
             'skipped_duplicate': diag.skipped_duplicate, 'refused': diag.refused,
@@ -937,7 +987,9 @@ def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
                  or 'the scene\'s addresses')
         print(f'starting {len(specs)} processes for {scene.name} ({len(scene.modules)} modules; '
               f'ROS domain {slot.domain_id}; modules on {ports}; logs in {run_dir})', flush=True)
-        observer = Observer(scene, f'/{scene.name}', physics=args.physics)
+        observer = Observer(scene, f'/{scene.name}', physics=args.physics,
+                            streams='robot' if len(scene.modules) > SHARED_SIMS_ABOVE
+                            else 'modules')
         launched_at = time.monotonic()
         for spec in specs:
             processes.append(Process(spec, run_dir, env, pass_fds=(slot.lock_fd,)))
