@@ -783,7 +783,7 @@ def summarise(scene, observer: Observer, seconds: float, recording: Path | None,
         # What the observer never saw is None ("not observed"), never a 0 or NaN that
         # would read as a measurement.
         # (With 'robot' streams the observer takes no command or measured-length stream.)
-        streams = [] if observer.streams == 'robot' else [
+        streams = [] if getattr(observer, 'streams', 'modules') == 'robot' else [
             ('gait commands', s.command_stamps_ns), ('measured lengths', s.measured_stamps_ns)]
         unobserved = [what for what, seen in (
             *streams,
@@ -825,7 +825,7 @@ def summarise(scene, observer: Observer, seconds: float, recording: Path | None,
     diag = observer.diagnostics
     return {
         'scene': scene.name, 'seconds': seconds, 'modules': modules,
-        'observer_streams': observer.streams,
+        'observer_streams': getattr(observer, 'streams', 'modules'),
         'model': None if diag is None else {
             'solves': diag.solves, 'skipped_unchanged': diag.skipped_unchanged,
             'skipped_duplicate': diag.skipped_duplicate, 'refused': diag.refused,
