@@ -247,6 +247,7 @@ class Observer:
                                              ModuleState)
 
         self.scene = scene
+        self.sim_time = physics
         self.stats = {m.name: ModuleStats() for m in scene.modules}
         self.diagnostics = None
         # The gait node's own counts: tick stamp (ns) -> {module: commands sent up to and
@@ -282,7 +283,8 @@ class Observer:
                                  ('predicted', self._take_predicted)):
                 self.node.create_subscription(
                     RobotShape, f'model/shape/{source}',
-                    lambda data, source=source, take=take: self._robot_shape(data, source, take),
+                    lambda data, info, source=source, take=take: self._robot_shape(
+                        data, info, source, take),
                     STREAM_DEPTH, raw=True)
         for m in scene.modules:
             s = self.stats[m.name]
@@ -296,9 +298,9 @@ class Observer:
                       lambda msg, s=s: s.measured_stamps_ns.append(_stamp_ns(msg)), s,
                       STREAM_DEPTH)
             subscribe(ModuleShape, f'{m.name}/shape/commanded',
-                      lambda msg, s=s: self._commanded(s, msg), s)
+                      lambda msg, info, s=s: self._commanded(s, msg, info), s)
             subscribe(ModuleShape, f'{m.name}/shape/predicted',
-                      lambda msg, s=s: self._predicted(s, msg), s)
+                      lambda msg, info, s=s: self._predicted(s, msg, info), s)
             self.node.create_subscription(ModuleState, f'{m.name}/state',
                                           lambda msg, s=s: self._state(s, msg), STREAM_DEPTH)
         self.node.create_subscription(ModelDiagnostics, 'model/diagnostics',
@@ -359,20 +361,31 @@ class Observer:
     def _tip_mm(self, angles) -> np.ndarray:
         return rib_centers(np.asarray(angles, dtype=float), self.spacing_mm)[-1]
 
-    def _age_ms(self, stamp_ns: int) -> float:
-        """Arrival time minus the stamp of the length the shape was solved from, ms."""
+    def _age_ms(self, stamp_ns: int, info=None) -> float:
+        """Arrival time minus the stamp of the length the shape was solved from, ms.
+
+        Arrival is when DDS received the shape for this process (its message info), so a
+        backlog in this observer's own callbacks is not counted as the graph's latency;
+        on simulated time (stamps on /clock, not the system clock) it is the callback's
+        ROS time."""
+        if info is not None and not self.sim_time:
+            received = info.get('received_timestamp') or 0
+            if received > 0:
+                return (received - stamp_ns) / 1e6
         return (self.node.get_clock().now().nanoseconds - stamp_ns) / 1e6
 
-    def _commanded(self, s: ModuleStats, msg) -> None:
-        self._take_commanded(s, _stamp_ns(msg), msg.cable_length, msg.angles, msg.solve_time)
+    def _commanded(self, s: ModuleStats, msg, info=None) -> None:
+        self._take_commanded(s, _stamp_ns(msg), msg.cable_length, msg.angles, msg.solve_time,
+                             info)
 
-    def _predicted(self, s: ModuleStats, msg) -> None:
-        self._take_predicted(s, _stamp_ns(msg), msg.cable_length, msg.angles, msg.solve_time)
+    def _predicted(self, s: ModuleStats, msg, info=None) -> None:
+        self._take_predicted(s, _stamp_ns(msg), msg.cable_length, msg.angles, msg.solve_time,
+                             info)
 
     def _take_commanded(self, s: ModuleStats, stamp_ns: int, cable_length_m: float, angles,
-                        solve_time_s: float) -> None:
+                        solve_time_s: float, info=None) -> None:
         s.commanded_shapes += 1
-        s.command_to_shape_ms.append(self._age_ms(stamp_ns))
+        s.command_to_shape_ms.append(self._age_ms(stamp_ns, info))
         s.last_commanded_angles = np.asarray(angles, dtype=float)
         if len(angles):
             s.commanded_tips.append((stamp_ns, float(cable_length_m), s.last_commanded_angles))
@@ -380,9 +393,9 @@ class Observer:
             s.solve_times_s.append(solve_time_s)
 
     def _take_predicted(self, s: ModuleStats, stamp_ns: int, cable_length_m: float, angles,
-                        solve_time_s: float) -> None:
+                        solve_time_s: float, info=None) -> None:
         s.predicted_shapes += 1
-        s.measured_to_shape_ms.append(self._age_ms(stamp_ns))
+        s.measured_to_shape_ms.append(self._age_ms(stamp_ns, info))
         if solve_time_s > 0.0:
             s.solve_times_s.append(solve_time_s)
         if len(angles):
@@ -391,7 +404,7 @@ class Observer:
             if s.commanded_tips:
                 s.tip_error_pairs.append((len(s.predicted_tips) - 1, len(s.commanded_tips) - 1))
 
-    def _robot_shape(self, data: bytes, source: str, take) -> None:
+    def _robot_shape(self, data: bytes, info, source: str, take) -> None:
         """Every module shape of a raw RobotShape that is new since the last one taken
         (read from its bytes: rclpy's deserialisation of a 50-module shape took ~9 ms)."""
         from softsnap_driver import cdr
@@ -407,7 +420,7 @@ class Observer:
             if s is None or self._robot_stamps.get(key) == shape.stamp_ns:
                 continue
             self._robot_stamps[key] = shape.stamp_ns
-            take(s, shape.stamp_ns, shape.cable_length, shape.angles, shape.solve_time)
+            take(s, shape.stamp_ns, shape.cable_length, shape.angles, shape.solve_time, info)
 
     def spin_for(self, seconds: float) -> None:
         deadline = time.monotonic() + seconds
