@@ -41,6 +41,8 @@ class HoldingProxy:
         self.port, self.band, self.hold_s = port, band, hold_s
         self.held: list[int] = []
         self.armed = False   # set once the module is out: hold on its way home only
+        self.swallow_sets_until = 0.0   # monotonic time: until then, set replies are lost
+        self.swallowed = 0
         self._sock = socket.socket()
         self._sock.bind(('127.0.0.1', 0))
         self._sock.listen(16)
@@ -75,6 +77,10 @@ class HoldingProxy:
             reply = b''
             while chunk := upstream.recv(4096):
                 reply += chunk
+        if b'set=' in head and time.monotonic() < self.swallow_sets_until:
+            # The module applied the set; its reply is lost on the way (as on a bad Wi-Fi).
+            self.swallowed += 1
+            return
         body = reply.split(b'\r\n\r\n', 1)[-1].strip()
         try:
             count = json.loads(body)['m_current']
@@ -141,6 +147,30 @@ def test_a_real_reboot_behind_the_same_proxy_is_still_caught(sim_server):
         link.command(CAL.straight_length_m - 0.040)
         assert _wait_for(lambda: reports and reports[-1].counters.reboots_detected == 1, 10.0)
         assert not reports[-1].calibrated
+    finally:
+        link.stop()
+        proxy.close()
+
+
+def test_a_set_whose_reply_was_lost_may_be_what_the_module_steers_to(sim_server):
+    # The module applies a set whose reply never arrives: for the driver the set failed,
+    # but the winch runs home. Its count reaching 0 is then no evidence of a reboot.
+    server = sim_server()
+    proxy = HoldingProxy(server.port, HOLD_BAND, HOLD_S)
+    reports = []
+    link = _link(proxy.listen_port, reports)
+    try:
+        link.command(CAL.straight_length_m - 0.040)
+        assert _wait_for(lambda: reports and reports[-1].status
+                         and reports[-1].status.encoder_count > 3400, 10.0)
+        proxy.swallow_sets_until = time.monotonic() + 1.0
+        link.command(CAL.straight_length_m)                    # applied, reply lost
+        assert _wait_for(lambda: reports[-1].status and abs(reports[-1].status.encoder_count) <= 60,
+                         10.0)
+        assert _wait_for(lambda: time.monotonic() > proxy.swallow_sets_until + 0.5, 5.0)
+        assert proxy.swallowed > 0, 'no set reply was lost: the test did not test anything'
+        assert reports[-1].counters.reboots_detected == 0, reports[-1].last_error
+        assert reports[-1].calibrated
     finally:
         link.stop()
         proxy.close()
