@@ -188,7 +188,8 @@ INVALID = [
     ('name-not-identifier', ['modules', 0, 'name'], 'leg 1', 'modules[0].name', 'letters'),
     ('position-length', ['modules', 0, 'base', 'position_mm'], [1, 2], 'modules[0].base.position_mm',
      'expected 3 numbers'),
-    ('position-in-metres-far', ['modules', 0, 'base', 'position_mm'], [9000, 0, 0],
+    # 2 km: micrometres taken for millimetres (robots of any size fit within 1 km).
+    ('position-in-micrometres', ['modules', 0, 'base', 'position_mm'], [2.0e6, 0, 0],
      'modules[0].base.position_mm', 'millimetres'),
     ('two-orientations', ['modules', 0, 'base', 'orientation_xyzw'], [0, 0, 0, 1],
      'modules[0].base', 'exactly one orientation'),

@@ -261,8 +261,11 @@ class ModuleLink:
         self._next_poll = 0.0
         self._last_report = -math.inf
         self._status: ModuleStatus | None = None
-        self._status_time = (0.0, 0.0)            # (clock, motion clock) of that reply
+        self._status_time = (0.0, 0.0)            # (clock, motion clock) its request left
         self._module_target: int | None = None   # what the module steers to, if known
+        # Targets of sets whose reply was lost since the last known target: the module may
+        # have applied any of them (the reboot check must allow for each).
+        self._unacknowledged_targets: tuple[int, ...] = ()
         self._sent: tuple[int, int] | None = None  # (count, power) last acknowledged set
         self._may_move = False                   # a set went out since the last confirmed stop
         self._progress: tuple[int, float] | None = None  # (count, motion time) of last progress
@@ -513,6 +516,8 @@ class ModuleLink:
                   check_reboot: bool = True, check_stall: bool = True) -> ModuleStatus | None:
         """One request; updates online state, backoff, reboot check; reports."""
         client = self._client_for(config)
+        # When the request left: the module read its encoder between this and the reply.
+        sent, sent_motion = self._clock(), self._motion_clock()
         try:
             status = call(client)
         except ModuleError as exc:
@@ -531,14 +536,21 @@ class ModuleLink:
             self._clear_error('link', 'internal')
         motion_now = self._motion_clock()
         previous, (previous_time, previous_motion) = self._status, self._status_time
-        self._status, self._status_time = status, (now, motion_now)
+        self._status, self._status_time = status, (sent, sent_motion)
         if previous is not None and self._calibrated and check_reboot:
-            # The larger of the two elapsed times: a simulated time that lags (or stopped)
-            # must not make an ordinary move look faster than the motor (a false reboot).
+            # The longest time the module can have had between its two readings: from when
+            # the previous request left to this reply (a reply that waited in a busy
+            # server or socket must not make an ordinary move look faster than the motor:
+            # 50 simulated modules in one process gave false reboots). And the larger of
+            # the two clocks: a simulated time that lags (or stopped) must not either.
             elapsed = max(now - previous_time, motion_now - previous_motion)
+            # Of the targets the module may steer to, the one nearest 0: a set applied
+            # whose reply was lost may be why the count is back near 0 (not a reboot).
+            targets = [t for t in (self._module_target, *self._unacknowledged_targets)
+                       if t is not None]
             evidence = reboot_suspected(
                 previous.encoder_count, previous.encoder_errors, status.encoder_count,
-                status.encoder_errors, elapsed, self._module_target,
+                status.encoder_errors, elapsed, min(targets, key=abs) if targets else None,
                 config.reboot_zero_band_counts, config.reboot_min_jump_counts,
                 config.max_speed_counts_per_s)
             if evidence is not None:
@@ -600,6 +612,7 @@ class ModuleLink:
         self._sent = None
         self._may_move = True        # whatever the firmware drives to now is unknown
         self._module_target = None
+        self._unacknowledged_targets = ()
         self._log.warning(message)
 
     def _do_set(self, config: LinkConfig, cmd: TargetCommand) -> None:
@@ -626,6 +639,8 @@ class ModuleLink:
         self._may_move = True
         status = self._exchange(config, 'set', lambda c: c.set_target(cmd.count, config.pwm_power))
         if status is None:
+            # The module may have applied it all the same (only its reply was lost).
+            self._unacknowledged_targets = (*self._unacknowledged_targets[-7:], cmd.count)
             with self._cond:
                 # Retry after the backoff: keep it unless a newer command arrived meanwhile.
                 if self._pending is None and self._stop_wanted is None:
@@ -633,6 +648,7 @@ class ModuleLink:
             return
         self._sent = key
         self._module_target = cmd.count
+        self._unacknowledged_targets = ()
         with self._cond:
             self._count('targets_sent')
         self._progress = (status.encoder_count, self._motion_clock())   # a new target: re-arm
@@ -709,6 +725,7 @@ class ModuleLink:
                         self._sent = None
                         self._may_move = False
                         self._module_target = reached.encoder_count
+                        self._unacknowledged_targets = ()
                         self._log.info(f'stop confirmed at {where} ({why}): module holds at count '
                                        f'{still.encoder_count} ({attempts} reach request(s), '
                                        f'{elapsed:.3f} s)')
@@ -753,6 +770,7 @@ class ModuleLink:
                         self._clear_error('reboot')
                     self._sent = None
                     self._module_target = 0
+                    self._unacknowledged_targets = ()
                     self._emit(config, fresh=True)
                     action.message = (f'calibrated: count 0 is now the straight length '
                                       f'{config.calibration.straight_length_m:g} m')

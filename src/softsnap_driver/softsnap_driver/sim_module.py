@@ -39,6 +39,9 @@ _LOOP_S = 0.05
 #: daemon: one stuck reading a silent client's head (up to HEAD_TIMEOUT_S) must not hold
 #: the process past the 2 s a SIGINT may take.
 STOP_JOIN_S = 0.5
+#: Most modules one process serves (one thread each): a 50-module robot's simulated modules
+#: share one process, whose DDS participant counts once (docs/scaling.md).
+MAX_COUNT = 512
 
 
 class SimServer:
@@ -170,7 +173,7 @@ OPTIONS = {
     # name: (type, default, help)
     'host': (str, '127.0.0.1', 'address to listen on (keep loopback)'),
     'port': (int, 8101, 'TCP port (the firmware uses 80)'),
-    'count': (int, 1, 'number of modules, on ports port, port+1, ...'),
+    'count': (int, 1, f'number of modules (at most {MAX_COUNT}), on ports port, port+1, ...'),
     'seed': (int, -1, 'random seed for faults, -1 for a random one'),
     'drop_probability': (float, 0.0, 'chance a reply is dropped (connection closed)'),
     'delay_probability': (float, 0.0, 'chance a reply is delayed by delay_s'),
@@ -225,8 +228,8 @@ def start_servers(opts: argparse.Namespace) -> list[SimServer]:
     Raises ValueError for a bad option and OSError naming the address that cannot be
     bound; servers already started are stopped first.
     """
-    if not 1 <= opts.count <= 64:
-        raise ValueError(f'count must be in [1, 64], got {opts.count}')
+    if not 1 <= opts.count <= MAX_COUNT:
+        raise ValueError(f'count must be in [1, {MAX_COUNT}], got {opts.count}')
     servers: list[SimServer] = []
     try:
         for i in range(opts.count):

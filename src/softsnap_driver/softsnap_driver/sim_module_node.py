@@ -24,14 +24,15 @@ from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescr
 from rclpy.parameter import Parameter
 
 from softsnap_driver.ros_parameters import SoftSnapNode
-from softsnap_driver.sim_module import OPTIONS, STOP_JOIN_S, build_parser, start_servers
+from softsnap_driver.sim_module import (MAX_COUNT, OPTIONS, STOP_JOIN_S, build_parser,
+                                        start_servers)
 from softsnap_driver.spinning import run_simulator_main
 
 _NEVER_TO = 1e6  # largest "after" time of a fault, s (-1: never)
 #: Ranges of the options (inclusive); an option missing here is declared without one.
 RANGES = {
     'port': (0, 65535),   # 0: a free port
-    'count': (1, 64),
+    'count': (1, MAX_COUNT),
     'seed': (-1, 2**31 - 1),
     'drop_probability': (0.0, 1.0),
     'delay_probability': (0.0, 1.0),

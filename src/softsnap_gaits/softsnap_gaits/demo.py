@@ -59,13 +59,17 @@ import numpy as np
 from softsnap_model.geometry import rib_centers
 from softsnap_model.scene import SceneError, load_scene
 
-from .graph import DRIVER_MODES, NodeSpec, robot_graph
+from .graph import DRIVER_MODES, SIM_MODULE_MODES, NodeSpec, robot_graph
 from .isolation import Slot, claim_slot
 
 STOP_TIMEOUT_S = 10.0  # per process, after SIGINT, before SIGKILL
 #: --physics: the run ends early (and says so) if the simulated time stood still this long
 #: in wall seconds (sim_robot stalled or its /clock lost).
 CLOCK_STALL_S = 30.0
+#: Robots larger than this get one shared sim_module process by default: the paper's
+#: robots keep one process per module (as one ESP32 each), while 30 or more processes
+#: outrun localhost-only discovery (docs/scaling.md).
+SHARED_SIMS_ABOVE = 10
 READY_TIMEOUT_S = 60.0  # the whole graph up: discovery + first predicted shapes
 #: After the run (gait node stopped): the observer takes what is still queued for it, at
 #: most this long; it stops as soon as it has everything stamped in the run (a 4 s run:
@@ -229,7 +233,13 @@ def stop_gait(processes: list[Process]) -> None:
 class Observer:
     """An rclpy node that counts and measures what flows through the robot's topics."""
 
-    def __init__(self, scene, namespace: str, physics: bool = False):
+    def __init__(self, scene, namespace: str, physics: bool = False, streams: str = 'modules'):
+        """`streams`: 'modules' takes every module's command, measured-length and shape
+        topics; 'robot' (large robots) takes the shapes from the two RobotShape topics
+        (one message a tick for all modules, not one per module) and no command or
+        measured-length streams: at 50 modules those were ~7,000 messages a second,
+        more than this one Python process takes, and its backlog read as latency.
+        Command counts still come from the nodes' own counters either way."""
         import rclpy
         from rclpy.parameter import Parameter
         from softsnap_driver.spinning import init_ros
@@ -237,6 +247,7 @@ class Observer:
                                              ModuleState)
 
         self.scene = scene
+        self.sim_time = physics
         self.stats = {m.name: ModuleStats() for m in scene.modules}
         self.diagnostics = None
         # The gait node's own counts: tick stamp (ns) -> {module: commands sent up to and
@@ -262,17 +273,34 @@ class Observer:
                 message_lost=lambda status, s=s: setattr(s, 'lost', s.lost + status.total_count_change))
             self.node.create_subscription(msg_type, topic, callback, depth, event_callbacks=events)
 
+        self.streams = streams
+        # 'robot' streams: (module, source) -> stamp (ns) of the last shape taken from a
+        # RobotShape, so a module's unchanged shape in the next tick is not counted again.
+        self._robot_stamps: dict[tuple[str, str], int] = {}
+        if streams == 'robot':
+            from softsnap_interfaces.msg import RobotShape
+            for source, take in (('commanded', self._take_commanded),
+                                 ('predicted', self._take_predicted)):
+                self.node.create_subscription(
+                    RobotShape, f'model/shape/{source}',
+                    lambda data, info, source=source, take=take: self._robot_shape(
+                        data, info, source, take),
+                    STREAM_DEPTH, raw=True)
         for m in scene.modules:
             s = self.stats[m.name]
+            if streams == 'robot':
+                self.node.create_subscription(ModuleState, f'{m.name}/state',
+                                              lambda msg, s=s: self._state(s, msg), STREAM_DEPTH)
+                continue
             subscribe(CableLength, f'{m.name}/cable_length/command',
                       lambda msg, s=s: self._command(s, msg), s, STREAM_DEPTH)
             subscribe(CableLength, f'{m.name}/cable_length/measured',
                       lambda msg, s=s: s.measured_stamps_ns.append(_stamp_ns(msg)), s,
                       STREAM_DEPTH)
             subscribe(ModuleShape, f'{m.name}/shape/commanded',
-                      lambda msg, s=s: self._commanded(s, msg), s)
+                      lambda msg, info, s=s: self._commanded(s, msg, info), s)
             subscribe(ModuleShape, f'{m.name}/shape/predicted',
-                      lambda msg, s=s: self._predicted(s, msg), s)
+                      lambda msg, info, s=s: self._predicted(s, msg, info), s)
             self.node.create_subscription(ModuleState, f'{m.name}/state',
                                           lambda msg, s=s: self._state(s, msg), STREAM_DEPTH)
         self.node.create_subscription(ModelDiagnostics, 'model/diagnostics',
@@ -333,31 +361,66 @@ class Observer:
     def _tip_mm(self, angles) -> np.ndarray:
         return rib_centers(np.asarray(angles, dtype=float), self.spacing_mm)[-1]
 
-    def _age_ms(self, msg) -> float:
-        """Arrival time minus the stamp of the length the shape was solved from, ms."""
-        stamp = msg.header.stamp.sec * 1e9 + msg.header.stamp.nanosec
-        return (self.node.get_clock().now().nanoseconds - stamp) / 1e6
+    def _age_ms(self, stamp_ns: int, info=None) -> float:
+        """Arrival time minus the stamp of the length the shape was solved from, ms.
 
-    def _commanded(self, s: ModuleStats, msg) -> None:
+        Arrival is when DDS received the shape for this process (its message info), so a
+        backlog in this observer's own callbacks is not counted as the graph's latency;
+        on simulated time (stamps on /clock, not the system clock) it is the callback's
+        ROS time."""
+        if info is not None and not self.sim_time:
+            received = info.get('received_timestamp') or 0
+            if received > 0:
+                return (received - stamp_ns) / 1e6
+        return (self.node.get_clock().now().nanoseconds - stamp_ns) / 1e6
+
+    def _commanded(self, s: ModuleStats, msg, info=None) -> None:
+        self._take_commanded(s, _stamp_ns(msg), msg.cable_length, msg.angles, msg.solve_time,
+                             info)
+
+    def _predicted(self, s: ModuleStats, msg, info=None) -> None:
+        self._take_predicted(s, _stamp_ns(msg), msg.cable_length, msg.angles, msg.solve_time,
+                             info)
+
+    def _take_commanded(self, s: ModuleStats, stamp_ns: int, cable_length_m: float, angles,
+                        solve_time_s: float, info=None) -> None:
         s.commanded_shapes += 1
-        s.command_to_shape_ms.append(self._age_ms(msg))
-        s.last_commanded_angles = np.asarray(msg.angles, dtype=float)
-        if len(msg.angles):
-            s.commanded_tips.append((_stamp_ns(msg), float(msg.cable_length),
-                                     s.last_commanded_angles))
-        if msg.solve_time > 0.0:
-            s.solve_times_s.append(msg.solve_time)
+        s.command_to_shape_ms.append(self._age_ms(stamp_ns, info))
+        s.last_commanded_angles = np.asarray(angles, dtype=float)
+        if len(angles):
+            s.commanded_tips.append((stamp_ns, float(cable_length_m), s.last_commanded_angles))
+        if solve_time_s > 0.0:
+            s.solve_times_s.append(solve_time_s)
 
-    def _predicted(self, s: ModuleStats, msg) -> None:
+    def _take_predicted(self, s: ModuleStats, stamp_ns: int, cable_length_m: float, angles,
+                        solve_time_s: float, info=None) -> None:
         s.predicted_shapes += 1
-        s.measured_to_shape_ms.append(self._age_ms(msg))
-        if msg.solve_time > 0.0:
-            s.solve_times_s.append(msg.solve_time)
-        if len(msg.angles):
-            s.predicted_tips.append((_stamp_ns(msg), float(msg.cable_length),
-                                     np.asarray(msg.angles, dtype=float)))
+        s.measured_to_shape_ms.append(self._age_ms(stamp_ns, info))
+        if solve_time_s > 0.0:
+            s.solve_times_s.append(solve_time_s)
+        if len(angles):
+            s.predicted_tips.append((stamp_ns, float(cable_length_m),
+                                     np.asarray(angles, dtype=float)))
             if s.commanded_tips:
                 s.tip_error_pairs.append((len(s.predicted_tips) - 1, len(s.commanded_tips) - 1))
+
+    def _robot_shape(self, data: bytes, info, source: str, take) -> None:
+        """Every module shape of a raw RobotShape that is new since the last one taken
+        (read from its bytes: rclpy's deserialisation of a 50-module shape took ~9 ms)."""
+        from softsnap_driver import cdr
+        try:
+            robot = cdr.decode_robot_shape(data)
+        except cdr.CdrError:
+            from rclpy.serialization import deserialize_message
+            from softsnap_interfaces.msg import RobotShape
+            robot = cdr.from_message(deserialize_message(data, RobotShape))
+        for shape in robot.modules:
+            s = self.stats.get(shape.module)
+            key = (shape.module, source)
+            if s is None or self._robot_stamps.get(key) == shape.stamp_ns:
+                continue
+            self._robot_stamps[key] = shape.stamp_ns
+            take(s, shape.stamp_ns, shape.cable_length, shape.angles, shape.solve_time, info)
 
     def spin_for(self, seconds: float) -> None:
         deadline = time.monotonic() + seconds
@@ -732,8 +795,11 @@ def summarise(scene, observer: Observer, seconds: float, recording: Path | None,
         measured = _in_window(s.measured_stamps_ns, window_ns)
         # What the observer never saw is None ("not observed"), never a 0 or NaN that
         # would read as a measurement.
+        # (With 'robot' streams the observer takes no command or measured-length stream.)
+        streams = [] if getattr(observer, 'streams', 'modules') == 'robot' else [
+            ('gait commands', s.command_stamps_ns), ('measured lengths', s.measured_stamps_ns)]
         unobserved = [what for what, seen in (
-            ('gait commands', s.command_stamps_ns), ('measured lengths', s.measured_stamps_ns),
+            *streams,
             ('commanded shapes', s.commanded_shapes), ('predicted shapes', s.predicted_shapes),
             ('driver state', state is not None),
             ('command counters', counted is not None)) if not seen]
@@ -772,6 +838,7 @@ def summarise(scene, observer: Observer, seconds: float, recording: Path | None,
     diag = observer.diagnostics
     return {
         'scene': scene.name, 'seconds': seconds, 'modules': modules,
+        'observer_streams': getattr(observer, 'streams', 'modules'),
         'model': None if diag is None else {
             'solves': diag.solves, 'skipped_unchanged': diag.skipped_unchanged,
             'skipped_duplicate': diag.skipped_duplicate, 'refused': diag.refused,
@@ -859,6 +926,13 @@ def print_summary(summary: dict) -> None:
         print(f"bag: {summary['bag_error']}")
 
 
+def shared_sim_modules(mode: str, n_modules: int) -> str:
+    """``--sim-modules`` resolved: 'auto' shares one process above SHARED_SIMS_ABOVE modules."""
+    if mode != 'auto':
+        return mode
+    return 'shared' if n_modules > SHARED_SIMS_ABOVE else 'separate'
+
+
 def run(args: argparse.Namespace) -> int:
     scene = load_scene(args.scene)
     # A private slot: ROS domain id and loopback ports no other demo or test here uses.
@@ -881,8 +955,9 @@ def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
     # Simulated modules get free ports of the slot (their drivers the same ones); real
     # modules, and --scene-ports, keep the scene's addresses.
     sim_ports = None
+    sim_modules = shared_sim_modules(args.sim_modules, len(scene.modules))
     if not args.real and not args.scene_ports:
-        if args.physics:   # sim_robot serves consecutive ports
+        if args.physics or sim_modules == 'shared':   # one process serves consecutive ports
             first = slot.free_port(len(scene.modules))
             sim_ports = {m.name: first + i for i, m in enumerate(scene.modules)}
         else:
@@ -893,7 +968,8 @@ def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
                         gait_rate_hz=args.gait_rate, model_rate_hz=args.model_rate,
                         recording=recording, rerun=not args.no_rerun, sim_ports=sim_ports,
                         bag=bag, physics=args.physics,
-                        sim_robot_parameters=sim_robot_parameters, drivers=args.drivers)
+                        sim_robot_parameters=sim_robot_parameters, drivers=args.drivers,
+                        sim_modules=sim_modules)
     # The observer in this process and every child use the slot's domain.
     os.environ['ROS_DOMAIN_ID'] = str(slot.domain_id)
     env = dict(os.environ, PYTHONUNBUFFERED='1')
@@ -912,6 +988,7 @@ def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
     observer = None
     elapsed, usage_start, usage_end = 0.0, {}, {}
     window_ns = (0, 2**63)  # ROS time of the run: set below
+    startup_s = None
     crashed: list[Process] = []
     not_ready: dict[str, list[str]] = {}
     started = False
@@ -923,7 +1000,10 @@ def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
                  or 'the scene\'s addresses')
         print(f'starting {len(specs)} processes for {scene.name} ({len(scene.modules)} modules; '
               f'ROS domain {slot.domain_id}; modules on {ports}; logs in {run_dir})', flush=True)
-        observer = Observer(scene, f'/{scene.name}', physics=args.physics)
+        observer = Observer(scene, f'/{scene.name}', physics=args.physics,
+                            streams='robot' if len(scene.modules) > SHARED_SIMS_ABOVE
+                            else 'modules')
+        launched_at = time.monotonic()
         for spec in specs:
             processes.append(Process(spec, run_dir, env, pass_fds=(slot.lock_fd,)))
             if spec.executable == 'sim_robot':
@@ -958,6 +1038,7 @@ def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
         # Started: every process alive and every module seen end to end. Otherwise stop
         # here and say what failed; a table of a robot that never ran would be zeros.
         started = check_children() and not not_ready
+        startup_s = time.monotonic() - launched_at
         if started:
             observer.reset()
             start = time.monotonic()
@@ -1021,6 +1102,8 @@ def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
               'stalled?): the run ended early', file=sys.stderr)
     summary.update(_bag_summary(bag))
     summary['started'] = started
+    # First process launched -> every module seen end to end (and the recorder taking).
+    summary['startup_seconds'] = startup_s
     summary['ros_domain_id'] = slot.domain_id
     if args.physics:
         sim = next((p for p in processes if p.spec.executable == 'sim_robot'), None)
@@ -1094,7 +1177,7 @@ def _report_start_failure(args, scene, processes, crashed, not_ready, exit_codes
             print(f'  {module}: {", ".join(lacks)}', file=sys.stderr)
         # The logs of the processes those modules depend on.
         names = {f'sim_{m}' for m in not_ready} | {f'{m}_driver' for m in not_ready} | {
-            'driver_container', 'model_node', 'gait_node', 'sim_robot'} | (
+            'driver_container', 'model_node', 'gait_node', 'sim_robot', 'sim_modules'} | (
             {'rerun_logger'} & set(not_ready))
         for p in processes:
             if p.spec.name in names:
@@ -1127,6 +1210,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--drivers', choices=DRIVER_MODES, default='container',
                         help='container: every module\'s driver in one driver_container process '
                              '(default); separate: one driver_node process per module')
+    parser.add_argument('--sim-modules', choices=('auto', *SIM_MODULE_MODES), default='auto',
+                        help='separate: one sim_module process per simulated module; shared: one '
+                             f'process for all; auto (default): shared above {SHARED_SIMS_ABOVE} '
+                             'modules')
     parser.add_argument('--scene-ports', action='store_true',
                         help="simulated modules on the scene's fixed ports (default: free ports "
                              "of this demo's slot, so several demos can run at once)")

@@ -115,9 +115,11 @@ class GaitNode(SoftSnapNode):
         self.player = GaitPlayer(gait, transition_s=self.get_parameter('transition_time').value)
 
         self.command_publishers = {
-            # Depth 50 (1 s at 50 Hz): a reliable writer keeps unacknowledged commands that
-            # long, so a subscriber starved for a moment (a busy 2-core machine) loses none.
-            m.name: self.create_publisher(CableLength, f'{m.name}/cable_length/command', 50)
+            # Depth 100 (2 s at 50 Hz, as the drivers' command queues): a reliable writer
+            # keeps unacknowledged commands that long, so a subscriber starved for a moment
+            # loses none. 1 s was too short for a 50-module driver container on a busy
+            # 2-core machine (1 command of 193 lost under a load average of 30).
+            m.name: self.create_publisher(CableLength, f'{m.name}/cable_length/command', 100)
             for m in self.scene.modules}
         # Depth 50 like the commands: the phase carries the sent counts a subscriber matches
         # its received counts against (by stamp), so a starved subscriber should miss none.

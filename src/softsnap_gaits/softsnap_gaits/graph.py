@@ -5,7 +5,9 @@ processes) and the ROS 2 launch files (``launch/<scene>.launch.py``), so the gra
 once. For a scene with modules ``m1..mN`` in namespace ``/<scene>``:
 
 - ``sim_<m>``: a simulated module serving the firmware protocol on the module's port
-  (only with ``simulate=True``; real modules are reached at the scene's host/port);
+  (only with ``simulate=True``; real modules are reached at the scene's host/port); with
+  ``sim_modules='shared'`` one ``sim_modules`` process serves every module on
+  consecutive ports instead (large robots: one DDS participant, not one per module);
 - or, with ``physics=True``, one ``sim_robot``: the whole robot in MuJoCo, serving every
   module's firmware protocol on its port and publishing ``sim/base_pose`` and
   ``model/shape/simulated``;
@@ -37,12 +39,15 @@ from typing import Any, Mapping
 from softsnap_model.forward import reachable_range
 from softsnap_model.scene import Scene
 
-__all__ = ['DRIVER_MODES', 'NodeSpec', 'driver_parameters', 'robot_graph',
-           'with_driver_parameters']
+__all__ = ['DRIVER_MODES', 'SIM_MODULE_MODES', 'NodeSpec', 'driver_parameters',
+           'robot_graph', 'with_driver_parameters']
 
 #: Values of ``robot_graph(drivers=...)``: every driver in one ``driver_container``
 #: process, or one ``driver_node`` process per module.
 DRIVER_MODES = ('container', 'separate')
+#: Values of ``robot_graph(sim_modules=...)``: one ``sim_module`` process per simulated
+#: module (as a real robot has one ESP32 each), or one process serving them all.
+SIM_MODULE_MODES = ('separate', 'shared')
 
 
 @dataclasses.dataclass(frozen=True)
@@ -123,7 +128,7 @@ def robot_graph(scene: Scene, *, simulate: bool = True, gait: str | None = None,
                 sim_ports: Mapping[str, int] | None = None,
                 bag: str | Path | None = None, physics: bool = False,
                 sim_robot_parameters: Mapping[str, Any] | None = None,
-                drivers: str = 'container') -> list[NodeSpec]:
+                drivers: str = 'container', sim_modules: str = 'separate') -> list[NodeSpec]:
     """Processes that run a scene's robot, in start order (modules and drivers first).
 
     Parameters
@@ -163,11 +168,15 @@ def robot_graph(scene: Scene, *, simulate: bool = True, gait: str | None = None,
     Raises
     ------
     ValueError
-        `drivers` is not one of :data:`DRIVER_MODES`, or `physics` without `simulate`, or
-        `sim_ports` not consecutive with `physics`.
+        `drivers` is not one of :data:`DRIVER_MODES`, `sim_modules` not one of
+        :data:`SIM_MODULE_MODES`, or `physics` without `simulate`, or `sim_ports` not
+        consecutive with `physics` or shared simulated modules.
     """
     if drivers not in DRIVER_MODES:
         raise ValueError(f"drivers must be one of {', '.join(DRIVER_MODES)}, got {drivers!r}")
+    if sim_modules not in SIM_MODULE_MODES:
+        raise ValueError(f"sim_modules must be one of {', '.join(SIM_MODULE_MODES)}, "
+                         f'got {sim_modules!r}')
     ns = f'/{scene.name}'
     scene_ref = str(scene.path)
     nodes: list[NodeSpec] = []
@@ -176,10 +185,13 @@ def robot_graph(scene: Scene, *, simulate: bool = True, gait: str | None = None,
         if not simulate:
             raise ValueError('physics needs simulated modules (simulate=True), not real ones')
         nodes.append(_sim_robot_spec(scene, ns, scene_ref, sim_ports, sim_robot_parameters))
+    shared_sims = simulate and not physics and sim_modules == 'shared'
+    if shared_sims:
+        nodes.append(_shared_sims_spec(scene, ns, sim_ports))
     for module in scene.modules:
         host = '127.0.0.1' if simulate else module.host
         port = sim_ports[module.name] if simulate and sim_ports is not None else module.port
-        if simulate and not physics:
+        if simulate and not physics and not shared_sims:
             nodes.append(NodeSpec('softsnap_driver', 'sim_module', f'sim_{module.name}', ns,
                                   {'host': host, 'port': port}))
         low_mm, straight_mm = reachable_range(scene.skeleton, module.threading_mm)
@@ -264,14 +276,26 @@ def with_driver_parameters(nodes: list[NodeSpec], **parameters: Any) -> list[Nod
     return out
 
 
+def _consecutive_ports(scene: Scene, sim_ports: Mapping[str, int] | None, who: str) -> int:
+    """The first of the modules' ports, which `who` serves consecutively in scene order."""
+    ports = [sim_ports[m.name] if sim_ports is not None else m.port for m in scene.modules]
+    if ports != list(range(ports[0], ports[0] + len(ports))):
+        raise ValueError(f'{who} serves consecutive ports in scene order, got {ports}')
+    return ports[0]
+
+
+def _shared_sims_spec(scene: Scene, ns: str, sim_ports: Mapping[str, int] | None) -> NodeSpec:
+    """One ``sim_module`` process (node ``sim_modules``) serving every module of `scene`."""
+    first = _consecutive_ports(scene, sim_ports, 'a shared sim_module')
+    return NodeSpec('softsnap_driver', 'sim_module', 'sim_modules', ns,
+                    {'host': '127.0.0.1', 'port': first, 'count': len(scene.modules)})
+
+
 def _sim_robot_spec(scene: Scene, ns: str, scene_ref: str, sim_ports: Mapping[str, int] | None,
                     extra: Mapping[str, Any] | None) -> NodeSpec:
     """The one ``sim_robot`` node serving every module of `scene` (consecutive ports)."""
     params: dict[str, Any] = {'scene': scene_ref, 'host': '127.0.0.1', 'port_base': 0}
     if sim_ports is not None:
-        ports = [sim_ports[m.name] for m in scene.modules]
-        if ports != list(range(ports[0], ports[0] + len(ports))):
-            raise ValueError(f'sim_robot serves consecutive ports in scene order, got {ports}')
-        params['port_base'] = ports[0]
+        params['port_base'] = _consecutive_ports(scene, sim_ports, 'sim_robot')
     params.update(extra or {})
     return NodeSpec('softsnap_driver', 'sim_robot', 'sim_robot', ns, params)

@@ -75,8 +75,10 @@ CHAIN_ANGLE_TOL_RAD = 1e-3
 #: Fastest winch a scene may state (mm/s): 10 m/s of cable is far beyond any module motor,
 #: so a larger value is a unit mistake (m/s or counts/s).
 MAX_WINCH_SPEED_MM_S = 10000.0
-#: Largest distance (m) of a module base from the robot origin that we accept.
-MAX_BASE_DISTANCE_M = 5.0
+#: Largest distance (m) of a module base from the robot origin that we accept: a chain of
+#: 4,000 modules (248 mm each) fits; a base farther away is a unit mistake (micrometres).
+#: It was 5 m, which capped a straight chain at ~20 modules (issue 37).
+MAX_BASE_DISTANCE_M = 1000.0
 
 _SCENE_SUFFIXES = ('.yaml', '.yml')
 
