@@ -326,13 +326,22 @@ class ShapeController:
     def state(self) -> str:
         return self._state
 
-    def set_target(self, target: ShapeTarget, now_s: float) -> Feedforward:
+    def plan(self, target: ShapeTarget) -> Feedforward:
+        """The feedforward for `target` without changing anything (the model's search,
+        ~0.1-1 s: callers may run it outside their lock and pass it to set_target)."""
+        length, miss = self.model.closest_length(target)
+        return Feedforward(length, self.model.rib_centers_m(length), miss)
+
+    def set_target(self, target: ShapeTarget, now_s: float,
+                   feedforward: Feedforward | None = None) -> Feedforward:
         """Aim at `target` from now on; raise :class:`TargetError` if it is unreachable
-        by the model (the previous target, if any, stays)."""
+        by the model (the previous target, if any, stays). `feedforward`: from
+        :meth:`plan`, to skip the search here."""
         if target.points_m.shape[0] not in (1, self.model.n_ribs):
             raise TargetError(f'target has {target.points_m.shape[0]} points; the module '
                               f'has {self.model.n_ribs} ribs')
-        length, miss = self.model.closest_length(target)
+        length, miss = self.model.closest_length(target) if feedforward is None else (
+            feedforward.cable_length_m, feedforward.model_error_m)
         if not math.isfinite(miss) or miss > self.config.max_model_miss_m:
             raise TargetError(
                 f'unreachable: the closest shape the model predicts is {miss * 1e3:.1f} mm '
@@ -340,7 +349,8 @@ class ShapeController:
                 f'a one-parameter family of shapes, and a target more than '
                 f'{self.config.max_model_miss_m * 1e3:g} mm off it is refused')
         self.target = target
-        self.feedforward = Feedforward(length, self.model.rib_centers_m(length), miss)
+        self.feedforward = feedforward or Feedforward(length, self.model.rib_centers_m(length),
+                                                      miss)
         self._integral_m = 0.0
         self._started_s = now_s
         self._within_since_s = None
@@ -349,6 +359,14 @@ class ShapeController:
         # Only measurements taken after the new target count (older ones saw old commands).
         self._used_stamp_s = max(self._used_stamp_s, now_s)
         return self.feedforward
+
+    def predicted_ribs_m(self) -> np.ndarray | None:
+        """The model's shape at the current command (m): the feedforward shape moved by
+        the sensitivity times the correction (first order; no solve per step)."""
+        if self.feedforward is None or self.command_m is None:
+            return None
+        delta = self.command_m - self.feedforward.cable_length_m
+        return self.feedforward.predicted_ribs_m + self.model.sensitivity(self.command_m) * delta
 
     def clear_target(self) -> None:
         """Stop controlling: no more commands until the next target."""
