@@ -162,6 +162,7 @@ def test_stale_measurement_holds_the_command(model):
     for k in range(60):
         step = ctl.step(1.4 + 0.1 * k)
     assert step.state == TIMED_OUT and step.command_m is not None
+    assert 'timed out' in step.reason and 'old' in step.reason
 
 
 def test_invisible_ribs_and_bad_measurements(model):

@@ -321,6 +321,7 @@ class ShapeController:
         self.corrections: list[CorrectionRecord] = []
         self._recorded = False
         self._ramping = False
+        self._timeout_reason = ''
 
     @property
     def state(self) -> str:
@@ -399,9 +400,7 @@ class ShapeController:
         cfg = self.config
         elapsed = now_s - self._started_s
         if self._state == TIMED_OUT:
-            return self._result(False, f'timed out after {self.target.timeout_s:g} s at '
-                                       f'error {self._error_m * 1e3:.2f} mm; holding the '
-                                       f'last command', now_s, age)
+            return self._result(False, self._timeout_reason, now_s, age)
         fresh = meas is not None and age <= cfg.stale_after_s \
             and meas.stamp_s >= self._started_s
         if fresh and meas.stamp_s > self._used_stamp_s:
@@ -445,9 +444,10 @@ class ShapeController:
             if self._state == STALE and fresh:
                 self._state = CONVERGING
         if self._state != REACHED and elapsed > self.target.timeout_s:
+            stale = f' ({reason})' if self._state == STALE else '; holding the last command'
             self._state = TIMED_OUT
-            reason = (f'timed out after {self.target.timeout_s:g} s at error '
-                      f'{self._error_m * 1e3:.2f} mm; holding the last command')
+            self._timeout_reason = reason = (f'timed out after {self.target.timeout_s:g} s at '
+                                             f'error {self._error_m * 1e3:.2f} mm{stale}')
         return self._result(saturated, reason, now_s, age)
 
     def _tip_target(self) -> np.ndarray:

@@ -433,7 +433,8 @@ class ShapeControllerNode(SoftSnapNode):
                 return finish('reached', 'every module within its tolerance', True)
             timed = [m for m, s in states.items() if s == TIMED_OUT]
             if timed:
-                stale = [m for m in timed if steps[m] and not math.isfinite(steps[m].error_m)]
+                stale = [m for m in timed if steps[m] and ('old' in steps[m].reason
+                                                            or 'no measurement' in steps[m].reason)]
                 if not goal.hold:
                     self._hand_back(modules)
                 goal_handle.abort()
