@@ -61,7 +61,8 @@ def test_reaches_a_target_on_the_physics_robot(ros_node, start_node, tmp_path):
     assert ros_node_ns.spin_until(log.exists, TIMEOUT_S), proc.output()[-2000:]
     import json
     record = json.loads(log.read_text().splitlines()[0])
-    assert record['module'] == MODULE and record['correction_m'] > 0.002   # the load pulls
+    # The load straightens the finger: the robot needs a shorter cable than the model said.
+    assert record['module'] == MODULE and record['correction_m'] < -0.002
 
 
 def test_cancel_stops_the_commands(ros_node, start_node):

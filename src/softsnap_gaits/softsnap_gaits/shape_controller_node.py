@@ -433,7 +433,7 @@ class ShapeControllerNode(SoftSnapNode):
                 return finish('reached', 'every module within its tolerance', True)
             timed = [m for m, s in states.items() if s == TIMED_OUT]
             if timed:
-                stale = [m for m in timed if steps[m] and ('old' in steps[m].reason
+                stale = [m for m in timed if steps[m] and ('stale after' in steps[m].reason
                                                             or 'no measurement' in steps[m].reason)]
                 if not goal.hold:
                     self._hand_back(modules)
