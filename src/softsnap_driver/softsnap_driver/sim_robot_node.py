@@ -55,6 +55,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rosgraph_msgs.msg import Clock as ClockMessage
 
 from softsnap_driver.ros_parameters import SoftSnapNode
+from softsnap_driver.sim_camera_publisher import CAMERA_OPTIONS, CAMERA_RANGES
 from softsnap_driver.sim_observation import (DEFAULT_GROUND_TRUTH_RATE_HZ, GroundTruthSample,
                                              ObservationWorker, TickSchedule,
                                              sample_ground_truth)
@@ -89,6 +90,7 @@ RANGES = {
     'seed': (-1, 2**31 - 1),
     'drop_probability': (0.0, 1.0),
     'ground_truth_rate_hz': (0.0, 1000.0),
+    **CAMERA_RANGES,
 }
 #: Options of the node only (published topics; the simulation without ROS has none):
 #: name: (type, default, help), as sim_robot.OPTIONS.
@@ -97,6 +99,7 @@ NODE_OPTIONS = {
                              'every module\'s simulated rib centres published as '
                              'MeasuredShape on <module>/shape/ground_truth this often, Hz of '
                              'simulated time (at most clock_rate_hz; 0: off)'),
+    **CAMERA_OPTIONS,
 }
 
 
@@ -136,9 +139,16 @@ class SimRobotNode(SoftSnapNode):
             self.declare_parameter(name, kind(getattr(defaults, name)), _descriptor(name, kind, text))
         opts = argparse.Namespace(**{name: self.get_parameter(name).value for name in options})
         _check_node_options(opts)
+        if opts.camera:
+            from softsnap_driver.sim_camera import CameraError, offscreen_backend
+            try:
+                offscreen_backend()   # before mujoco is imported: it reads MUJOCO_GL once
+            except CameraError as exc:
+                raise SimRobotError(f'camera: {exc}') from None
         # ValueError (SimRobotError, SceneError) or OSError: main reports and exits 2.
         self.runner = SimRobotRunner(opts)
         self.scene = self.runner.robot.scene
+        self.camera = self._start_camera(opts) if opts.camera else None
         self.base_pose_publisher = self.create_publisher(PoseStamped, 'sim/base_pose', 10)
         self.payload_publisher = (self.create_publisher(PoseStamped, 'sim/payload_pose', 10)
                                   if opts.payload != 'none' else None)
@@ -171,6 +181,19 @@ class SimRobotNode(SoftSnapNode):
         self._ground_truth_worker = ObservationWorker(
             'sim_robot.ground_truth', self.publish_ground_truth, self._observation_failed)
 
+    def _start_camera(self, opts):
+        from softsnap_driver.sim_camera import CameraError
+        from softsnap_driver.sim_camera_publisher import (CameraPublisher, camera_settings,
+                                                          marker_layout)
+        try:
+            camera = CameraPublisher(self, self.runner.robot.simulation, camera_settings(opts),
+                                     marker_layout(opts, self.scene), opts.camera_rate_hz,
+                                     f'{self.scene.name}/camera_optical')
+        except CameraError as exc:
+            raise SimRobotError(str(exc)) from None
+        self.get_logger().info(camera.describe())
+        return camera
+
     def tick_callback(self, time_s: float) -> None:
         """Each /clock tick (the simulation thread): publish the clock, sample what is due.
 
@@ -189,6 +212,8 @@ class SimRobotNode(SoftSnapNode):
                 self.get_logger().warning(
                     f'ground truth publishing falls behind: {self._ground_truth_worker.dropped} '
                     'samples dropped so far', throttle_duration_sec=5.0)
+        if self.camera is not None:
+            self.camera.on_tick(time_s)
 
     def publish_ground_truth(self, sample: GroundTruthSample) -> None:
         """One MeasuredShape per module (the worker thread): source "simulator", every rib
@@ -277,17 +302,26 @@ class SimRobotNode(SoftSnapNode):
         worker = getattr(self, '_ground_truth_worker', None)
         if worker is not None:
             worker.stop()
+        camera = getattr(self, 'camera', None)
+        if camera is not None:
+            camera.stop()
         super().destroy_node()
 
 
 def _check_node_options(opts: argparse.Namespace) -> None:
     """Raise SimRobotError naming a node option outside its range."""
-    for name, low in (('ground_truth_rate_hz', 0.0),):
+    for name, low in (('ground_truth_rate_hz', 0.0), ('camera_rate_hz', 0.1)):
         rate = getattr(opts, name)
         if not (math.isfinite(rate) and low <= rate <= opts.clock_rate_hz):
             raise SimRobotError(f'{name} must be in [{low:g}, clock_rate_hz = '
                                 f'{opts.clock_rate_hz:g}] Hz (samples are taken on /clock '
                                 f'ticks), got {rate!r}')
+    if opts.camera:
+        from softsnap_driver.sim_camera_publisher import camera_settings
+        try:
+            camera_settings(opts)
+        except ValueError as exc:
+            raise SimRobotError(str(exc)) from None
 
 
 def build_node_parser() -> argparse.ArgumentParser:
