@@ -208,3 +208,67 @@ def test_hand_over_with_the_gait_node(ros_node, start_node):
     assert reply.success
     back = sent(MODULE)
     assert ros_node.spin_until(lambda: sent(MODULE) > back + 20, TIMEOUT_S)
+
+
+def test_reaches_a_pose_through_the_drivers_on_sim_robot(ros_node, start_node, slot_port):
+    """The whole chain: sim_robot (the gripper in MuJoCo, its ground truth on
+    shape/ground_truth, simulated time), a driver_node over loopback HTTP and the
+    firmware's deadband, and the controller on /clock. The target is a pose the finger
+    was in (so the robot can take it); the controller brings it back from straight."""
+    from rclpy.action import ActionClient
+    from softsnap_interfaces.action import ReachShape
+    from softsnap_interfaces.msg import CableLength, MeasuredShape
+    from softsnap_model.scene import load_scene
+    scene = load_scene('gripper')
+    module = scene.module(MODULE)
+    port_base = slot_port(len(scene.modules))
+    start_node('softsnap_driver', 'sim_robot', '--ros-args', '-r', f'__ns:={NS}',
+               '-p', 'scene:=gripper', '-p', f'port_base:={port_base}',
+               '-p', 'ground_truth_rate_hz:=25.0')
+    start_node('softsnap_driver', 'driver_node', '--ros-args', '-r', f'__ns:={NS}',
+               '-r', f'__node:={MODULE}_driver', '-p', f'module:={MODULE}',
+               '-p', f'port:={port_base + module.index}',
+               '-p', f'counts_per_mm:={module.counts_per_mm}',
+               '-p', f'straight_length_m:={module.straight_length_mm / 1000.0}',
+               '-p', 'max_contraction_m:=0.06', '-p', 'use_sim_time:=true')
+    start_node('softsnap_gaits', 'shape_controller',
+               *controller_args('-p', "gait_node:=''", '-p', 'use_sim_time:=true'))
+    shapes = []
+    ros_node.create_subscription(MeasuredShape, f'{NS}/{MODULE}/shape/ground_truth',
+                                 shapes.append, 50)
+    command = ros_node.create_publisher(CableLength, f'{NS}/{MODULE}/cable_length/command', 10)
+
+    def tip(msg):
+        return np.array([msg.rib_centers[-1].x, msg.rib_centers[-1].y])
+
+    def drive_until_still(length_m, min_move_m=0.0, start=None):
+        """Command `length_m` until the tip moved `min_move_m` from `start` and is still."""
+        deadline = time.monotonic() + 120.0
+        while time.monotonic() < deadline:
+            command.publish(CableLength(cable_length=length_m))
+            ros_node.spin_until(lambda: False, 0.05)
+            if len(shapes) < 15 or (start is not None
+                                    and np.linalg.norm(tip(shapes[-1]) - start) < min_move_m):
+                continue
+            recent = [tip(s) for s in shapes[-12:]]
+            if max(np.linalg.norm(r - recent[-1]) for r in recent) < 3e-4:
+                return np.mean(recent, axis=0)
+        raise AssertionError(f'the finger did not settle at {length_m} m')
+
+    assert ros_node.spin_until(lambda: len(shapes) > 5, TIMEOUT_S * 4)
+    straight = module.straight_length_mm / 1000.0
+    target = drive_until_still(straight - 0.035, 0.02, tip(shapes[-1]))
+    start = drive_until_still(straight, 0.02, target)
+    ros_node.destroy_publisher(command)
+    print(f'target tip {target * 1e3} mm, from {start * 1e3} mm')
+    client = ActionClient(ros_node, ReachShape, f'{NS}/shape_controller/reach_shape')
+    handle = send_goal(ros_node, client, ReachShape.Goal(
+        modules=[MODULE], target_kind='tip', target_points=[tip_point(target)],
+        tolerance=0.0015, timeout=30.0, hold=True))
+    result = handle.get_result_async()
+    assert ros_node.spin_until(result.done, 180.0)
+    r = result.result().result
+    print(r.stop_reason, r.message, r.final_tip_error, r.correction)
+    assert r.success and r.stop_reason == 'reached', r.message
+    assert r.final_tip_error[0] < 0.0015
+    assert np.linalg.norm(tip(shapes[-1]) - target) < 0.002
