@@ -33,9 +33,10 @@ def send_goal(ros_node, client, goal, feedback=None):
     return handle
 
 
-def test_reaches_a_target_on_the_physics_robot(ros_node, start_node, tmp_path):
+def test_reaches_a_target_on_the_physics_robot(ros_node, start_node, tmp_path, read_rrd):
     """20 g on the tip the model does not know: open loop misses by > 3 mm, the
-    controller gets within 1 mm and holds it; the steady correction is logged."""
+    controller gets within 1 mm and holds it; the steady correction is logged, and the
+    rerun recording shows target, measured and predicted shapes and the error falling."""
     from softsnap_gaits.closed_loop_run import run_case
     from softsnap_model.scene import load_scene
     log = tmp_path / 'corrections.jsonl'
@@ -63,6 +64,13 @@ def test_reaches_a_target_on_the_physics_robot(ros_node, start_node, tmp_path):
     record = json.loads(log.read_text().splitlines()[0])
     # The load straightens the finger: the robot needs a shorter cable than the model said.
     assert record['module'] == MODULE and record['correction_m'] < -0.002
+    assert proc.stop() == 0, proc.output()[-2000:]
+    rec = read_rrd(tmp_path / 'c.rrd')
+    for entity in ('target', 'measured', 'predicted', 'error_mm', 'command_mm',
+                   'correction_mm'):
+        assert f'control/{MODULE}/{entity}' in rec.entities, rec.entities
+    errors = rec.scalars(f'control/{MODULE}/error_mm')
+    assert max(errors[:5]) > 3.0 and errors[-1] < 1.0
 
 
 def test_cancel_stops_the_commands(ros_node, start_node):
