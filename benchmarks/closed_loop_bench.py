@@ -10,8 +10,9 @@ feedforward length for it, the closed loop sends a ReachShape goal (closed_loop_
 
 Cases: stiffness_minus_20pct (K 20 % below the model's 17.6 N mm/rad^2), payload_20g_tip
 (20 g on the tip rib), latency_100ms_noise_0.5mm (the payload case with every
-measurement 100 ms late and 0.5 mm of noise per coordinate). The simulated camera does
-not exist on this branch yet: that case is not run (said on stderr).
+measurement 100 ms late and 0.5 mm of noise per coordinate). The simulated camera
+(sim_robot camera:=true) renders images, but the marker tracker that turns them into
+MeasuredShape is not on this branch: that case is not run (said on stderr).
 
 --json prints exactly {"cases": [{"name", "open_loop_tip_error_mm",
 "closed_loop_tip_error_mm", "settle_time_s", "stable"}]} on stdout.
@@ -56,7 +57,8 @@ def main(argv=None) -> int:
     if unknown:
         parser.error(f'unknown case(s) {unknown}; cases are {", ".join(CASES)}')
     log(load_line('start'))
-    log('simulated_camera: not run (no simulated camera on this branch)')
+    log('simulated_camera: not run (the marker tracker that measures its images is not on '
+        'this branch)')
 
     import rclpy
     from rclpy.executors import SingleThreadedExecutor

@@ -280,3 +280,39 @@ def test_reaches_a_pose_through_the_drivers_on_sim_robot(ros_node, start_node, s
     assert r.success and r.stop_reason == 'reached', r.message
     assert r.final_tip_error[0] < 0.0015
     assert np.linalg.norm(tip(shapes[-1]) - target) < 0.002
+
+
+def test_the_docs_client_snippet_reaches_its_target(ros_node, start_node, tmp_path):
+    """docs/control.md's ReachShape snippet, run as it is in its own process, against a
+    shape_controller and the MuJoCo finger (default physics)."""
+    import re
+    import subprocess
+    import sys
+    from pathlib import Path
+    import rclpy
+    from softsnap_gaits.physics_plant import MujocoModulePlant
+    from softsnap_model.scene import load_scene
+    text = (Path(__file__).resolve().parents[2] / 'docs' / 'control.md').read_text()
+    snippet = re.search(r'### ReachShape from Python\n\n```python\n(.*?)```', text, re.S).group(1)
+    start_node('softsnap_gaits', 'shape_controller', *controller_args('-p', "gait_node:=''"))
+    node = rclpy.create_node('snippet_plant', namespace=NS, context=ros_node.context)
+    ros_node.executor_.add_node(node)
+    plant = MujocoModulePlant(node, load_scene('gripper'), MODULE)
+    try:
+        script = tmp_path / 'snippet.py'
+        script.write_text(snippet)
+        proc = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE,
+                                stderr=subprocess.STDOUT, text=True, env=start_node.env)
+        assert ros_node.spin_until(lambda: proc.poll() is not None, 120.0)
+        output = proc.stdout.read()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        plant.close()
+        ros_node.executor_.remove_node(node)
+        node.destroy_node()
+    print(output)
+    assert proc.returncode == 0, output
+    last = output.strip().splitlines()[-1]
+    assert last.startswith('reached'), output
+    assert plant.commands > 10
