@@ -35,6 +35,7 @@ def main(argv=None) -> int:
         print(f'demo: warning: {warning}', file=sys.stderr)
     os.environ.setdefault('ROS_DOMAIN_ID', str(slot.domain_id))
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    log = (lambda *a: print(*a, file=sys.stderr)) if args.json else print
     run_dir = Path(args.run_dir or f'runs/closed_loop-{time.strftime("%Y%m%d-%H%M%S")}')
     run_dir.mkdir(parents=True, exist_ok=True)
 
@@ -65,8 +66,8 @@ def main(argv=None) -> int:
     results = []
     try:
         for name, case in CASES.items():
-            results.append(run_case(node, executor, scene, MODULE, name,
-                                    contraction_m=0.03, **case))
+            results.append(run_case(node, executor, scene, MODULE, name, contraction_m=0.03,
+                                    log=log, **case))
             from softsnap_interfaces.srv import SetShapeTarget
             client = node.create_client(SetShapeTarget, 'shape_controller/set_target')
             if client.wait_for_service(timeout_sec=10.0):
