@@ -43,8 +43,7 @@ def test_reaches_a_target_on_the_physics_robot(ros_node, start_node, tmp_path, r
     proc = start_node('softsnap_gaits', 'shape_controller',
                       *controller_args('-p', "gait_node:=''", '-p', f'correction_log:={log}',
                                        '-p', f'rerun_recording:={tmp_path / "c.rrd"}'))
-    ros_node_ns = ros_node
-    # The client helper works relative to the node's namespace: a node of its own in NS.
+    # run_case names topics relative to its node: a node of its own in NS.
     import rclpy
     node = rclpy.create_node('reach_client', namespace=NS, context=ros_node.context)
     ros_node.executor_.add_node(node)
@@ -59,7 +58,7 @@ def test_reaches_a_target_on_the_physics_robot(ros_node, start_node, tmp_path, r
     assert result.open_loop_tip_error_m > 0.003
     assert result.closed_loop_tip_error_m < 0.001
     assert result.stable and result.stop_reason == 'reached'
-    assert ros_node_ns.spin_until(log.exists, TIMEOUT_S), proc.output()[-2000:]
+    assert ros_node.spin_until(log.exists, TIMEOUT_S), proc.output()[-2000:]
     import json
     record = json.loads(log.read_text().splitlines()[0])
     # The load straightens the finger: the robot needs a shorter cable than the model said.
@@ -88,8 +87,9 @@ def test_cancel_stops_the_commands(ros_node, start_node):
     handle = send_goal(ros_node, client, ReachShape.Goal(
         modules=[MODULE], target_kind='named', shape_name='grasp', timeout=120.0),
         feedback=lambda f: feedback.append(f.feedback))
-    assert ros_node.spin_until(lambda: len(commands) >= 5 and feedback, TIMEOUT_S)
-    assert feedback[-1].state == ['stale']           # no measurement: the command is held
+    # No measurement: after its first (feedforward) command the controller holds it.
+    assert ros_node.spin_until(lambda: len(commands) >= 5 and feedback
+                               and feedback[-1].state == ['stale'], TIMEOUT_S)
     cancel = handle.cancel_goal_async()
     assert ros_node.spin_until(cancel.done, TIMEOUT_S)
     result = handle.get_result_async()

@@ -50,9 +50,9 @@ from softsnap_interfaces.action import ReachShape
 from softsnap_interfaces.msg import CableLength, MeasuredShape
 from softsnap_interfaces.srv import ReleaseModules, SetShapeTarget
 
-from softsnap_gaits.shape_control import (CONVERGING, REACHED, STALE, TIMED_OUT,
-                                          ControllerConfig, ShapeController, TargetError,
-                                          make_target, module_model, named_shape_m)
+from softsnap_gaits.shape_control import (REACHED, STALE, TIMED_OUT, ControllerConfig,
+                                          ShapeController, TargetError, make_target,
+                                          module_model, named_shape_m)
 from softsnap_model.scene import load_scene
 
 #: How often the action's loop looks at the controllers (s, wall clock).
@@ -247,8 +247,7 @@ class ShapeControllerNode(SoftSnapNode):
             for m, (target, ff) in targets.items():
                 self.controllers[m].set_target(target, now, ff)
                 self.generation[m] += 1
-                self._publish_shape(self.target_pub[m], m, target.points_m
-                                    if target.kind == 'ribs' else target.points_m, 'target')
+                self._publish_shape(self.target_pub[m], m, target.points_m, 'target')
                 self._publish_shape(self.predicted_pub[m], m, ff.predicted_ribs_m, 'model')
             return {m: self.generation[m] for m in targets}
 
