@@ -25,9 +25,9 @@ import numpy as np
 
 #: Wall time per physics tick (s): the simulation is advanced by the elapsed wall time.
 TICK_S = 0.005
-#: Largest simulated step per tick (s): a starved process falls behind instead of
-#: taking one huge step.
-MAX_STEP_S = 0.02
+#: Largest simulated step per tick (s; MuJoCo still integrates it in its fixed 2 ms
+#: steps): a process starved for longer falls behind the wall clock instead.
+MAX_STEP_S = 0.1
 
 
 def _wxyz(xyzw):
