@@ -178,6 +178,25 @@ def test_refusals_say_why(ros_node, start_node):
     result = handle.get_result_async()
     assert ros_node.spin_until(result.done, TIMEOUT_S)
     assert result.result().result.stop_reason == 'refused'
+    # A measurement with 5 ribs is refused and counted; the node goes on.
+    from diagnostic_msgs.msg import DiagnosticArray
+    from geometry_msgs.msg import Point
+    from softsnap_interfaces.msg import MeasuredShape
+    refused = []
+    ros_node.create_subscription(DiagnosticArray, '/diagnostics', lambda a: refused.extend(
+        kv.value for st in a.status if st.name.endswith(f'{MODULE}/shape_controller')
+        for kv in st.values if kv.key == 'measurements_refused'), 10)
+    pub = ros_node.create_publisher(MeasuredShape, f'{NS}/{MODULE}/shape/ground_truth', 10)
+
+    def publish_bad():
+        pub.publish(MeasuredShape(module=MODULE, rib_centers=[Point()] * 5))
+        return refused and refused[-1] != '0'
+    deadline = time.monotonic() + TIMEOUT_S
+    while time.monotonic() < deadline and not publish_bad():
+        ros_node.spin_until(lambda: False, 0.2)
+    assert refused and refused[-1] != '0', refused
+    again = ros_node.call(srv, SetShapeTarget.Request(modules=[MODULE], target_kind='clear'))
+    assert again.success
 
 
 def test_hand_over_with_the_gait_node(ros_node, start_node):
@@ -316,3 +335,13 @@ def test_the_docs_client_snippet_reaches_its_target(ros_node, start_node, tmp_pa
     last = output.strip().splitlines()[-1]
     assert last.startswith('reached'), output
     assert plant.commands > 10
+
+
+@pytest.mark.parametrize('bad, reason', [('modules:=[nope]', "no module(s) 'nope'"),
+                                         ('integral_gain:=-1.0', 'integral_gain_per_s'),
+                                         ('rate:=0.5', 'rate must be')])
+def test_bad_start_up_parameters_exit_2_with_the_reason(start_node, bad, reason):
+    proc = start_node('softsnap_gaits', 'shape_controller', '--ros-args',
+                      '-p', 'scene:=gripper', '-p', bad)
+    assert proc.proc.wait(120) == 2, proc.output()
+    assert 'cannot start' in proc.output() and reason in proc.output()

@@ -110,8 +110,11 @@ class ShapeControllerNode(SoftSnapNode):
         self.params = p
         self.scene = load_scene(p['scene'])
         names = [m for m in p['modules'] if m] or list(self.scene.module_names)
-        for name in names:
-            self.scene.module(name)   # SceneError (ValueError) names an unknown module
+        unknown = [n for n in names if n not in self.scene.module_names]
+        if unknown:
+            raise ValueError(f'scene {self.scene.name!r} has no module(s) '
+                             f'{", ".join(map(repr, unknown))}; modules are '
+                             f'{", ".join(self.scene.module_names)}')
         if not (1.0 <= p['rate'] <= 200.0):
             raise ValueError(f'rate must be from 1 to 200 Hz, got {p["rate"]!r}')
         self.lock = threading.RLock()
