@@ -202,11 +202,12 @@ def test_refusals_say_why(ros_node, start_node):
 def test_hand_over_with_the_gait_node(ros_node, start_node):
     """gait_node plays the grasp on all four fingers; a standing target for one finger
     makes gait_node release it (its sent count for that finger stops while the others
-    go on) and the controller command it; clearing hands it back."""
+    go on) and the controller command it; a restarted gait node is told again; clearing
+    hands it back."""
     from softsnap_interfaces.msg import CableLength, GaitPhase
     from softsnap_interfaces.srv import SetShapeTarget
-    start_node('softsnap_gaits', 'gait_node', '--ros-args', '-r', f'__ns:={NS}',
-               '-p', 'scene:=gripper', '-p', 'rate:=50.0')
+    gait = start_node('softsnap_gaits', 'gait_node', '--ros-args', '-r', f'__ns:={NS}',
+                      '-p', 'scene:=gripper', '-p', 'rate:=50.0')
     start_node('softsnap_gaits', 'shape_controller', *controller_args())
     phases, commands = [], []
     ros_node.create_subscription(GaitPhase, f'{NS}/gait/phase', phases.append, 50)
@@ -231,6 +232,18 @@ def test_hand_over_with_the_gait_node(ros_node, start_node):
     straight = reply.feedforward_cable_length[0]
     assert len(commands) > n + 10 and all(m.cable_length == pytest.approx(straight, abs=1e-6)
                                           for m in commands[n:])
+    # A gait node restarted meanwhile is told again (every 2 s) and stops commanding it.
+    gait.stop()
+    start_node('softsnap_gaits', 'gait_node', '--ros-args', '-r', f'__ns:={NS}',
+               '-p', 'scene:=gripper', '-p', 'rate:=50.0')
+    phases.clear()
+    assert ros_node.spin_until(lambda: len(phases) > 10, TIMEOUT_S)
+
+    def released_again():
+        first = sent(MODULE)
+        ros_node.spin_until(lambda: False, 1.0)
+        return sent(MODULE) == first and sent('back_left') > 0
+    assert ros_node.spin_until(released_again, TIMEOUT_S)
     reply = ros_node.call(srv, SetShapeTarget.Request(modules=[MODULE], target_kind='clear'))
     assert reply.success
     back = sent(MODULE)

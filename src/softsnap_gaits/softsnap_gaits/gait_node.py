@@ -301,6 +301,7 @@ class GaitNode(SoftSnapNode):
             response.message = (f'unknown module(s) {", ".join(map(repr, unknown))}; '
                                 f'modules are {", ".join(self.command_publishers)}')
         else:
+            before = set(self.released)
             if request.release:
                 self.released.update(request.modules)
             else:
@@ -309,7 +310,8 @@ class GaitNode(SoftSnapNode):
             verb = 'released to' if request.release else 'taken back from'
             response.message = (f'{", ".join(request.modules) or "no module"} {verb} '
                                 f'{request.requester or "a caller"}')
-            self.get_logger().info(response.message)
+            if self.released != before:   # the controller repeats its releases: log changes
+                self.get_logger().info(response.message)
         response.released = sorted(self.released)
         return response
 

@@ -59,6 +59,8 @@ from softsnap_model.scene import load_scene
 GOAL_POLL_S = 0.05
 #: Feedback period of the action (s, wall clock).
 FEEDBACK_PERIOD_S = 0.2
+#: Period (s) at which the release of held modules is repeated to the gait node.
+REASSERT_PERIOD_S = 2.0
 
 
 def _points(msg_points) -> np.ndarray:
@@ -155,6 +157,8 @@ class ShapeControllerNode(SoftSnapNode):
             self.recorder = ControlRecorder(p['rerun_recording'], self.scene.name)
         self.create_timer(1.0 / p['rate'], self.control_callback, callback_group=self.group)
         self.create_timer(1.0, self.diagnostics_callback, callback_group=self.group)
+        # A restarted gait node has forgotten its releases: say them again now and then.
+        self.create_timer(REASSERT_PERIOD_S, self.reassert_callback, callback_group=self.group)
         self.create_service(SetShapeTarget, '~/set_target', self.set_target_callback,
                             callback_group=self.group)
         self.action_server = ActionServer(
@@ -230,6 +234,15 @@ class ShapeControllerNode(SoftSnapNode):
             self.held.update(wanted)
         self.get_logger().info(f'gait node {name!r} released {", ".join(wanted)}')
         return True, response.message
+
+    def reassert_callback(self) -> None:
+        """Repeat the release of the modules held (idempotent for gait_node), so a gait
+        node that restarted stops commanding them within REASSERT_PERIOD_S."""
+        with self.lock:
+            held = sorted(self.held)
+        if held and self.release_client is not None and self.release_client.service_is_ready():
+            self.release_client.call_async(ReleaseModules.Request(
+                modules=held, release=True, requester=self.get_fully_qualified_name()))
 
     def _hand_back(self, modules) -> None:
         """Stop controlling `modules` and return them to the gait node (no wait)."""
