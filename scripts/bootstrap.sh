@@ -94,4 +94,21 @@ if [ "$(cat "$stamp_dir/workspace" 2>/dev/null)" != "$ws_hash" ]; then
   for link in "$site"/softsnap*.egg-link; do head -n 1 "$link"; echo; done | grep '^/' > "$site/softsnap_workspace.pth"
   echo "$ws_hash" > "$stamp_dir/workspace"
 fi
+# 4. Offscreen OpenGL for sim_robot's simulated camera (MuJoCo's EGL backend; Mesa's
+# llvmpipe renders without a GPU or a display). Only what is missing is installed, and
+# only where apt-get can (root); otherwise the camera refuses with one line at run time.
+missing_gl=()
+ldconfig -p | grep -q 'libEGL.so.1 ' || missing_gl+=(libegl1)
+ldconfig -p | grep -q 'libEGL_mesa.so.0 ' || missing_gl+=(libegl-mesa0)
+ldconfig -p | grep -q 'libGL.so.1 ' || missing_gl+=(libgl1)
+compgen -G '/usr/lib/*/dri/swrast_dri.so' > /dev/null || missing_gl+=(libgl1-mesa-dri)
+if [ "${#missing_gl[@]}" -gt 0 ]; then
+  if [ "$(id -u)" = 0 ] && command -v apt-get > /dev/null; then
+    log "installing the simulated camera's offscreen OpenGL (missing: ${missing_gl[*]})"
+    DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends "${missing_gl[@]}" >&2 \
+      || log "could not install ${missing_gl[*]}: sim_robot's camera will refuse to start"
+  else
+    log "missing ${missing_gl[*]} (offscreen OpenGL): sim_robot's camera will refuse to start; install them as root"
+  fi
+fi
 log "ready: ROS 2 $distro in .venv (use .venv/bin/python; no sourcing needed)"

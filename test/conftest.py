@@ -34,6 +34,9 @@ if _slot_warning:
 os.environ['ROS_DOMAIN_ID'] = str(SLOT.domain_id)
 os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
 os.environ.setdefault('RCUTILS_COLORIZED_OUTPUT', '0')
+# MuJoCo picks its OpenGL backend once, when first imported: offscreen EGL for the
+# simulated camera's tests (nothing else here renders).
+os.environ.setdefault('MUJOCO_GL', 'egl')
 # The nodes' Fast DDS profile (service replies wait for a client that has just started,
 # participants announced every second), in this process and every process it starts, as
 # in every node's main (init_ros).

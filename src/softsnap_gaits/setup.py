@@ -26,6 +26,7 @@ setup(
             'rerun_logger = softsnap_gaits.rerun_logger:main',
             'demo = softsnap_gaits.demo:main',
             'bag = softsnap_gaits.bag:main',
+            'shape_controller = softsnap_gaits.shape_controller_node:main',
         ],
     },
 )

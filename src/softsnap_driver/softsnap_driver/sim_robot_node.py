@@ -20,6 +20,14 @@ lock) and publishes, in the node's namespace:
   segments' bending angles (rad), ``cable_length`` the winch's cable length (m);
   ``tension`` is left 0 (the field's unit is the quasi-static
   model's, rad^2/m; the tendon tension in newtons is in the log).
+- ``<module>/shape/ground_truth`` (softsnap_interfaces/MeasuredShape, frame
+  ``<scene>/<module>``), one per module, every ``ground_truth_rate_hz`` of simulated time
+  (default 30 Hz, 0: off): the simulated rib centres in the module base frame (m, the
+  MuJoCo rib bodies' origins), source ``simulator``, every rib visible, residual 0,
+  ``cable_length`` the winch's cable length (m), ``rmse_to_model`` NaN (no model here).
+  Sampled in the simulation thread on the ``/clock`` ticks (one instant, stamped with the
+  physics' time) and published by a thread of its own
+  (:mod:`softsnap_driver.sim_observation`), so the physics never waits for ROS.
 
 and, on the absolute ``/clock`` (rosgraph_msgs/Clock, the QoS every ROS clock source uses:
 keep last 1, best effort, volatile), the simulation time every ``clock_rate_hz`` of
@@ -47,10 +55,15 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rosgraph_msgs.msg import Clock as ClockMessage
 
 from softsnap_driver.ros_parameters import SoftSnapNode
+from softsnap_driver.sim_camera_publisher import CAMERA_OPTIONS, CAMERA_RANGES
+from softsnap_driver.sim_observation import (DEFAULT_GROUND_TRUTH_RATE_HZ, GroundTruthSample,
+                                             ObservationWorker, TickSchedule,
+                                             sample_ground_truth)
 from softsnap_driver.sim_robot import (OPTIONS, PHYSICS_TIMESTEP_RANGE_S, RobotSnapshot,
-                                       SimRobotRunner, build_parser, report_stop)
+                                       SimRobotError, SimRobotRunner, _bool_text, build_parser,
+                                       report_stop)
 from softsnap_driver.spinning import run_simulator_main
-from softsnap_interfaces.msg import ModuleShape, RobotShape
+from softsnap_interfaces.msg import MeasuredShape, ModuleShape, RobotShape
 
 WORLD_FRAME = 'world'
 #: QoS of ``/clock``: what rclcpp's ClockQoS and rclpy's TimeSource use (only the newest
@@ -76,6 +89,17 @@ RANGES = {
     'clock_rate_hz': (1.0, 1000.0),
     'seed': (-1, 2**31 - 1),
     'drop_probability': (0.0, 1.0),
+    'ground_truth_rate_hz': (0.0, 1000.0),
+    **CAMERA_RANGES,
+}
+#: Options of the node only (published topics; the simulation without ROS has none):
+#: name: (type, default, help), as sim_robot.OPTIONS.
+NODE_OPTIONS = {
+    'ground_truth_rate_hz': (float, DEFAULT_GROUND_TRUTH_RATE_HZ,
+                             'every module\'s simulated rib centres published as '
+                             'MeasuredShape on <module>/shape/ground_truth this often, Hz of '
+                             'simulated time (at most clock_rate_hz; 0: off)'),
+    **CAMERA_OPTIONS,
 }
 
 
@@ -110,12 +134,21 @@ class SimRobotNode(SoftSnapNode):
 
     def __init__(self, defaults: argparse.Namespace):
         super().__init__('sim_robot')
-        for name, (kind, _default, text) in OPTIONS.items():
+        options = {**OPTIONS, **NODE_OPTIONS}
+        for name, (kind, _default, text) in options.items():
             self.declare_parameter(name, kind(getattr(defaults, name)), _descriptor(name, kind, text))
-        opts = argparse.Namespace(**{name: self.get_parameter(name).value for name in OPTIONS})
+        opts = argparse.Namespace(**{name: self.get_parameter(name).value for name in options})
+        _check_node_options(opts)
+        if opts.camera:
+            from softsnap_driver.sim_camera import CameraError, offscreen_backend
+            try:
+                offscreen_backend()   # before mujoco is imported: it reads MUJOCO_GL once
+            except CameraError as exc:
+                raise SimRobotError(f'camera: {exc}') from None
         # ValueError (SimRobotError, SceneError) or OSError: main reports and exits 2.
         self.runner = SimRobotRunner(opts)
         self.scene = self.runner.robot.scene
+        self.camera = self._start_camera(opts) if opts.camera else None
         self.base_pose_publisher = self.create_publisher(PoseStamped, 'sim/base_pose', 10)
         self.payload_publisher = (self.create_publisher(PoseStamped, 'sim/payload_pose', 10)
                                   if opts.payload != 'none' else None)
@@ -124,7 +157,8 @@ class SimRobotNode(SoftSnapNode):
         self._clock_message = ClockMessage()
         self._published_time_s = -math.inf
         self._fault_reported = False
-        self.runner.robot.clock_listener = self.clock_callback
+        self._start_ground_truth(opts.ground_truth_rate_hz)
+        self.runner.robot.clock_listener = self.tick_callback
         self.runner.start()
         for name, server in self.runner.servers.servers.items():
             self.get_logger().info(f'{name}: serving the firmware protocol on '
@@ -134,6 +168,75 @@ class SimRobotNode(SoftSnapNode):
         # setting), the timer would otherwise wait for the clock this node makes.
         self.create_timer(1.0 / min(wall_rate, 200.0), self.snapshot_callback,
                           clock=Clock(clock_type=ClockType.STEADY_TIME))
+
+    def _start_ground_truth(self, rate_hz: float) -> None:
+        self._ground_truth_schedule = TickSchedule(rate_hz) if rate_hz > 0 else None
+        self._ground_truth_publishers = {}
+        self._ground_truth_worker = None
+        if self._ground_truth_schedule is None:
+            return
+        for name in self.runner.robot.module_names:
+            self._ground_truth_publishers[name] = self.create_publisher(
+                MeasuredShape, f'{name}/shape/ground_truth', 10)
+        self._ground_truth_worker = ObservationWorker(
+            'sim_robot.ground_truth', self.publish_ground_truth, self._observation_failed)
+
+    def _start_camera(self, opts):
+        from softsnap_driver.sim_camera import CameraError
+        from softsnap_driver.sim_camera_publisher import (CameraPublisher, camera_settings,
+                                                          marker_layout)
+        try:
+            camera = CameraPublisher(self, self.runner.robot.simulation, camera_settings(opts),
+                                     marker_layout(opts, self.scene), opts.camera_rate_hz,
+                                     f'{self.scene.name}/camera_optical')
+        except CameraError as exc:
+            raise SimRobotError(str(exc)) from None
+        self.get_logger().info(camera.describe())
+        return camera
+
+    def tick_callback(self, time_s: float) -> None:
+        """Each /clock tick (the simulation thread): publish the clock, sample what is due.
+
+        Never raises into the simulation loop (a failed sample is logged).
+        """
+        self.clock_callback(time_s)
+        schedule = self._ground_truth_schedule
+        if schedule is not None and schedule.due(time_s):
+            try:
+                sample = sample_ground_truth(self.runner.robot.simulation,
+                                             self.runner.robot.module_names)
+            except Exception as exc:  # noqa: BLE001 - the physics must not stop for it
+                self._observation_failed(None, exc)
+                return
+            if not self._ground_truth_worker.offer(sample):
+                self.get_logger().warning(
+                    f'ground truth publishing falls behind: {self._ground_truth_worker.dropped} '
+                    'samples dropped so far', throttle_duration_sec=5.0)
+        if self.camera is not None:
+            self.camera.on_tick(time_s)
+
+    def publish_ground_truth(self, sample: GroundTruthSample) -> None:
+        """One MeasuredShape per module (the worker thread): source "simulator", every rib
+        visible, residual 0, no model comparison (rmse_to_model NaN)."""
+        stamp = _stamp(sample.time_s)
+        for name, centers, length_m in zip(sample.names, sample.rib_centers_m.tolist(),
+                                           sample.cable_lengths_m):
+            shape = MeasuredShape()
+            shape.header.stamp = stamp
+            shape.header.frame_id = f'{self.scene.name}/{name}'
+            shape.module = name
+            shape.source = 'simulator'
+            shape.rib_centers = [Point(x=x, y=y, z=z) for x, y, z in centers]
+            shape.visible = [True] * len(centers)
+            shape.residual = 0.0
+            shape.cable_length = float(length_m)
+            shape.rmse_to_model = math.nan
+            self._ground_truth_publishers[name].publish(shape)
+
+    def _observation_failed(self, item, exc: BaseException) -> None:
+        if self.context.ok():
+            self.get_logger().error(f'simulation sample not published: {exc!r}',
+                                    throttle_duration_sec=5.0)
 
     def clock_callback(self, time_s: float) -> None:
         """Publish the simulation time on /clock (called from the simulation thread).
@@ -196,7 +299,39 @@ class SimRobotNode(SoftSnapNode):
         runner = getattr(self, 'runner', None)
         if runner is not None:
             runner.stop()
+        worker = getattr(self, '_ground_truth_worker', None)
+        if worker is not None:
+            worker.stop()
+        camera = getattr(self, 'camera', None)
+        if camera is not None:
+            camera.stop()
         super().destroy_node()
+
+
+def _check_node_options(opts: argparse.Namespace) -> None:
+    """Raise SimRobotError naming a node option outside its range."""
+    for name, low in (('ground_truth_rate_hz', 0.0), ('camera_rate_hz', 0.1)):
+        rate = getattr(opts, name)
+        if not (math.isfinite(rate) and low <= rate <= opts.clock_rate_hz):
+            raise SimRobotError(f'{name} must be in [{low:g}, clock_rate_hz = '
+                                f'{opts.clock_rate_hz:g}] Hz (samples are taken on /clock '
+                                f'ticks), got {rate!r}')
+    if opts.camera:
+        from softsnap_driver.sim_camera_publisher import camera_settings
+        try:
+            camera_settings(opts)
+        except ValueError as exc:
+            raise SimRobotError(str(exc)) from None
+
+
+def build_node_parser() -> argparse.ArgumentParser:
+    """sim_robot's options and the node's own (plain options give the parameters' defaults)."""
+    parser = build_parser()
+    for name, (kind, default, text) in NODE_OPTIONS.items():
+        parser.add_argument(f'--{name.replace("_", "-")}', dest=name,
+                            type=_bool_text if kind is bool else kind, default=default,
+                            help=f'{text} (default {default})')
+    return parser
 
 
 def _stop(node: SimRobotNode) -> int:
@@ -208,7 +343,7 @@ def _stop(node: SimRobotNode) -> int:
 def main(argv: list[str] | None = None) -> int:
     # The simulation and the servers run on their own threads; the executor publishes
     # snapshots and serves the parameter services.
-    return run_simulator_main(argv, 'sim_robot', build_parser, SimRobotNode, _stop)
+    return run_simulator_main(argv, 'sim_robot', build_node_parser, SimRobotNode, _stop)
 
 
 if __name__ == '__main__':

@@ -1228,11 +1228,16 @@ def build_parser() -> argparse.ArgumentParser:
                              'runs/<scene>-<time>/bag; must not exist)')
     parser.add_argument('--no-bag', action='store_true', help='do not record a ROS 2 bag')
     parser.add_argument('--json', action='store_true', help='print the summary as JSON')
+    parser.add_argument('--closed-loop', action='store_true', help='with --physics: the shape '
+                        'controller reaching a target on a MuJoCo gripper finger (docs/control.md)')
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    if args.closed_loop:   # its own module (closed_loop_demo.py), its own summary
+        from softsnap_gaits.closed_loop_demo import main as closed_loop_main
+        return closed_loop_main(argv)
     if not (args.seconds > 0 and math.isfinite(args.seconds)):
         build_parser().error(f'--seconds must be positive, got {args.seconds}')
     if args.physics and args.real:

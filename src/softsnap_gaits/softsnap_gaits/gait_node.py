@@ -10,7 +10,9 @@ Topics (relative, so inside the node's namespace):
   ``gait/phase``                    softsnap_interfaces/GaitPhase (with the commands
                                     published per module since start)
 Services (private): ``~/start``, ``~/stop``, ``~/pause``, ``~/resume`` (std_srvs/Trigger),
-``~/set_gait`` (softsnap_interfaces/SetGait).
+``~/set_gait`` (softsnap_interfaces/SetGait), ``~/release_modules``
+(softsnap_interfaces/ReleaseModules: the hand-over to the shape controller; released
+modules get no command from this node until taken back, docs/control.md).
 Parameters: scene, gait, rate, autostart, period, amplitude, time_scale, transition_time
 (docs/gaits.md).
 
@@ -35,7 +37,7 @@ from rclpy.parameter import Parameter
 from softsnap_driver.ros_parameters import SoftSnapNode
 from softsnap_driver.spinning import init_ros, spin_until_shutdown
 from softsnap_interfaces.msg import CableLength, GaitPhase
-from softsnap_interfaces.srv import SetGait
+from softsnap_interfaces.srv import ReleaseModules, SetGait
 from std_srvs.srv import Trigger
 
 from softsnap_gaits.gaits import GaitError, make_gait
@@ -131,6 +133,9 @@ class GaitNode(SoftSnapNode):
         self.create_service(Trigger, '~/pause', self.pause_callback)
         self.create_service(Trigger, '~/resume', self.resume_callback)
         self.create_service(SetGait, '~/set_gait', self.set_gait_callback)
+        # Modules handed over to another commander (the shape controller): no commands.
+        self.released: set[str] = set()
+        self.create_service(ReleaseModules, '~/release_modules', self.release_callback)
         self.timer = self.create_timer(1.0 / self.get_parameter('rate').value,
                                        self.timer_callback)
         self.add_on_set_parameters_callback(self.parameters_callback)
@@ -225,6 +230,8 @@ class GaitNode(SoftSnapNode):
         stamp = now.to_msg()
         if out.cable_length_mm is not None:
             for name, length_mm in zip(self.player.gait.module_names, out.cable_length_mm):
+                if name in self.released:
+                    continue
                 msg = CableLength()
                 msg.header.stamp = stamp
                 msg.cable_length = float(length_mm) / 1000.0
@@ -284,6 +291,30 @@ class GaitNode(SoftSnapNode):
             gait = self.player.gait
             response.message = (f'gait {gait.name!r}: period {gait.period_s:g} s, amplitude '
                                 f'{gait.amplitude_mm:g} mm, {self.player.state}')
+        return response
+
+
+    def release_callback(self, request: ReleaseModules.Request,
+                         response: ReleaseModules.Response):
+        """Release modules to another commander, or take them back (all or nothing)."""
+        unknown = [m for m in request.modules if m not in self.command_publishers]
+        if unknown:
+            response.success = False
+            response.message = (f'unknown module(s) {", ".join(map(repr, unknown))}; '
+                                f'modules are {", ".join(self.command_publishers)}')
+        else:
+            before = set(self.released)
+            if request.release:
+                self.released.update(request.modules)
+            else:
+                self.released.difference_update(request.modules)
+            response.success = True
+            verb = 'released to' if request.release else 'taken back from'
+            response.message = (f'{", ".join(request.modules) or "no module"} {verb} '
+                                f'{request.requester or "a caller"}')
+            if self.released != before:   # the controller repeats its releases: log changes
+                self.get_logger().info(response.message)
+        response.released = sorted(self.released)
         return response
 
 

@@ -1,0 +1,158 @@
+"""The simulated camera: MuJoCo's renderer against our pinhole model of it.
+
+The markers' pixel positions are found in the rendered image with OpenCV (colour
+threshold, connected components, centroids) and compared with the rib centres the
+physics reports, projected through the intrinsics the camera publishes (K from fovy and
+the resolution) by a formula written out here: an error in the published intrinsics,
+the principal point convention, the image orientation or the marker placement moves the
+two apart.
+"""
+from __future__ import annotations
+
+import math
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from softsnap_driver.sim_camera import (ORANGE_RGB, PINK_RGB, CameraError, CameraSettings,
+                                        SimCamera, capture_frame_state)
+
+# MuJoCo reads MUJOCO_GL once, when first imported (test/conftest.py sets it too).
+os.environ.setdefault('MUJOCO_GL', 'egl')
+TOP_FACE_M = 0.0045     # half the 9 mm skeleton: the markers' face above the rib centre
+
+
+def _blobs(image: np.ndarray, rgb, tolerance: int = 40) -> np.ndarray:
+    """Centroids (n, 2) px of the connected regions within `tolerance` of colour `rgb`."""
+    import cv2
+    mask = np.all(np.abs(image.astype(int) - np.array(rgb)) <= tolerance, axis=2)
+    count, _labels, stats, centroids = cv2.connectedComponentsWithStats(
+        mask.astype(np.uint8), connectivity=8)
+    keep = stats[1:, cv2.CC_STAT_AREA] >= 4
+    return centroids[1:][keep]
+
+
+def _project(point_world, camera_xyz, k):
+    # Optical frame: x = world x, y = -world y, z = -world z (looking down).
+    x = point_world[..., 0] - camera_xyz[0]
+    y = -(point_world[..., 1] - camera_xyz[1])
+    z = camera_xyz[2] - point_world[..., 2]
+    return np.stack([k[0, 0] * x / z + k[0, 2], k[1, 1] * y / z + k[1, 2]], axis=-1)
+
+
+@pytest.fixture(scope='module')
+def bent_brittle_star():
+    from softsnap_driver.sim_robot import build_simulation
+    from softsnap_model.scene import load_scene
+    scene = load_scene('brittle_star')
+    sim = build_simulation(scene, gravity=False, links_per_segment=2)
+    # Two legs bent, in opposite senses' worth of cable: markers off the image axes.
+    for name, haul_mm in zip(sim.module_names[:2], (25.0, 15.0)):
+        sim.set_cable_length(name, sim.straight_cable_length(name) - haul_mm * 1e-3)
+    sim.step(1.5)
+    # mj_step leaves the body positions of its step's start; the camera renders the
+    # final qpos: the reference positions are of that qpos too.
+    import mujoco
+    mujoco.mj_kinematics(sim.model, sim.data)
+    return sim
+
+
+def test_markers_are_where_the_published_intrinsics_project_the_rib_centres(bent_brittle_star):
+    sim = bent_brittle_star
+    camera = SimCamera(sim, CameraSettings(width_px=1280, height_px=960, fovy_deg=45.0))
+    try:
+        image = camera.render(capture_frame_state(sim))
+    finally:
+        camera.close()
+    assert image.shape == (960, 1280, 3) and image.dtype == np.uint8
+    k = camera.view.intrinsics.matrix
+    # Honest intrinsics: MuJoCo's fovy is the vertical angle of the whole image.
+    f = 480.0 / math.tan(math.radians(22.5))
+    assert k[0, 0] == pytest.approx(f) and k[1, 1] == pytest.approx(f)
+    assert (k[0, 2], k[1, 2]) == (639.5, 479.5)
+    pink = _blobs(image, PINK_RGB)
+    orange = _blobs(image, ORANGE_RGB)
+    assert len(pink) == 60 and len(orange) == 5, (len(pink), len(orange))
+    errors = []
+    for name in sim.module_names:
+        ribs = np.asarray(sim.rib_centers_world(name))
+        up = np.asarray(sim.data.xmat[sim._base_id[name]]).reshape(3, 3)[:, 2]
+        expected = _project(ribs + TOP_FACE_M * up, camera.view.position_m, k)
+        for uv in expected:
+            errors.append(np.min(np.linalg.norm(pink - uv, axis=1)))
+    errors = np.array(errors)
+    # A 6 mm disc is ~8.5 px across here (0.7 mm/px): its centroid within 0.25 px.
+    assert errors.max() < 0.25, errors.max()
+    # The bent legs really bent (the test is not of a straight star only).
+    tip = np.asarray(sim.rib_centers(sim.module_names[0]))[-1]
+    assert abs(tip[1]) > 0.03
+    # The markers keep their nominal colour (FACTS.md) under the camera's lights.
+    centre = np.round(pink[0]).astype(int)
+    assert np.all(np.abs(image[centre[1], centre[0]].astype(int) - PINK_RGB) <= 3)
+
+
+def test_a_fixed_camera_height_and_place_are_kept(bent_brittle_star):
+    sim = bent_brittle_star
+    settings = CameraSettings(width_px=640, height_px=480, height_m=0.9, center_x_m=0.1,
+                              center_y_m=-0.05)
+    camera = SimCamera(sim, settings)
+    try:
+        image = camera.render(capture_frame_state(sim))
+    finally:
+        camera.close()
+    assert camera.view.position_m == (0.1, -0.05, 0.9)
+    assert image.shape == (480, 640, 3)
+    assert len(_blobs(image, ORANGE_RGB, tolerance=60)) == 5
+
+
+@pytest.mark.parametrize('changes, message', [
+    ({'width_px': 8}, 'image size'),
+    ({'fovy_deg': 170.0}, 'camera_fovy_deg'),
+    ({'height_m': -1.0}, 'camera_height_m'),
+])
+def test_bad_camera_settings_are_refused_with_the_name(changes, message):
+    with pytest.raises(ValueError, match=message):
+        CameraSettings(**changes)
+
+
+def test_a_camera_that_cannot_render_offscreen_is_refused_in_one_line():
+    # MuJoCo's window backend without a display: the camera says what it needs.
+    code = ('from softsnap_driver.sim_camera import offscreen_backend, CameraError\n'
+            'try:\n    offscreen_backend()\nexcept CameraError as exc:\n'
+            '    print("REFUSED", exc)\n')
+    env = {k: v for k, v in os.environ.items() if k != 'DISPLAY'}
+    env['MUJOCO_GL'] = 'glfw'
+    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                         env=env, timeout=120)
+    assert out.stdout.startswith('REFUSED') and len(out.stdout.strip().splitlines()) == 1
+    assert 'MUJOCO_GL=egl or osmesa' in out.stdout, out.stdout + out.stderr
+    assert CameraError.__mro__[1] is RuntimeError
+
+
+def test_tagged_modules_carry_their_aruco_tag_instead_of_the_orange_marker(bent_brittle_star):
+    import cv2
+    from softsnap_driver.sim_camera import MarkerLayout
+    sim = bent_brittle_star
+    names = sim.module_names
+    tags = {name: 7 + 3 * i for i, name in enumerate(names[:4])}    # the fifth keeps its dot
+    camera = SimCamera(sim, CameraSettings(), MarkerLayout(tags=tags))
+    try:
+        image = camera.render(capture_frame_state(sim))
+    finally:
+        camera.close()
+    detector = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50))
+    corners, ids, _rejected = detector.detectMarkers(cv2.cvtColor(image, cv2.COLOR_RGB2GRAY))
+    assert ids is not None and sorted(ids.ravel()) == sorted(tags.values())
+    k = camera.view.intrinsics.matrix
+    for corner, tag_id in zip(corners, ids.ravel()):
+        name = next(n for n, t in tags.items() if t == tag_id)
+        base = np.asarray(sim.data.xpos[sim._base_id[name]])
+        rot = np.asarray(sim.data.xmat[sim._base_id[name]]).reshape(3, 3)
+        centre = base + rot @ np.array([-0.035, 0.0, TOP_FACE_M])
+        assert np.linalg.norm(corner.reshape(4, 2).mean(axis=0)
+                              - _project(centre, camera.view.position_m, k)) < 0.5
+    assert len(_blobs(image, ORANGE_RGB)) == 1
+    assert len(_blobs(image, PINK_RGB)) == 60
