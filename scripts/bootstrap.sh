@@ -109,4 +109,11 @@ if [ "$(cat "$stamp_dir/workspace" 2>/dev/null)" != "$ws_hash" ]; then
   for link in "$site"/softsnap*.egg-link; do head -n 1 "$link"; echo; done | grep '^/' > "$site/softsnap_workspace.pth"
   echo "$ws_hash" > "$stamp_dir/workspace"
 fi
+# The command line for pip users (no ros2cli on PyPI): colcon puts console scripts under
+# .venv/lib/<package>/ (the ros2 run layout); this puts `softsnap` where venv users look.
+cat > "$venv/bin/softsnap" <<SH
+#!/bin/sh
+exec "$venv/bin/python" -m softsnap_gaits.command_line "\$@"
+SH
+chmod +x "$venv/bin/softsnap"
 log "ready: ROS 2 $distro in .venv (use .venv/bin/python; no sourcing needed)"

@@ -13,6 +13,7 @@ setup(
         ('share/' + package_name, ['package.xml']),
         ('share/' + package_name + '/scenes', glob('scenes/*.yaml')),
         ('share/' + package_name + '/launch', glob('launch/*.py')),
+        ('share/' + package_name + '/rviz', glob('rviz/*.rviz')),
     ],
     install_requires=['setuptools', 'pyyaml'],
     zip_safe=True,
@@ -26,6 +27,7 @@ setup(
             'rerun_logger = softsnap_gaits.rerun_logger:main',
             'demo = softsnap_gaits.demo:main',
             'bag = softsnap_gaits.bag:main',
+            'softsnap = softsnap_gaits.command_line:main',
         ],
     },
 )

@@ -11,8 +11,8 @@ summary: commands sent by the gait node and received by each driver by their own
 counters (so "lost" is the true difference, and what this process's observer missed is
 shown apart), shapes predicted, tracking error between the commanded and the predicted
 shape, solver time, and the paths of the ``.rrd`` recording and of the ROS 2 bag (a
-rosbag2 directory with every topic of the run, :mod:`softsnap_gaits.bag`; ``bag play``
-replays it).
+rosbag2 directory with the robot's topics, every topic with ``--bag-all``;
+:mod:`softsnap_gaits.bag`; ``bag play`` replays it).
 
 Each demo claims a private slot (:mod:`softsnap_gaits.isolation`): a ROS domain id no
 other demo or test on this machine uses (unless ``ROS_DOMAIN_ID`` is set) and free
@@ -892,7 +892,7 @@ def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
     specs = robot_graph(scene, simulate=not args.real, gait=args.gait,
                         gait_rate_hz=args.gait_rate, model_rate_hz=args.model_rate,
                         recording=recording, rerun=not args.no_rerun, sim_ports=sim_ports,
-                        bag=bag, physics=args.physics,
+                        bag=bag, bag_all=args.bag_all, physics=args.physics,
                         sim_robot_parameters=sim_robot_parameters, drivers=args.drivers)
     # The observer in this process and every child use the slot's domain.
     os.environ['ROS_DOMAIN_ID'] = str(slot.domain_id)
@@ -1137,8 +1137,12 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--run-dir', default=None, help='folder for logs and the recording')
     parser.add_argument('--no-rerun', action='store_true', help='do not record the .rrd')
     parser.add_argument('--bag', default=None,
-                        help='ROS 2 bag directory to record every topic to (default '
+                        help="ROS 2 bag directory to record the robot's topics to (default "
                              'runs/<scene>-<time>/bag; must not exist)')
+    parser.add_argument('--bag-all', action='store_true',
+                        help='record every topic of the ROS domain in the bag, not only '
+                             "the robot's (its namespace, TF, robot_description, "
+                             'joint_states, diagnostics, clock, rosout)')
     parser.add_argument('--no-bag', action='store_true', help='do not record a ROS 2 bag')
     parser.add_argument('--json', action='store_true', help='print the summary as JSON')
     return parser
