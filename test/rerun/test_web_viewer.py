@@ -182,3 +182,32 @@ def test_web_viewer_shows_the_robot_offline(chromium, served_recording, tmp_path
     assert image.std() > 15.0, f'screenshot is nearly uniform (blank or loading): {shot}'
     assert min(counts.values()) >= MIN_SPINE_PIXELS, (
         f'module colours not drawn {counts}: see {shot}')
+
+
+@pytest.mark.timeout(1200)
+def test_the_viewer_page_requests_nothing_beyond_this_machine(chromium, served_recording,
+                                                             tmp_path):
+    """Every request the page makes while it loads and draws goes to 127.0.0.1 (no web
+    fonts, no examples list from rerun's site; softsnap_model.viewer_offline)."""
+    sync_api = pytest.importorskip('playwright.sync_api')
+    from urllib.parse import urlparse
+    requests = []
+    with sync_api.sync_playwright() as playwright:
+        browser = playwright.chromium.launch(executable_path=chromium, headless=True,
+                                             args=CHROMIUM_ARGS)
+        try:
+            page = browser.new_page(viewport=VIEWPORT)
+            page.set_default_timeout(PAGE_TIMEOUT_MS)
+            page.on('request', lambda request: requests.append(request.url))
+            page.goto(served_recording)
+            deadline = time.monotonic() + RENDER_TIMEOUT_S
+            while time.monotonic() < deadline:   # until the page fetched the examples list
+                if any('examples_manifest' in url for url in requests):
+                    break
+                page.wait_for_timeout(1000)
+            page.wait_for_timeout(5000)
+        finally:
+            browser.close()
+    hosts = {urlparse(url).hostname for url in requests if not url.startswith(('data:', 'blob:'))}
+    assert requests and hosts == {'127.0.0.1'}, sorted(set(requests))[:20]
+    assert any('manifest' in url for url in requests), 'the page never asked for examples'

@@ -64,11 +64,13 @@ def _bootstrap_copy(tmp_path: Path) -> Path:
 @pytest.mark.parametrize('python', ['no-such-python3', 'python3.10'])
 def test_an_unsupported_python_is_refused_in_one_line_before_anything_is_installed(tmp_path, python):
     if python == 'python3.10':
-        found = shutil.which('python3.10') or next(
-            iter(sorted(Path('/root/.pyenv/versions').glob('3.10*/bin/python3.10'))), None)
-        if found is None or subprocess.run([str(found), '-V'], capture_output=True).returncode:
+        candidates = [shutil.which('python3.10'),
+                      *sorted(Path('/root/.pyenv/versions').glob('3.10*/bin/python3.10'))]
+        runnable = [str(c) for c in candidates if c and subprocess.run(
+            [str(c), '-V'], capture_output=True).returncode == 0]
+        if not runnable:
             pytest.skip('no runnable Python 3.10 here (the missing interpreter case still runs)')
-        python = str(found)
+        python = runnable[0]
     root = _bootstrap_copy(tmp_path)
     done = subprocess.run(['bash', str(root / 'scripts' / 'bootstrap.sh')], capture_output=True,
                           text=True, timeout=60, env={'PATH': '/usr/bin:/bin', 'PYTHON': python})

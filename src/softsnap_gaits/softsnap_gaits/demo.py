@@ -838,7 +838,11 @@ def print_summary(summary: dict) -> None:
             print(f'model node took commanded/measured lengths (since its start): {taken}')
     latency = [m['command_to_shape_ms']['median'] for m in summary['modules'].values()
                if m['command_to_shape_ms']['n']]
-    if latency:
+    if summary.get('physics'):
+        # Stamps and the observer's clock are both sim_robot's /clock, which advances in
+        # steps: the difference is 0 within a step, not a latency.
+        print('gait command -> commanded shape: not measured on simulated time')
+    elif latency:
         print(f"gait command -> commanded shape: median {np.median(latency):.2f} ms over modules")
     if summary.get('processes'):
         usage = ', '.join(f"{name} {u['cpu_percent']:.0f}%" for name, u in summary['processes'].items()
