@@ -179,8 +179,9 @@ def _unique() -> str:
 # ---------------------------------------------------------------- commands
 def _print(label: str, response) -> bool:
     data = to_data(response)
-    print(f'{label}:' if label else '', end='\n' if label else '')
-    print(yaml.safe_dump(data, default_flow_style=None, sort_keys=False, width=100), end='')
+    shown = {label: data} if label else data
+    print(yaml.safe_dump(shown, default_flow_style=None, sort_keys=False, width=100), end='',
+          flush=True)
     return bool(data.get('success', True)) if isinstance(data, dict) else True
 
 
