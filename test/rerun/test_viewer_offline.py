@@ -28,19 +28,22 @@ def test_analytics_are_disabled_in_a_private_rerun_configuration(tmp_path):
     assert not users.exists()                       # the user's configuration untouched
 
 
-def test_the_proxy_drops_the_font_links_and_serves_an_empty_examples_list(tmp_path):
+def test_the_proxy_drops_font_links_analytics_and_release_check_and_serves_no_examples(tmp_path):
     import http.server
     import threading
     page = (b'<html><head><link rel="preconnect" href="https://fonts.googleapis.com" />\n'
             b'<link href="https://fonts.googleapis.com/css2?family=Inter" rel="stylesheet">'
             b'<title>rerun</title></head></html>')
+    code = (b'\x00asm\x01https://tel.rerun.io/api/pog\x02'
+            b'https://api.github.com/repos/rerun-io/rerun/releases/latest\x03')
 
     class Upstream(http.server.BaseHTTPRequestHandler):
         def do_GET(self):  # noqa: N802
+            wasm = self.path.endswith('.wasm')
             self.send_response(200)
-            self.send_header('Content-Type', 'text/html; charset=utf-8')
+            self.send_header('Content-Type', 'application/wasm' if wasm else 'text/html; charset=utf-8')
             self.end_headers()
-            self.wfile.write(page)
+            self.wfile.write(code if wasm else page)
 
         def log_message(self, *args):
             pass
@@ -55,6 +58,9 @@ def test_the_proxy_drops_the_font_links_and_serves_an_empty_examples_list(tmp_pa
         assert b'fonts.' not in body and b'<title>rerun</title>' in body
         manifest = urllib.request.urlopen(base + viewer_offline.MANIFEST_PATH, timeout=10).read()
         assert json.loads(manifest) == []
+        served = urllib.request.urlopen(base + '/re_viewer_bg.wasm', timeout=10).read()
+        assert len(served) == len(code) and b'rerun.io' not in served and b'github' not in served
+        assert served.count(b'http://127.0.0.1:9/') == 2
     finally:
         proxy.shutdown()
         upstream.shutdown()

@@ -1,15 +1,18 @@
 """rerun's web viewer with no network traffic beyond this machine (the `view` default).
 
 Left to its defaults, the viewer reaches for the internet every time it starts: the SDK
-process sends analytics, the page loads web fonts from a font service and the examples
-list (``examples_manifest.json``) from rerun's site. Offline (our default):
+process sends analytics; the page loads web fonts from a font service and the examples
+list (``examples_manifest.json``) from rerun's site, sends its own analytics and asks
+GitHub for rerun's latest release. Offline (our default):
 
 - analytics: the viewer process gets a private rerun configuration directory
   (``XDG_CONFIG_HOME``) in which ``rerun analytics disable`` was run, so nothing is sent
   and the user's own rerun configuration is left as it is;
 - the page: it is served through a small proxy in this process that drops the font
-  links from ``index.html`` (the viewer falls back to its bundled fonts) and serves an
-  empty examples list, which the page is pointed at with ``manifest_url``.
+  links from ``index.html`` (the viewer falls back to its bundled fonts), serves an
+  empty examples list, which the page is pointed at with ``manifest_url``, and in the
+  viewer's WebAssembly replaces its analytics endpoint and its release check (the page
+  asked ``tel.rerun.io`` and ``api.github.com`` otherwise) by a refused loopback address.
 
 ``python -m softsnap_model.recording view FILE --online`` keeps rerun's defaults.
 ``test/rerun/test_web_viewer.py`` records every request the page makes in Chromium.
@@ -32,6 +35,13 @@ from urllib.parse import quote
 MANIFEST_PATH = '/softsnap-offline/examples_manifest.json'
 #: <link> elements of index.html that load fonts from the internet.
 _FONT_LINK = re.compile(rb'<link[^>]*fonts\.(?:googleapis|gstatic)\.com[^>]*>\s*', re.I)
+#: Addresses compiled into the viewer's WebAssembly: its analytics endpoint and its
+#: release check. Each is replaced by a loopback address of the same length (the bytes
+#: are string data of fixed length), on the discard port, where the request is refused
+#: at once without leaving the machine.
+WASM_ADDRESSES = {b'https://tel.rerun.io': b'http://127.0.0.1:9/x',
+                  b'https://api.github.com': b'http://127.0.0.1:9/xxx'}
+assert all(len(a) == len(b) for a, b in WASM_ADDRESSES.items())
 
 
 def disable_analytics() -> str:
@@ -68,6 +78,9 @@ def _handler(upstream: str):
                 return
             if kind.startswith('text/html'):
                 body = _FONT_LINK.sub(b'', body)
+            elif kind.startswith('application/wasm') or self.path.split('?')[0].endswith('.wasm'):
+                for address, local in WASM_ADDRESSES.items():
+                    body = body.replace(address, local)
             self._reply(status, kind, body)
 
         def _reply(self, status: int, kind: str, body: bytes) -> None:
