@@ -61,10 +61,11 @@ def main() -> int:
     rows = []
     rows.append(('`.venv` size', f'{venv_size_gb(REPO / ".venv"):.2f} GB', '-'))
     rows.append(('tests collected (`pytest --collect-only`)', str(collected_tests()), '-'))
-    la = load()
-    seconds, done = timed(['bash', 'scripts/bootstrap.sh'])
-    if done.returncode:
-        raise SystemExit(f'bootstrap failed:\n{done.stderr[-2000:]}')
+    for attempt in ('bring up to date', 'timed'):    # the second run is the warm one
+        la = load()
+        seconds, done = timed(['bash', 'scripts/bootstrap.sh'])
+        if done.returncode:
+            raise SystemExit(f'bootstrap failed:\n{done.stderr[-2000:]}')
     rows.append(('warm bootstrap (nothing changed)', f'{seconds:.1f} s', la))
     if not args.no_demo:
         la = load()

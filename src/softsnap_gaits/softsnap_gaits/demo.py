@@ -590,10 +590,17 @@ def print_physics(p: dict) -> None:
         print(f"  robot travelled {base['distance_mm']:.1f} mm (heading {base['heading_deg']:.0f} deg) "
               f"in {base['seconds']:.1f} s of simulated time: {p['base_mm_per_cycle']:.1f} mm "
               'per gait cycle')
+    grasp = p['payload_first_grasp']
     if p['payload_travel'] is not None:
         pay = p['payload_travel']
-        print(f"  payload travelled {pay['distance_mm']:.1f} mm: {p['payload_mm_per_cycle']:.1f} mm per cycle")
-    grasp = p['payload_first_grasp']
+        if grasp is not None:
+            # A grasp is not locomotion: say what the number is (where the payload ended,
+            # seen from above, against where it started), not a travel per cycle.
+            print(f"  payload {pay['distance_mm']:.1f} mm from where it started, in the ground "
+                  f"plane, after {pay['seconds']:.1f} s (first to last sample of the run)")
+        else:
+            print(f"  payload travelled {pay['distance_mm']:.1f} mm: "
+                  f"{p['payload_mm_per_cycle']:.1f} mm per cycle")
     if grasp is not None:
         print(f"  payload {'HELD' if grasp['held'] else 'NOT held'} through the first grasp "
               f"(sank {grasp['drop_mm']:.1f} mm during the hold, centre {grasp['height_mm']:.0f} mm "
