@@ -40,3 +40,10 @@ def test_each_scene_ships_its_current_config(scene_name):
 
 def test_rviz_is_a_launch_argument_off_by_default():
     assert launching.LAUNCH_ARGUMENTS['rviz'][0] == 'false'
+
+
+def test_the_launch_files_rviz_opens_the_installed_config():
+    kwargs = launching.rviz_action_kwargs('snake')
+    assert (kwargs['package'], kwargs['executable']) == ('rviz2', 'rviz2')
+    flag, path = kwargs['arguments']
+    assert flag == '-d' and Path(path).read_text() == rviz_config.config_text('snake')
