@@ -110,6 +110,22 @@ def test_robot_state_publishes_the_urdf_tf_and_joint_states_of_the_models_shapes
     heading = float(np.sum(reference.angles))
     want_x = base[:3, :3] @ [math.cos(heading), math.sin(heading), 0.0]
     np.testing.assert_allclose(pose[:3, 0], want_x, atol=1e-6)
+    # A physics run's base pose (sim_robot's sim/base_pose in world) puts base_link in world.
+    from geometry_msgs.msg import PoseStamped
+    base_pose = ros_node.create_publisher(PoseStamped, f'{NS}/sim/base_pose', 10)
+    pose = PoseStamped()
+    pose.header.frame_id = 'world'
+    pose.pose.position.x, pose.pose.position.y, pose.pose.position.z = 0.25, -0.1, 0.0045
+    pose.pose.orientation.z, pose.pose.orientation.w = math.sin(0.2), math.cos(0.2)
+
+    def world_tf():
+        base_pose.publish(pose)
+        return [t for m in dynamics[-3:] for t in m.transforms
+                if (t.header.frame_id, t.child_frame_id) == ('world', ROOT_FRAME)]
+    assert ros_node.spin_until(world_tf, 30.0), state.output()
+    t = world_tf()[-1].transform
+    assert (t.translation.x, t.translation.y, t.rotation.z) == pytest.approx(
+        (0.25, -0.1, math.sin(0.2)))
     # A module nobody moved is straight: its tip 11 spacings along its base x axis.
     blue = SCENE.module('blue')
     frame, pose = f'brittle_star/blue/rib_{SCENE.skeleton.n_ribs - 1}', np.eye(4)

@@ -11,7 +11,9 @@ Publishes (absolute names, as robot_state_publisher and RViz expect them):
 - ``/tf_static`` (tf2_msgs/TFMessage, latched): its fixed joints (module mounts);
 - ``/tf`` (tf2_msgs/TFMessage) and ``/joint_states`` (sensor_msgs/JointState, rad and m)
   at ``rate`` Hz: the moving joints from the model's latest ``model/shape/<source>``
-  (RobotShape; a module not solved yet is drawn straight).
+  (RobotShape; a module not solved yet is drawn straight), and, once ``sim/base_pose``
+  (geometry_msgs/PoseStamped, sim_robot's robot base in ``world``) arrives, the
+  transform from its frame to ``base_link``, so the robot moves in RViz's ``world``.
 
 The transforms are the URDF's own forward kinematics, so a ROS user who runs
 robot_state_publisher on the same description and joint states gets the same TF (then set
@@ -20,11 +22,13 @@ Parameters: scene, source (``predicted`` or ``commanded``), rate (Hz), publish_t
 """
 from __future__ import annotations
 
+import math
+
 import rclpy
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, QoSProfile
-from geometry_msgs.msg import TransformStamped
+from geometry_msgs.msg import PoseStamped, TransformStamped
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from tf2_msgs.msg import TFMessage
@@ -33,7 +37,7 @@ from softsnap_driver.ros_parameters import SoftSnapNode
 from softsnap_driver.spinning import init_ros, spin_until_shutdown
 from softsnap_interfaces.msg import RobotShape
 
-from .robot_description import describe_robot
+from .robot_description import ROOT_FRAME, describe_robot
 from .scene import load_scene
 
 #: Latched: a late subscriber (RViz started after the robot) still gets the last message.
@@ -78,6 +82,8 @@ class RobotStateNode(SoftSnapNode):
             static.publish(TFMessage(transforms=self._transforms(moving=False)))
             self.tf_publisher = self.create_publisher(TFMessage, '/tf', 100)
         self.create_subscription(RobotShape, f'model/shape/{source}', self._shape_callback, 10)
+        self.base_pose = None   # the latest sim/base_pose (physics runs only)
+        self.create_subscription(PoseStamped, 'sim/base_pose', self._base_pose_callback, 10)
         self.create_timer(1.0 / float(self.get_parameter('rate').value), self._tick)
 
     def _set_module(self, module: str, angles) -> None:
@@ -105,6 +111,25 @@ class RobotStateNode(SoftSnapNode):
             self._set_module(shape.module, shape.angles)
             self.shapes_taken += 1
 
+    def _base_pose_callback(self, msg: PoseStamped) -> None:
+        q = msg.pose.orientation
+        if not msg.header.frame_id or not all(map(math.isfinite, (q.x, q.y, q.z, q.w))) or (
+                abs(q.x * q.x + q.y * q.y + q.z * q.z + q.w * q.w - 1.0) > 1e-3):
+            self.get_logger().warning('sim/base_pose ignored: no frame_id or not a unit '
+                                      'quaternion', throttle_duration_sec=5.0)
+            return
+        self.base_pose = msg
+
+    def _world_transform(self, stamp) -> TransformStamped:
+        t = TransformStamped()
+        t.header.stamp = stamp
+        t.header.frame_id = self.base_pose.header.frame_id
+        t.child_frame_id = ROOT_FRAME
+        p, q = self.base_pose.pose.position, self.base_pose.pose.orientation
+        t.transform.translation.x, t.transform.translation.y, t.transform.translation.z = p.x, p.y, p.z
+        t.transform.rotation = q
+        return t
+
     def _transforms(self, *, moving: bool) -> list[TransformStamped]:
         stamp = self.get_clock().now().to_msg()
         out = []
@@ -128,7 +153,10 @@ class RobotStateNode(SoftSnapNode):
             joints.position = [self.positions[n] for n in joints.name]
             self.joint_publisher.publish(joints)
             if self.publish_tf:
-                self.tf_publisher.publish(TFMessage(transforms=self._transforms(moving=True)))
+                transforms = self._transforms(moving=True)
+                if self.base_pose is not None:
+                    transforms.append(self._world_transform(joints.header.stamp))
+                self.tf_publisher.publish(TFMessage(transforms=transforms))
         except Exception as error:  # never let a publishing bug stop the timer
             self.get_logger().error(f'robot state not published: {error!r}',
                                     throttle_duration_sec=5.0)
