@@ -385,8 +385,8 @@ def test_ctrl_c_stops_every_process(tmp_path):
     run_dir = tmp_path / 'run'
     demo = start_demo(run_dir)
     try:
-        # gripper: 4 sims + 1 driver_container + model + gait + bag recorder
-        wait_for_children(run_dir, 4 + 1 + 3)
+        # gripper: 4 sims + 1 driver_container + model + robot_state + gait + bag recorder
+        wait_for_children(run_dir, 4 + 1 + 4)
         time.sleep(2.0)  # let the gait run a little
         demo.popen.send_signal(signal.SIGINT)
         out, err = demo.communicate(timeout=60)
@@ -402,7 +402,7 @@ def test_a_crashing_node_stops_the_demo_without_orphans(tmp_path):
     run_dir = tmp_path / 'run'
     demo = start_demo(run_dir)
     try:
-        children = wait_for_children(run_dir, 4 + 1 + 3)
+        children = wait_for_children(run_dir, 4 + 1 + 4)
         model = next(p for p in children if 'model_node' in ' '.join(p.cmdline()))
         model.kill()  # SIGKILL: a crash, not a clean stop
         out, err = demo.communicate(timeout=60)
@@ -421,8 +421,8 @@ def test_stop_leaves_no_process_of_a_runner_that_was_killed(tmp_path):
     run_dir = tmp_path / 'run'
     demo = start_demo(run_dir)
     try:
-        # gripper: 4 sims + 1 driver_container + model + gait + bag recorder
-        children = wait_for_children(run_dir, 4 + 1 + 3)
+        # gripper: 4 sims + 1 driver_container + model + robot_state + gait + bag recorder
+        children = wait_for_children(run_dir, 4 + 1 + 4)
         assert {p.pid for p in children} <= {p.pid for p in demo.processes()}
         os.kill(demo.pid, signal.SIGKILL)
         demo.popen.wait(60)
