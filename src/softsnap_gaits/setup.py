@@ -13,6 +13,7 @@ setup(
         ('share/' + package_name, ['package.xml']),
         ('share/' + package_name + '/scenes', glob('scenes/*.yaml')),
         ('share/' + package_name + '/launch', glob('launch/*.py')),
+        ('share/' + package_name + '/rviz', glob('rviz/*.rviz')),
     ],
     install_requires=['setuptools', 'pyyaml'],
     zip_safe=True,
@@ -27,6 +28,7 @@ setup(
             'demo = softsnap_gaits.demo:main',
             'bag = softsnap_gaits.bag:main',
             'shape_controller = softsnap_gaits.shape_controller_node:main',
+            'softsnap = softsnap_gaits.command_line:main',
         ],
     },
 )

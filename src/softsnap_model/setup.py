@@ -23,6 +23,7 @@ setup(
         'console_scripts': [
             'model_node = softsnap_model.model_node:main',
             'softsnap-model = softsnap_model.cli:main',
+            'robot_state = softsnap_model.robot_state_node:main',
         ],
     },
 )

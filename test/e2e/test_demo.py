@@ -119,9 +119,9 @@ def test_demo_runs_the_robot_and_records_it(scene, tmp_path, read_rrd):
         assert m['tip_error_mm_mean'] >= 0.0 and m['tip_error_mm_max'] < 400.0, (name, m)
     # Every process stopped on SIGINT (no kill, no crash, no orphan).
     assert all(code in (0, -2) for code in summary['exit_codes'].values()), summary['exit_codes']
-    # Five simulated modules, one driver_container for the five drivers, model, gait,
-    # rerun, bag.
-    assert len(summary['exit_codes']) == 5 + 1 + 4 and 'driver_container' in summary['exit_codes']
+    # Five simulated modules, one driver_container for the five drivers, model,
+    # robot_state, gait, rerun, bag.
+    assert len(summary['exit_codes']) == 5 + 1 + 5 and 'driver_container' in summary['exit_codes']
     recording = run_dir / f'{scene}.rrd'
     assert summary['recording'] == str(recording.resolve())
     assert recording.stat().st_size > 10_000
@@ -171,6 +171,16 @@ def check_demo_bag(bag, summary):
     assert counts['/rosout'] > 0 and '/parameter_events' not in counts
     states = [m.ros_msg for m in decoded if m.channel.topic == f'{ns}/yellow/state']
     assert states[-1].module == 'yellow' and states[-1].online
+    # robot_state: TF as tf2_msgs/msg/TFMessage and the URDF, in the bag of the robot's
+    # topics (read by mcap_ros2 from the schemas in the file).
+    schemas = {m.channel.topic: m.schema.name for m in decoded}
+    assert schemas['/tf'] == schemas['/tf_static'] == 'tf2_msgs/msg/TFMessage'
+    frames = {t.child_frame_id for m in decoded if m.channel.topic == '/tf'
+              for t in m.ros_msg.transforms}
+    assert f"{summary['scene']}/yellow/rib_11" in frames
+    urdf = [m.ros_msg.data for m in decoded if m.channel.topic == '/robot_description']
+    assert urdf and urdf[-1].startswith('<?xml') and '<robot name=' in urdf[-1]
+    assert counts['/joint_states'] > 0
 
 
 def test_demo_reports_a_bad_scene(tmp_path):
@@ -375,8 +385,8 @@ def test_ctrl_c_stops_every_process(tmp_path):
     run_dir = tmp_path / 'run'
     demo = start_demo(run_dir)
     try:
-        # gripper: 4 sims + 1 driver_container + model + gait + bag recorder
-        wait_for_children(run_dir, 4 + 1 + 3)
+        # gripper: 4 sims + 1 driver_container + model + robot_state + gait + bag recorder
+        wait_for_children(run_dir, 4 + 1 + 4)
         time.sleep(2.0)  # let the gait run a little
         demo.popen.send_signal(signal.SIGINT)
         out, err = demo.communicate(timeout=60)
@@ -392,7 +402,7 @@ def test_a_crashing_node_stops_the_demo_without_orphans(tmp_path):
     run_dir = tmp_path / 'run'
     demo = start_demo(run_dir)
     try:
-        children = wait_for_children(run_dir, 4 + 1 + 3)
+        children = wait_for_children(run_dir, 4 + 1 + 4)
         model = next(p for p in children if 'model_node' in ' '.join(p.cmdline()))
         model.kill()  # SIGKILL: a crash, not a clean stop
         out, err = demo.communicate(timeout=60)
@@ -411,8 +421,8 @@ def test_stop_leaves_no_process_of_a_runner_that_was_killed(tmp_path):
     run_dir = tmp_path / 'run'
     demo = start_demo(run_dir)
     try:
-        # gripper: 4 sims + 1 driver_container + model + gait + bag recorder
-        children = wait_for_children(run_dir, 4 + 1 + 3)
+        # gripper: 4 sims + 1 driver_container + model + robot_state + gait + bag recorder
+        children = wait_for_children(run_dir, 4 + 1 + 4)
         assert {p.pid for p in children} <= {p.pid for p in demo.processes()}
         os.kill(demo.pid, signal.SIGKILL)
         demo.popen.wait(60)

@@ -20,7 +20,7 @@ def test_demo_with_physics_runs_the_gripper_on_sim_robot(tmp_path, read_rrd):
     # One sim_robot instead of four sim_modules, one driver_container for the four
     # drivers; every process stopped on SIGINT.
     assert set(summary['exit_codes']) == {'sim_robot', 'model_node', 'gait_node', 'rerun_logger',
-                                          'bag_recorder', 'driver_container'}
+                                          'bag_recorder', 'driver_container', 'robot_state'}
     assert all(code in (0, -2) for code in summary['exit_codes'].values()), summary['exit_codes']
     for name, m in summary['modules'].items():
         assert m['online'] and m['commands_lost'] == 0 and m['driver_targets_sent'] > 5, (name, m)

@@ -244,8 +244,13 @@ def test_robot_graph_adds_a_recorder_of_every_topic_only_when_asked(tmp_path):
     spec = robot_graph(scene, bag=tmp_path / 'b')[-1]
     assert (spec.package, spec.executable, spec.name, spec.namespace) == (
         'softsnap_gaits', 'bag', 'bag_recorder', '/snake')
-    assert spec.arguments == ('record', '-o', str(tmp_path / 'b'), '--all',
+    assert spec.arguments == ('record', '-o', str(tmp_path / 'b'), '--namespace', '/snake',
+                              '/tf', '/tf_static', '/robot_description', '/joint_states',
+                              '/diagnostics', '/clock', '/rosout',
                               '--exclude', '^/parameter_events$')
+    everything = robot_graph(scene, bag=tmp_path / 'b', bag_all=True)[-1]
+    assert everything.arguments == ('record', '-o', str(tmp_path / 'b'), '--all',
+                                    '--exclude', '^/parameter_events$')
     assert spec.ros_args()[:3] == ['--ros-args', '-r', '__node:=bag_recorder']
     assert node_action_kwargs(spec)['arguments'] == list(spec.arguments)
     assert 'arguments' not in node_action_kwargs(robot_graph(scene)[0])

@@ -178,7 +178,7 @@ def test_physics_graph_runs_every_node_but_the_simulator_and_the_recorder_on_sim
 
     on_sim_time = on_sim_time_of(graph)
     assert on_sim_time == {*(f'{m.name}_driver' for m in scene.modules), 'model_node',
-                           'gait_node', 'rerun_logger'}
+                           'gait_node', 'rerun_logger', 'robot_state'}
     sim_robot = next(n for n in graph if n.executable == 'sim_robot')
     assert 'use_sim_time' not in sim_robot.parameters            # it makes the clock
     assert '-p' in sim_robot.ros_args() and 'use_sim_time:=true' not in sim_robot.ros_args()

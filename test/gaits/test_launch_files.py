@@ -133,7 +133,8 @@ def test_brittle_star_launch_graph_comes_up_whole(start_node, ros_node, tmp_path
     started = start_launch_graph(start_node, tmp_path, 'brittle_star', {
         'sim_port_base': str(base), 'recording': str(tmp_path / 'launch.rrd')})
     assert {s.executable for s, _, _ in started} == {
-        'sim_module', 'driver_container', 'model_node', 'gait_node', 'rerun_logger'}
+        'sim_module', 'driver_container', 'model_node', 'gait_node', 'rerun_logger',
+        'robot_state'}
     wait_for_graph(ros_node, started, 'brittle_star', need_shapes=True)
     assert_sims_serve_their_ports(started)
 

@@ -303,3 +303,26 @@ def test_malformed_message_bytes_are_logged_and_the_node_keeps_recording(
     rrd = read_rrd(output)
     assert rrd.times('robot/yellow/predicted/spine') == [STAMP0]
     np.testing.assert_allclose(rrd.scalars('plots/cable_length_mm/yellow/commanded'), [190.0])
+
+
+def test_a_module_the_model_has_no_length_of_yet_is_not_an_error(
+        tmp_path, start_node, ros_node, read_rrd):
+    """The model sends an empty-angles placeholder for a module no driver reports (the
+    README's pip-only example runs one driver): regression, it was logged every 5 s as
+    'blue predicted shape not logged: expected 1 hole offsets, got 12'."""
+    output = tmp_path / 'placeholder.rrd'
+    proc = start_node('softsnap_gaits', 'rerun_logger', '--ros-args', '-r', f'__ns:={NS}',
+                      '-p', f'output:={output}', '-p', 'scene:=brittle_star', '-p', 'rate:=0.0')
+    _, poses = scene_poses()
+    pubs = publishers(ros_node, [])
+    wait_matched(ros_node, pubs, proc)
+    for tick in range(5):
+        msg = robot_shape('predicted', tick, ['yellow', 'blue'], set(), poses)
+        msg.modules[1].angles = []       # blue: the model's placeholder
+        pubs['predicted'].publish(msg)
+    wait_for_rows(output, 'robot/yellow/predicted/spine', 5, ros_node)
+    assert proc.stop() == 0, log_of(proc)
+    assert 'not logged' not in log_of(proc).replace('unchanged shapes not logged again', ''), (
+        log_of(proc))
+    rrd = read_rrd(output)
+    assert not rrd.values('robot/blue/predicted/spine', 'LineStrips3D:strips')

@@ -11,6 +11,7 @@ SOFTSNAP_UPDATE_DOCS=1 to write it there (otherwise it stays in the test's tmp_p
 """
 from __future__ import annotations
 
+import math
 import os
 import socket
 import subprocess
@@ -64,7 +65,7 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def write_walk(path: Path, ticks: int = 60) -> None:
+def write_walk(path: Path, ticks: int = 60, physics: bool = False) -> None:
     """The brittle star's walk (3 s cycle, 30 mm steps) solved by the model: the measured
     length lags the commanded one (a winch at 62.8 mm/s of cable), so the predicted legs
     trail the commanded ones on each ramp and meet them in each hold."""
@@ -75,16 +76,22 @@ def write_walk(path: Path, ticks: int = 60) -> None:
     scene = load_scene('brittle_star')
     gait = make_gait('walk', scene)
     colors, bounds = rec_mod.scene_style(scene)
-    rec = rec_mod.open_recording(path, blueprint=rec_mod.build_blueprint(colors, bounds))
+    # physics: as a --physics run records it (sim_robot's /clock from 0: simulated
+    # seconds on a duration timeline, the world view, the robot frame moving in it).
+    rec = rec_mod.open_recording(path, blueprint=rec_mod.build_blueprint(
+        colors, bounds, world_view=physics))
     recorder = rec_mod.RobotRecorder(
         rec, threadings_mm={m.name: m.threading_mm for m in scene.modules}, rate_hz=0.0,
-        colors=colors)
-    t0 = 1_795_000_000_000_000_000
+        colors=colors, sim_time=physics)
+    t0 = 2_000_000_000 if physics else 1_795_000_000_000_000_000
     recorder.base_poses(t0, {m.name: (m.base_position_m, m.base_orientation_xyzw)
                              for m in scene.modules})
     for tick in range(ticks):
         t_s = 3.0 + tick / 30.0          # from the first group's ramp into the second's
         stamp = t0 + int(tick * 33_333_333)
+        if physics:   # the robot base creeping forward and turning a little in the world
+            recorder.robot_pose(stamp, (0.0002 * tick, 0.0, 0.0045),
+                                (0.0, 0.0, math.sin(0.001 * tick), math.cos(0.001 * tick)))
         commanded = gait.cable_length_mm(t_s)
         measured = gait.cable_length_mm(max(t_s - 0.25, 0.0))   # the winch 0.25 s behind
         for k, module in enumerate(scene.modules):
@@ -101,8 +108,18 @@ def write_walk(path: Path, ticks: int = 60) -> None:
 @pytest.fixture
 def served_recording(tmp_path):
     """Serve a fresh recording to the web viewer; yields the viewer url."""
+    yield from _serve(tmp_path, physics=False)
+
+
+@pytest.fixture
+def served_physics_recording(tmp_path):
+    """The same walk recorded as a --physics run records it."""
+    yield from _serve(tmp_path, physics=True)
+
+
+def _serve(tmp_path, physics: bool):
     path = tmp_path / 'walk.rrd'
-    write_walk(path)
+    write_walk(path, physics=physics)
     web_port, grpc_port = free_port(), free_port()
     proc = subprocess.Popen(
         [sys.executable, '-m', 'softsnap_model.recording', 'view', str(path),
@@ -182,3 +199,71 @@ def test_web_viewer_shows_the_robot_offline(chromium, served_recording, tmp_path
     assert image.std() > 15.0, f'screenshot is nearly uniform (blank or loading): {shot}'
     assert min(counts.values()) >= MIN_SPINE_PIXELS, (
         f'module colours not drawn {counts}: see {shot}')
+
+
+@pytest.mark.timeout(1200)
+def test_the_viewer_page_requests_nothing_beyond_this_machine(chromium, served_recording,
+                                                             tmp_path):
+    """Every request the page makes while it loads and draws goes to 127.0.0.1 (no web
+    fonts, no examples list from rerun's site; softsnap_model.viewer_offline)."""
+    sync_api = pytest.importorskip('playwright.sync_api')
+    from urllib.parse import urlparse
+    requests = []
+    with sync_api.sync_playwright() as playwright:
+        browser = playwright.chromium.launch(executable_path=chromium, headless=True,
+                                             args=CHROMIUM_ARGS)
+        try:
+            page = browser.new_page(viewport=VIEWPORT)
+            page.set_default_timeout(PAGE_TIMEOUT_MS)
+            page.on('request', lambda request: requests.append(request.url))
+            page.goto(served_recording)
+            deadline = time.monotonic() + RENDER_TIMEOUT_S
+            while time.monotonic() < deadline:   # until the page fetched the examples list
+                if any('examples_manifest' in url for url in requests):
+                    break
+                page.wait_for_timeout(1000)
+            page.wait_for_timeout(5000)
+        finally:
+            browser.close()
+    hosts = {urlparse(url).hostname for url in requests if not url.startswith(('data:', 'blob:'))}
+    assert requests and hosts == {'127.0.0.1'}, sorted(set(requests))[:20]
+    assert any('manifest' in url for url in requests), 'the page never asked for examples'
+
+
+@pytest.mark.timeout(1200)
+def test_a_physics_recording_shows_the_robot_with_simulated_seconds(chromium,
+                                                                   served_physics_recording,
+                                                                   tmp_path):
+    """Regression: --physics recordings (stamps from 0 s of simulated time, the world
+    view) showed an empty 3D view and a date in January 1970 on the timeline."""
+    sync_api = pytest.importorskip('playwright.sync_api')
+    from io import BytesIO
+
+    from PIL import Image
+    shot = tmp_path / 'physics.png'
+    targets = {name: rec_mod.NAMED_COLORS[name]
+               for name in ('yellow', 'blue', 'green', 'red', 'orange')}
+    with sync_api.sync_playwright() as playwright:
+        browser = playwright.chromium.launch(executable_path=chromium, headless=True,
+                                             args=CHROMIUM_ARGS)
+        try:
+            page = browser.new_page(viewport=VIEWPORT)
+            page.set_default_timeout(PAGE_TIMEOUT_MS)
+            page.goto(served_physics_recording)
+            deadline = time.monotonic() + RENDER_TIMEOUT_S
+            while True:
+                png = page.screenshot(path=str(shot))
+                image = np.asarray(Image.open(BytesIO(png)).convert('RGB'))
+                counts = {key: colour_pixels(image, rgb) for key, rgb in targets.items()}
+                if min(counts.values()) >= MIN_SPINE_PIXELS or time.monotonic() > deadline:
+                    break
+                page.wait_for_timeout(1000)
+        finally:
+            browser.close()
+    assert min(counts.values()) >= MIN_SPINE_PIXELS, f'modules not drawn {counts}: see {shot}'
+    # The timeline is simulated seconds (a duration), not a timestamp near the epoch.
+    import pyarrow as pa
+    from rerun.chunk import RrdReader
+    types = {field.type for chunk in RrdReader(str(tmp_path / 'walk.rrd')).stream().to_chunks()
+             for field in chunk.to_record_batch().schema if field.name == 'ros_time'}
+    assert types and all(pa.types.is_duration(t) for t in types), types

@@ -11,8 +11,8 @@ summary: commands sent by the gait node and received by each driver by their own
 counters (so "lost" is the true difference, and what this process's observer missed is
 shown apart), shapes predicted, tracking error between the commanded and the predicted
 shape, solver time, and the paths of the ``.rrd`` recording and of the ROS 2 bag (a
-rosbag2 directory with every topic of the run, :mod:`softsnap_gaits.bag`; ``bag play``
-replays it).
+rosbag2 directory with the robot's topics, every topic with ``--bag-all``;
+:mod:`softsnap_gaits.bag`; ``bag play`` replays it).
 
 Each demo claims a private slot (:mod:`softsnap_gaits.isolation`): a ROS domain id no
 other demo or test on this machine uses (unless ``ROS_DOMAIN_ID`` is set) and free
@@ -653,10 +653,17 @@ def print_physics(p: dict) -> None:
         print(f"  robot travelled {base['distance_mm']:.1f} mm (heading {base['heading_deg']:.0f} deg) "
               f"in {base['seconds']:.1f} s of simulated time: {p['base_mm_per_cycle']:.1f} mm "
               'per gait cycle')
+    grasp = p['payload_first_grasp']
     if p['payload_travel'] is not None:
         pay = p['payload_travel']
-        print(f"  payload travelled {pay['distance_mm']:.1f} mm: {p['payload_mm_per_cycle']:.1f} mm per cycle")
-    grasp = p['payload_first_grasp']
+        if grasp is not None:
+            # A grasp is not locomotion: say what the number is (where the payload ended,
+            # seen from above, against where it started), not a travel per cycle.
+            print(f"  payload {pay['distance_mm']:.1f} mm from where it started, in the ground "
+                  f"plane, after {pay['seconds']:.1f} s (first to last sample of the run)")
+        else:
+            print(f"  payload travelled {pay['distance_mm']:.1f} mm: "
+                  f"{p['payload_mm_per_cycle']:.1f} mm per cycle")
     if grasp is not None:
         print(f"  payload {'HELD' if grasp['held'] else 'NOT held'} through the first grasp "
               f"(sank {grasp['drop_mm']:.1f} mm during the hold, centre {grasp['height_mm']:.0f} mm "
@@ -905,7 +912,11 @@ def print_summary(summary: dict) -> None:
             print(f'model node took commanded/measured lengths (since its start): {taken}')
     latency = [m['command_to_shape_ms']['median'] for m in summary['modules'].values()
                if m['command_to_shape_ms']['n']]
-    if latency:
+    if summary.get('physics'):
+        # Stamps and the observer's clock are both sim_robot's /clock, which advances in
+        # steps: the difference is 0 within a step, not a latency.
+        print('gait command -> commanded shape: not measured on simulated time')
+    elif latency:
         print(f"gait command -> commanded shape: median {np.median(latency):.2f} ms over modules")
     if summary.get('processes'):
         usage = ', '.join(f"{name} {u['cpu_percent']:.0f}%" for name, u in summary['processes'].items()
@@ -967,7 +978,7 @@ def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
     specs = robot_graph(scene, simulate=not args.real, gait=args.gait,
                         gait_rate_hz=args.gait_rate, model_rate_hz=args.model_rate,
                         recording=recording, rerun=not args.no_rerun, sim_ports=sim_ports,
-                        bag=bag, physics=args.physics,
+                        bag=bag, bag_all=args.bag_all, physics=args.physics,
                         sim_robot_parameters=sim_robot_parameters, drivers=args.drivers,
                         sim_modules=sim_modules)
     # The observer in this process and every child use the slot's domain.
@@ -1224,8 +1235,12 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--run-dir', default=None, help='folder for logs and the recording')
     parser.add_argument('--no-rerun', action='store_true', help='do not record the .rrd')
     parser.add_argument('--bag', default=None,
-                        help='ROS 2 bag directory to record every topic to (default '
+                        help="ROS 2 bag directory to record the robot's topics to (default "
                              'runs/<scene>-<time>/bag; must not exist)')
+    parser.add_argument('--bag-all', action='store_true',
+                        help='record every topic of the ROS domain in the bag, not only '
+                             "the robot's (its namespace, TF, robot_description, "
+                             'joint_states, diagnostics, clock, rosout)')
     parser.add_argument('--no-bag', action='store_true', help='do not record a ROS 2 bag')
     parser.add_argument('--json', action='store_true', help='print the summary as JSON')
     parser.add_argument('--closed-loop', action='store_true', help='with --physics: the shape '

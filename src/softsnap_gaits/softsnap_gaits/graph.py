@@ -17,10 +17,12 @@ once. For a scene with modules ``m1..mN`` in namespace ``/<scene>``:
   docs/driver.md); with ``drivers='separate'`` each is its own ``driver_node`` process.
   The node names, topics, services and parameters are the same in both;
 - ``model_node``: forward/inverse services and the commanded/predicted shapes;
+- ``robot_state``: the scene's URDF on ``/robot_description``, TF and ``/joint_states``;
 - ``gait_node``: the scene's gait, publishing ``<m>/cable_length/command``;
 - ``rerun_logger``: records predicted versus commanded shapes to an ``.rrd`` file;
-- ``bag_recorder`` (only with ``bag=``): ``bag record --all`` of the robot's ROS domain
-  to a rosbag2 directory (:mod:`softsnap_gaits.bag`).
+- ``bag_recorder`` (only with ``bag=``): ``bag record`` of the robot's topics (its
+  namespace and :data:`ROBOT_ABSOLUTE_TOPICS`; ``bag_all``: the whole ROS domain) to a
+  rosbag2 directory (:mod:`softsnap_gaits.bag`).
 
 With ``physics=True`` every node but ``sim_robot`` and the bag recorder gets
 ``use_sim_time: true`` (a container's drivers each in their own entry of its parameters
@@ -39,8 +41,13 @@ from typing import Any, Mapping
 from softsnap_model.forward import reachable_range
 from softsnap_model.scene import Scene
 
-__all__ = ['DRIVER_MODES', 'SIM_MODULE_MODES', 'NodeSpec', 'driver_parameters',
-           'robot_graph', 'with_driver_parameters']
+__all__ = ['DRIVER_MODES', 'ROBOT_ABSOLUTE_TOPICS', 'SIM_MODULE_MODES', 'NodeSpec',
+           'driver_parameters', 'robot_graph', 'with_driver_parameters']
+
+#: Absolute topics the robot's nodes publish besides those under its namespace (recorded
+#: in its bag): TF and the robot model (robot_state), diagnostics, sim_robot's clock, logs.
+ROBOT_ABSOLUTE_TOPICS = ('/tf', '/tf_static', '/robot_description', '/joint_states',
+                         '/diagnostics', '/clock', '/rosout')
 
 #: Values of ``robot_graph(drivers=...)``: every driver in one ``driver_container``
 #: process, or one ``driver_node`` process per module.
@@ -128,7 +135,8 @@ def robot_graph(scene: Scene, *, simulate: bool = True, gait: str | None = None,
                 sim_ports: Mapping[str, int] | None = None,
                 bag: str | Path | None = None, physics: bool = False,
                 sim_robot_parameters: Mapping[str, Any] | None = None,
-                drivers: str = 'container', sim_modules: str = 'separate') -> list[NodeSpec]:
+                drivers: str = 'container', sim_modules: str = 'separate',
+                robot_state: bool = True, bag_all: bool = False) -> list[NodeSpec]:
     """Processes that run a scene's robot, in start order (modules and drivers first).
 
     Parameters
@@ -158,12 +166,18 @@ def robot_graph(scene: Scene, *, simulate: bool = True, gait: str | None = None,
     sim_robot_parameters : mapping, optional
         Extra ``sim_robot`` parameters (payload, time_factor, ...).
     bag : path, optional
-        Record every topic of the ROS domain (but ``/parameter_events``) to this rosbag2
-        directory, which must not exist; no recorder if None.
+        Record the robot's topics (everything under ``/<scene>`` and
+        :data:`ROBOT_ABSOLUTE_TOPICS`) to this rosbag2 directory, which must not exist;
+        no recorder if None.
+    bag_all : bool
+        Record every topic of the ROS domain instead (but ``/parameter_events``).
     drivers : {'container', 'separate'}
         ``'container'``: one ``driver_container`` process drives every module (its drivers'
         parameters in a parameters file, :class:`NodeSpec`); ``'separate'``: one
         ``driver_node`` process per module. Both name module m's driver ``<m>_driver``.
+    robot_state : bool
+        Include ``robot_state`` (URDF on ``/robot_description``, ``/tf``, ``/tf_static``,
+        ``/joint_states``; softsnap_model.robot_state_node).
 
     Raises
     ------
@@ -212,6 +226,9 @@ def robot_graph(scene: Scene, *, simulate: bool = True, gait: str | None = None,
         nodes.append(_container_spec(ns, driver_params))
     nodes.append(NodeSpec('softsnap_model', 'model_node', 'model_node', ns,
                           {'scene': scene_ref, 'rate': float(model_rate_hz)}))
+    if robot_state:
+        nodes.append(NodeSpec('softsnap_model', 'robot_state', 'robot_state', ns,
+                              {'scene': scene_ref}))
     nodes.append(NodeSpec('softsnap_gaits', 'gait_node', 'gait_node', ns, {
         'scene': scene_ref, 'gait': gait or scene.default_gait, 'rate': float(gait_rate_hz),
         'autostart': bool(autostart)}))
@@ -223,12 +240,14 @@ def robot_graph(scene: Scene, *, simulate: bool = True, gait: str | None = None,
             params['world_view'] = True   # the robot moves in the world (sim/base_pose)
         nodes.append(NodeSpec('softsnap_gaits', 'rerun_logger', 'rerun_logger', ns, params))
     if bag is not None:
-        # Every topic, not a list: standard topics (markers, joint states, /diagnostics)
-        # and any added later are recorded without naming them here.
+        # The robot's own topics: its namespace (any topic added later comes along) and the
+        # absolute standard topics its nodes publish; an unrelated node on the same ROS
+        # domain stays out unless bag_all asks for every topic.
+        selection = ('--all',) if bag_all else ('--namespace', ns, *ROBOT_ABSOLUTE_TOPICS)
         nodes.append(NodeSpec('softsnap_gaits', 'bag', 'bag_recorder', ns, {}, arguments=(
-            'record', '-o', str(bag), '--all', '--exclude', '^/parameter_events$')))
+            'record', '-o', str(bag), *selection, '--exclude', '^/parameter_events$')))
     if physics:
-        on_sim_time = {'model_node', 'gait_node', 'rerun_logger'}   # drivers have it already
+        on_sim_time = {'model_node', 'gait_node', 'rerun_logger', 'robot_state'}   # drivers have it already
         nodes = [dataclasses.replace(n, parameters={**n.parameters, 'use_sim_time': True})
                  if n.executable in on_sim_time else n for n in nodes]
     return nodes

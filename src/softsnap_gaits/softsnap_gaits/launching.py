@@ -1,6 +1,6 @@
 """ROS 2 launch support: the launch files turn :func:`robot_graph` into launch actions.
 
-``ros2 launch softsnap_gaits <scene>.launch.py [simulate:=true] [physics:=true] [gait:=...] [recording:=...] [drivers:=container|separate]``
+``ros2 launch softsnap_gaits <scene>.launch.py [simulate:=true] [physics:=true] [gait:=...] [recording:=...] [drivers:=container|separate] [rviz:=true]``
 starts the same graph as the demo runner (:mod:`softsnap_gaits.demo`): there is one
 description of the graph, in :mod:`softsnap_gaits.graph`. The ``launch`` packages are
 imported only when a launch file runs (they are not on PyPI; a ROS 2 install has them).
@@ -26,6 +26,7 @@ LAUNCH_ARGUMENTS = {
     'rerun': ('true', 'start the rerun logger'),
     'drivers': ('container', "container: every driver in one driver_container process; "
                              "separate: one driver_node process per module"),
+    'rviz': ('false', 'open RViz 2 on the robot (rviz/<scene>.rviz: RobotModel, TF, markers)'),
     'sim_port_base': ('0', "simulated modules (and their drivers) on consecutive loopback ports "
                            "from this one; 0 = the scene's ports"),
 }
@@ -81,6 +82,15 @@ def node_action_kwargs(spec: NodeSpec, params_dir: str | Path | None = None) -> 
     return kwargs
 
 
+def rviz_action_kwargs(scene_name: str) -> dict[str, Any]:
+    """``launch_ros.actions.Node`` keyword arguments of RViz 2 with the scene's shipped
+    configuration (rviz2 comes with a ROS 2 desktop install, not with the pip wheels)."""
+    from ament_index_python.packages import get_package_share_directory
+    config = Path(get_package_share_directory('softsnap_gaits')) / 'rviz' / f'{scene_name}.rviz'
+    return {'package': 'rviz2', 'executable': 'rviz2', 'name': 'rviz2',
+            'arguments': ['-d', str(config)], 'output': 'screen'}
+
+
 def generate_robot_launch_description(scene_name: str):
     """A LaunchDescription starting the scene's graph (used by launch/<scene>.launch.py)."""
     from launch import LaunchDescription
@@ -90,8 +100,11 @@ def generate_robot_launch_description(scene_name: str):
     def nodes(context):
         arguments = {key: context.launch_configurations.get(key, default)
                      for key, (default, _) in LAUNCH_ARGUMENTS.items()}
-        return [Node(**node_action_kwargs(spec))
-                for spec in graph_from_arguments(scene_name, arguments)]
+        actions = [Node(**node_action_kwargs(spec))
+                   for spec in graph_from_arguments(scene_name, arguments)]
+        if _flag(arguments['rviz']):
+            actions.append(Node(**rviz_action_kwargs(scene_name)))
+        return actions
 
     declared = [DeclareLaunchArgument(key, default_value=default, description=text)
                 for key, (default, text) in LAUNCH_ARGUMENTS.items()]

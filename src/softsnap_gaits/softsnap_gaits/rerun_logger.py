@@ -218,7 +218,8 @@ class RerunLoggerNode(SoftSnapNode):
             spacing_mm=(scene.skeleton.spacing_mm if scene is not None
                         else self.get_parameter('rib_spacing').value / recording.MM),
             colors=colors, flush_period_s=self.get_parameter('flush_period').value,
-            skip_unchanged=self.get_parameter('skip_unchanged').value)
+            skip_unchanged=self.get_parameter('skip_unchanged').value,
+            sim_time=self.get_parameter('use_sim_time').value)
         # Base poses from the scene, used when a RobotShape carries none.
         self.scene_poses = {m.name: (m.base_position_m, m.base_orientation_xyzw)
                             for m in getattr(scene, 'modules', [])}
@@ -420,6 +421,10 @@ class RerunLoggerNode(SoftSnapNode):
             self._last_poses = poses_seen
         for shape in msg.modules:
             if not self.recorder.wants(shape.module):
+                continue
+            if not len(shape.angles):
+                # The model's placeholder for a module it has no length of yet (no driver
+                # reports one): nothing to draw, and no error either.
                 continue
             self._subscribe_module(shape.module)
             shape_stamp = shape.stamp_ns or stamp

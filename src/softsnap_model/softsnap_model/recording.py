@@ -336,9 +336,21 @@ def close_recording(rec: rr.RecordingStream, timeout_s: float = 10.0) -> None:
     rec.disconnect()
 
 
-def set_stamp(rec: rr.RecordingStream, stamp_ns: int) -> None:
-    """Set the ``ros_time`` timeline (nanoseconds since the epoch) for this thread."""
-    rec.set_time(TIMELINE, timestamp=np.datetime64(int(stamp_ns), 'ns'))
+def set_stamp(rec: rr.RecordingStream, stamp_ns: int, sim_time: bool = False) -> None:
+    """Set the ``ros_time`` timeline for this thread: a timestamp (nanoseconds since the
+    epoch), or with `sim_time` a duration (nanoseconds of simulated time, shown as
+    seconds from the simulation's start rather than as a date in January 1970)."""
+    if sim_time:
+        rec.set_time(TIMELINE, duration=np.timedelta64(int(stamp_ns), 'ns'))
+    else:
+        rec.set_time(TIMELINE, timestamp=np.datetime64(int(stamp_ns), 'ns'))
+
+
+def time_column(stamps_ns, sim_time: bool = False) -> rr.TimeColumn:
+    """The ``ros_time`` column of `stamps_ns`, as `set_stamp` sets it."""
+    if sim_time:
+        return rr.TimeColumn(TIMELINE, duration=np.array(stamps_ns, dtype='timedelta64[ns]'))
+    return rr.TimeColumn(TIMELINE, timestamp=np.array(stamps_ns, dtype='datetime64[ns]'))
 
 
 # --- geometry helpers (module base frame) -----------------------------------------------
@@ -623,13 +635,17 @@ class RobotRecorder:
         latest shape, so the picture is the same.
     clock:
         Monotonic clock (s) deciding when buffers are due.
+    sim_time:
+        The stamps are simulated time (a node on ``use_sim_time``): the timeline is a
+        duration in seconds from the simulation's start, not a date (`set_stamp`).
     """
 
     def __init__(self, rec: rr.RecordingStream, *, modules: Iterable[str] | None = None,
                  threadings_mm: Mapping[str, Sequence[float]] | None = None,
                  rate_hz: float = 30.0, spacing_mm: float = RIB_SPACING_MM,
                  colors: Mapping[str, RGB] | None = None, flush_period_s: float = 0.0,
-                 skip_unchanged: bool = False, clock: Callable[[], float] = time.monotonic):
+                 skip_unchanged: bool = False, clock: Callable[[], float] = time.monotonic,
+                 sim_time: bool = False):
         if not (math.isfinite(flush_period_s) and flush_period_s >= 0.0):
             raise ValueError(f'flush_period_s must be finite and >= 0, got {flush_period_s!r}')
         self.rec = rec
@@ -641,6 +657,7 @@ class RobotRecorder:
         self.limiter = RateLimiter(rate_hz)
         self.flush_period_s = float(flush_period_s)
         self.skip_unchanged = bool(skip_unchanged)
+        self.sim_time = bool(sim_time)
         self.logged = 0
         self.dropped = 0
         self.unchanged = 0
@@ -685,7 +702,7 @@ class RobotRecorder:
             log_series_styles(self.rec, module, self.color(module))
         self.logged += 1
         if not self.flush_period_s:
-            set_stamp(self.rec, stamp_ns)
+            set_stamp(self.rec, stamp_ns, self.sim_time)
         return True
 
     # --- rows: logged at once, or buffered and sent as columns ----------------------------
@@ -722,7 +739,7 @@ class RobotRecorder:
         buffers, self._buffers = self._buffers, {}
         self._first_buffered = math.inf
         for path, (kind, stamps, values) in buffers.items():
-            index = [rr.TimeColumn(TIMELINE, timestamp=np.array(stamps, dtype='datetime64[ns]'))]
+            index = [time_column(stamps, self.sim_time)]
             if kind == 'scalar':
                 columns = [rr.ComponentColumn(  # as Scalars.columns(...) builds it, minus its
                     _SCALARS_DESCRIPTOR,        # per-call archetype machinery
@@ -786,7 +803,7 @@ class RobotRecorder:
             log_connector(self.rec, {m: p for m, (p, _) in changed.items()},
                           {m: self.color(m) for m in changed})
         self._poses.update(changed)
-        set_stamp(self.rec, stamp_ns)
+        set_stamp(self.rec, stamp_ns, self.sim_time)
         log_base_poses(self.rec, changed)
 
     def shape(self, stamp_ns: int, module: str, source: str, angles_rad: Sequence[float],
@@ -865,7 +882,7 @@ class RobotRecorder:
             self.dropped += 1
             return False
         self.logged += 1
-        set_stamp(self.rec, stamp_ns)
+        set_stamp(self.rec, stamp_ns, self.sim_time)
         log_robot_pose(self.rec, translation, quaternion_xyzw)
         return True
 
@@ -1034,21 +1051,28 @@ def _cli_handler(args: argparse.Namespace, skeleton) -> dict:
     return {'recording': str(run_record(args).resolve()), 'steps': args.steps}
 
 
-def serve_recording(path: str | Path, *, web_port: int = 9090, grpc_port: int = 9876
-                    ) -> tuple[str, rr.RecordingStream]:
-    """Serve an .rrd file to rerun's bundled web viewer, offline; returns (url, stream).
+def serve_recording(path: str | Path, *, web_port: int = 9090, grpc_port: int = 9876,
+                    online: bool = False) -> tuple[str, rr.RecordingStream]:
+    """Serve an .rrd file to rerun's bundled web viewer; returns (url, stream).
 
     The viewer's files come from the installed rerun-sdk; a browser opening the url gets
     the recording over gRPC from this process. Keep the returned stream (and the process)
-    alive while the page is open.
+    alive while the page is open. Unless `online`, nothing leaves this machine: no
+    analytics, no web fonts, no examples list (:mod:`softsnap_model.viewer_offline`).
     """
     path = Path(path)
     if not path.is_file():
         raise ValueError(f'no recording at {path}')
+    if not online:
+        from . import viewer_offline
+        viewer_offline.disable_analytics()   # before rerun's native side starts its sinks
     rec = rr.RecordingStream(f'{APPLICATION_ID}_view')
     rec.serve_grpc(grpc_port=grpc_port)
     rec.log_file_from_path(path)
-    return serve_web_viewer(web_port, grpc_port), rec
+    if online:
+        return serve_web_viewer(web_port, grpc_port), rec
+    grpc_url = f'rerun+http://127.0.0.1:{int(grpc_port)}/proxy'
+    return viewer_offline.serve_offline(web_port, grpc_url), rec
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -1060,13 +1084,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     view.add_argument('file', help='.rrd recording')
     view.add_argument('--web-port', type=int, default=9090)
     view.add_argument('--grpc-port', type=int, default=9876)
+    view.add_argument('--online', action='store_true',
+                      help="rerun's defaults: its analytics, web fonts and examples list "
+                           '(default: offline, nothing leaves this machine)')
     args = parser.parse_args(argv)
     try:
         if args.what != 'view':
             print(f'wrote {run_record(args)}')
             return 0
         url, _stream = serve_recording(args.file, web_port=args.web_port,
-                                       grpc_port=args.grpc_port)
+                                       grpc_port=args.grpc_port, online=args.online)
         print(f'open {url}  (Ctrl-C to stop)', flush=True)
         try:
             while True:
