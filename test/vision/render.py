@@ -205,9 +205,9 @@ def render(camera: Camera, modules: list[ModuleDrawing], *, seed: int = 0, noise
             shift = np.array([-m.tag_distance_mm, 0.0])
             _blend(image, _coverage([camera.project(m.world(_subdivide(white) + shift))], (h, w)),
                    (235, 235, 235))
-            for sq in blacks:
-                _blend(image, _coverage([camera.project(m.world(_subdivide(sq) + shift))], (h, w)),
-                       (25, 25, 25))
+            # all black cells in one fill: adjacent cells share edges without a seam
+            _blend(image, _coverage([camera.project(m.world(_subdivide(sq) + shift))
+                                     for sq in blacks], (h, w)), (25, 25, 25))
     for occ in occluders:
         rect = np.array([[occ.x0, occ.y0], [occ.x1, occ.y0], [occ.x1, occ.y1], [occ.x0, occ.y1]])
         _blend(image, _coverage([camera.project(_subdivide(rect, 20))], (h, w)), occ.color_bgr)

@@ -12,14 +12,12 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-import cv2
 import numpy as np
-from scipy.optimize import least_squares
 
 from softsnap_model import Skeleton, solve_forward
 from softsnap_model.geometry import rib_centers
 
-from .blobs import find_blobs
+from .blobs import coarse_scale, downscaled_hsv, find_blobs
 from .camera_info import CameraInfo
 from .chain import FrameError, base_frame, order_ribs
 from .marker_config import MarkerConfig
@@ -32,6 +30,12 @@ __all__ = ['ShapeMeasurement', 'MeasurementError', 'measure_image', 'measure_poi
 #: rigid: this covers a marker glued a little off and the measurement's error, and stays
 #: well below the 18 mm to rib 1, which would otherwise be taken as rib 0).
 FIRST_RIB_TOLERANCE_MM = 2.5
+
+
+#: Shape fit: finite-difference step (rad), convergence on the angle update (rad), cap.
+_FIT_STEP_RAD = 1e-6
+_FIT_TOL_RAD = 1e-9
+_FIT_MAX_ITER = 20
 
 
 class MeasurementError(ValueError):
@@ -119,13 +123,21 @@ def fit_shape(ribs_mm: np.ndarray, visible: np.ndarray, spacing_mm: float) -> Sh
     last = int(np.flatnonzero(visible).max())
     free = max(last, 1)
 
-    def residuals(a):
-        angles = np.concatenate([a, np.zeros(n - 1 - free)])
-        return (rib_centers(angles, spacing_mm)[visible] - ribs_mm[visible]).ravel()
-
-    sol = least_squares(residuals, start[:free], method='lm' if 2 * visible.sum() >= free else 'trf')
-    angles = np.concatenate([sol.x, np.full(n - 1 - free, np.nan)])
-    r = sol.fun.reshape(-1, 2)
+    angles = np.concatenate([start[:free], np.zeros(n - 1 - free)])
+    steps = np.eye(n - 1)[:free] * _FIT_STEP_RAD
+    r = None
+    for _ in range(_FIT_MAX_ITER):
+        # Gauss-Newton with a forward-difference Jacobian: every perturbed shape in one
+        # vectorised rib_centers call (~0.1 ms per iteration instead of scipy's ~6 ms).
+        batch = rib_centers(np.vstack([angles, angles + steps]), spacing_mm)[:, visible]
+        r = (batch[0] - ribs_mm[visible]).ravel()
+        jac = ((batch[1:] - batch[0]).reshape(free, -1) / _FIT_STEP_RAD).T
+        delta = np.linalg.lstsq(jac, -r, rcond=None)[0]
+        angles[:free] += delta
+        if np.abs(delta).max() < _FIT_TOL_RAD:
+            break
+    r = (rib_centers(angles, spacing_mm)[visible] - ribs_mm[visible])
+    angles[free:] = np.nan
     return ShapeFit(angles_rad=angles, residual_mm=float(np.sqrt(np.mean(np.sum(r * r, axis=1)))))
 
 
@@ -161,9 +173,13 @@ def measure_image(image_bgr: np.ndarray, camera: CameraInfo, plane_distance_m: f
     if (w, h) != (camera.width, camera.height):
         raise MeasurementError(f'image is {w}x{h} px but the camera_info is for '
                                f'{camera.width}x{camera.height}')
-    hsv = cv2.cvtColor(image_bgr, cv2.COLOR_BGR2HSV)
-    ribs, rib_refused = find_blobs(image_bgr, hsv, config.rib_marker, config, camera, plane_distance_m)
-    bases, _ = find_blobs(image_bgr, hsv, config.base_marker, config, camera, plane_distance_m)
+    scale = min(coarse_scale(config.rib_marker, camera, plane_distance_m),
+                coarse_scale(config.base_marker, camera, plane_distance_m))
+    hsv = downscaled_hsv(image_bgr, scale)
+    ribs, rib_refused = find_blobs(image_bgr, hsv, scale, config.rib_marker, config, camera,
+                                   plane_distance_m)
+    bases, _ = find_blobs(image_bgr, hsv, scale, config.base_marker, config, camera,
+                          plane_distance_m)
     if not bases:
         raise MeasurementError('no base (orange) marker seen: the module frame is undefined')
     if len(bases) > 1:

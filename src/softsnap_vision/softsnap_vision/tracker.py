@@ -22,7 +22,7 @@ import numpy as np
 
 from softsnap_model import Skeleton
 
-from .blobs import find_blobs
+from .blobs import coarse_scale, downscaled_hsv, find_blobs
 from .camera_info import CameraInfo, pixels_to_plane_mm
 from .chain import FrameError
 from .marker_config import MarkerConfig
@@ -124,9 +124,10 @@ class MarkerTracker:
         if (w, h) != (self.camera.width, self.camera.height) or image_bgr.ndim != 3:
             raise ValueError(f'image is {w}x{h} px but the camera_info is for '
                              f'{self.camera.width}x{self.camera.height}')
-        hsv = cv2.cvtColor(image_bgr, cv2.COLOR_BGR2HSV)
-        blobs, refused = find_blobs(image_bgr, hsv, self.config.rib_marker, self.config,
-                                    self.camera, self.plane_distance_m)
+        scale = coarse_scale(self.config.rib_marker, self.camera, self.plane_distance_m)
+        blobs, refused = find_blobs(image_bgr, downscaled_hsv(image_bgr, scale), scale,
+                                    self.config.rib_marker, self.config, self.camera,
+                                    self.plane_distance_m)
         points = np.array([b.center_mm for b in blobs]).reshape(-1, 2)
         tags = self._tags(image_bgr)
         unknown = tuple(sorted({i for i, _ in tags if i not in self.targets}))
