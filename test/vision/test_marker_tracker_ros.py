@@ -136,9 +136,7 @@ def test_tracker_node_measures_modules_and_survives_bad_images(start_node, ros_n
         got = np.array([[p.x, p.y] for p in m.rib_centers]) * 1000.0
         seen = np.array(m.visible)
         assert np.isnan(got[~seen]).all()
-        # tag mode: the x-axis runs through the tag's centre from refined corners
-        # (~0.1-0.2 px), less exact than an orange marker's soft centroid (docs/vision.md)
-        assert np.hypot(*(got[seen] - truth[seen]).T).max() <= 0.5, name
+        assert np.hypot(*(got[seen] - truth[seen]).T).max() <= 0.4, name
         assert 0 <= m.residual < 0.3e-3
     model = solve_forward(SK, YELLOW, length).rib_centers
     seen = np.array(shapes['yellow'].visible)

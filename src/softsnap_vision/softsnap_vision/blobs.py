@@ -86,12 +86,16 @@ def _soft_centroid(image: np.ndarray, mask: np.ndarray, x0: int, y0: int) -> tup
         background = np.array(cv2.mean(image, ring)[:3], np.float32)
     else:
         background = np.zeros(3, np.float32)
+    # Chroma only (the grey axis projected out): a table's texture and the light vary
+    # mostly in brightness, which would otherwise add noise to the edge pixels' fractions.
     contrast = marker - background
+    contrast = contrast - contrast.mean()
     norm = float(contrast @ contrast)
     ys, xs = np.nonzero(grow)
     if norm < 1e-6:
         weights = (mask[ys, xs] > 0).astype(np.float64)
     else:
+        # (p - b) . c with c of zero mean equals its chroma part's dot product
         weights = np.clip((image[ys, xs] - background) @ contrast / norm, 0.0, 1.0)
     total = weights.sum()
     if total <= 0:

@@ -75,6 +75,15 @@ def _centre(corners: np.ndarray) -> np.ndarray:
     return p0 + t * d1
 
 
+def _ink_offset_mm(dictionary, tag_id: int, size_mm: float) -> np.ndarray:
+    """Centroid (mm, tag frame: x right, y up the printed tag) of a tag's black cells."""
+    bits = cv2.aruco.generateImageMarker(dictionary, tag_id, 6, borderBits=1)
+    rows, cols = np.nonzero(bits < 128)
+    cell = size_mm / 6.0
+    return np.array([(-size_mm / 2 + (cols + 0.5) * cell).mean(),
+                     (size_mm / 2 - (rows + 0.5) * cell).mean()])
+
+
 class MarkerTracker:
     """Finds the modules' tags and rib markers in images from one calibrated camera.
 
@@ -100,6 +109,8 @@ class MarkerTracker:
         params = cv2.aruco.DetectorParameters()
         self._detector = cv2.aruco.ArucoDetector(dictionary, params)
         self._subpix = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01)
+        self._ink = {t.tag_id: _ink_offset_mm(dictionary, t.tag_id, config.tag.size_mm)
+                     for t in targets}
 
     def _tags(self, image_bgr: np.ndarray):
         """[(id, corners px (4, 2) refined on the full image)] of the tags seen."""
@@ -118,6 +129,51 @@ class MarkerTracker:
             out.append((int(i), refined.reshape(4, 2).astype(np.float64)))
         return out
 
+    def _tag_centre_mm(self, gray: np.ndarray, tag_id: int, corners_px: np.ndarray,
+                       axis: np.ndarray) -> np.ndarray | None:
+        """The tag's centre on the plane (mm) from the soft centroid of its black cells.
+
+        Refined corners are good to 0.1-0.2 px; the ink's centroid, like a colour
+        marker's, to a few hundredths, and the x-axis is drawn through this point. The
+        ink centroid sits at a known offset from the centre (the tag's bit pattern),
+        turned by the tag's axis from its corners (whose error hardly matters over a
+        few millimetres). None when the tag's surroundings are not usable.
+        """
+        h, w = gray.shape
+        x0 = max(int(np.floor(corners_px[:, 0].min())) - 6, 0)
+        y0 = max(int(np.floor(corners_px[:, 1].min())) - 6, 0)
+        x1 = min(int(np.ceil(corners_px[:, 0].max())) + 7, w)
+        y1 = min(int(np.ceil(corners_px[:, 1].max())) + 7, h)
+        region = gray[y0:y1, x0:x1].astype(np.float32)
+        quad = np.zeros(region.shape, np.uint8)
+        cv2.fillPoly(quad, [np.round((corners_px - (x0, y0)) * 16).astype(np.int32)], 255,
+                     lineType=cv2.LINE_8, shift=4)
+        kernel = np.ones((3, 3), np.uint8)
+        inside = cv2.dilate(quad, kernel, iterations=2)
+        ring = cv2.dilate(quad, kernel, iterations=4) & ~cv2.dilate(quad, kernel, iterations=3)
+        core = cv2.erode(quad, kernel, iterations=1)
+        if not ring.any() or not core.any():
+            return None
+        # The white level as a plane over the region (uneven light would otherwise pull
+        # the centroid toward the darker side), the black level a fixed fraction of it.
+        ry, rx = np.nonzero(ring)
+        design = np.column_stack([np.ones(rx.size), rx, ry]).astype(np.float64)
+        plane_fit = np.linalg.lstsq(design, region[ry, rx].astype(np.float64), rcond=None)[0]
+        ys, xs = np.nonzero(inside)
+        white = plane_fit[0] + plane_fit[1] * xs + plane_fit[2] * ys
+        cy, cx = np.nonzero(core)
+        core_white = plane_fit[0] + plane_fit[1] * cx + plane_fit[2] * cy
+        ratio = float(np.percentile(region[cy, cx] / np.maximum(core_white, 1.0), 5))
+        black = white * ratio
+        if np.min(white - black) < 20.0:
+            return None
+        weight = np.clip((white - region[ys, xs]) / (white - black), 0.0, 1.0)
+        plane = pixels_to_plane_mm(np.column_stack([xs + x0, ys + y0]).astype(np.float64),
+                                   self.camera, self.plane_distance_m)
+        ink = (plane * weight[:, None]).sum(axis=0) / max(weight.sum(), 1e-9)
+        ox, oy = self._ink[tag_id]
+        return ink - ox * axis - oy * np.array([-axis[1], axis[0]])
+
     def track(self, image_bgr: np.ndarray) -> TrackResult:
         """Rib centres of every module whose tag is seen (see the module docstring)."""
         h, w = image_bgr.shape[:2]
@@ -130,6 +186,7 @@ class MarkerTracker:
                                     self.plane_distance_m)
         points = np.array([b.center_mm for b in blobs]).reshape(-1, 2)
         tags = self._tags(image_bgr)
+        gray = cv2.cvtColor(image_bgr, cv2.COLOR_BGR2GRAY) if tags else None
         unknown = tuple(sorted({i for i, _ in tags if i not in self.targets}))
         seen = [(i, c) for i, c in tags if i in self.targets]
         # a tag id seen twice cannot say which module is which: both refused
@@ -147,6 +204,9 @@ class MarkerTracker:
             # ArUco corner order: top-left, top-right, bottom-right, bottom-left of the tag
             axis = (plane[1] - plane[0]) + (plane[2] - plane[3])
             axis /= max(float(np.hypot(*axis)), 1e-9)
+            anchor = self._tag_centre_mm(gray, tag_id, corners_px, axis)
+            if anchor is None:
+                anchor = plane[4]
             empty = np.full((n, 2), np.nan)
             if counts[tag_id] > 1:
                 walks[name] = TrackedModule(name, empty, np.zeros(n, bool), None, tuple(centre_px),
@@ -154,7 +214,7 @@ class MarkerTracker:
                 continue
             try:
                 ribs_mm, visible, note, _, order = measure_points(
-                    plane[4], points, self.skeleton, self.config,
+                    anchor, points, self.skeleton, self.config,
                     self.config.tag.distance_to_first_rib_mm, axis_hint=axis)
             except FrameError as exc:
                 walks[name] = TrackedModule(name, empty, np.zeros(n, bool), None, tuple(centre_px),
