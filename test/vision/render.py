@@ -12,7 +12,7 @@ x along world +x, image y along world -y (seen from above, not mirrored).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import cv2
 import numpy as np

@@ -161,3 +161,15 @@ def test_tracker_node_measures_modules_and_survives_bad_images(start_node, ros_n
     levels = module_levels()
     assert levels['blue'] == DiagnosticStatus.OK and levels['red'] == DiagnosticStatus.STALE
     assert proc.alive()
+
+
+def test_bad_marker_file_ends_the_node_with_one_line(start_node, tmp_path):
+    import time
+    (tmp_path / 'markers.yaml').write_text('rib_marker: {color_rgb: [128, 128, 128]}\n')
+    proc = start_node('softsnap_vision', 'marker_tracker', '--ros-args',
+                      '-p', f'markers:={tmp_path / "markers.yaml"}')
+    deadline = time.monotonic() + 60.0
+    while proc.alive() and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert proc.proc.returncode == 2, proc.output()
+    assert 'cannot start' in proc.output() and 'too grey' in proc.output()
