@@ -95,3 +95,54 @@ def test_observation_from_a_measured_shape_message():
     assert np.isnan(obs.rib_centers_mm[4]).all() and obs.rib_centers_mm[11, 0] == pytest.approx(198.0)
     msg.cable_length = float('nan')
     assert observation_from_shape_message(msg, PAPER_THREADINGS['yellow']) is None
+
+
+def _shape_message(obs, module, stamp_ns):
+    from geometry_msgs.msg import Point
+    from softsnap_interfaces.msg import MeasuredShape
+    msg = MeasuredShape(module=module, source='camera', cable_length=obs.cable_length_mm / 1000.0)
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 10**9)
+    msg.rib_centers = [Point(x=float(x) / 1000.0, y=float(y) / 1000.0, z=0.0)
+                       for x, y in obs.rib_centers_mm]
+    msg.visible = [True] * len(obs.rib_centers_mm)
+    msg.visible[7] = False                       # one marker hidden throughout
+    msg.rib_centers[7] = Point(x=float('nan'), y=float('nan'), z=0.0)
+    return msg
+
+
+@pytest.mark.slow
+def test_calibration_from_a_bag_of_measured_shapes(tmp_path):
+    """A bag as the marker_tracker would leave it: one module pulled in steps, then
+    released, each shape seen for several frames; friction and the encoder offset back."""
+    from rclpy.serialization import serialize_message
+    from softsnap_gaits.bag import BagWriter
+    from softsnap_model.scene import load_scene
+    scene = load_scene('brittle_star')
+    yellow = scene.module('yellow')
+    truth = Skeleton()
+    pulls = synthetic_observations(truth, [yellow.holes], [10, 20, 30], friction=FRICTION,
+                                   length_offset_mm=OFFSET_MM, noise_mm=0.02, seed=5)
+    releases = synthetic_observations(truth, [yellow.holes], [25, 15], friction=FRICTION,
+                                      length_offset_mm=OFFSET_MM, noise_mm=0.02, seed=6,
+                                      directions=('release',))
+    writer = BagWriter(tmp_path / 'bag')
+    topic = '/brittle_star/yellow/shape/measured'
+    writer.add_topic(topic, 'softsnap_interfaces/msg/MeasuredShape')
+    t = 10**9
+    for obs in pulls + releases:
+        for _ in range(3):                      # a still module, three frames
+            t += 66_000_000
+            writer.write(topic, t, serialize_message(_shape_message(obs, 'yellow', t)))
+    writer.close()
+    from softsnap_vision.calibrate_model import observations_from_bag
+    observations = observations_from_bag(tmp_path / 'bag', scene)
+    assert [o.direction for o in observations] == ['pull'] * 3 + ['release'] * 2
+    assert all(np.isnan(o.rib_centers_mm[7]).all() for o in observations)
+    out = subprocess.run([sys.executable, '-m', 'softsnap_vision.calibrate_model', '--bag',
+                          str(tmp_path / 'bag'), '--scene', 'brittle_star',
+                          '--fit', 'friction,length_offset'],
+                         capture_output=True, text=True, timeout=1800)
+    assert out.returncode == 0, out.stderr
+    result = json.loads(out.stdout)
+    assert abs(result['friction'] / FRICTION - 1) <= 0.05
+    assert abs(result['length_offset_mm'] / OFFSET_MM - 1) <= 0.05
