@@ -137,54 +137,52 @@ def order_ribs(base_points_mm: np.ndarray, first_index: int, n_ribs: int, spacin
     ``first_index`` is rib 0; ``used`` are candidate indices that belong elsewhere.
     """
     pts = np.asarray(base_points_mm, dtype=float).reshape(-1, 2)
-    windows = _windows(spacing_mm, max_segment_angle_rad, contact_angle_rad, max_gap,
-                       tolerance_mm)
-    taken = set(used) | {first_index}
+    windows = np.array(_windows(spacing_mm, max_segment_angle_rad, contact_angle_rad, max_gap,
+                                tolerance_mm))
+    lo, hi = windows[:, 0], windows[:, 1]
+    steps_k = np.arange(1, len(windows) + 1)
+    # chord of k segments turns by at most (k - 1/2) contact angles from the previous
+    # chord (from the x-axis, which is rib 0's tangent, at the start), k after that
+    limit_first = (steps_k - 0.5) * contact_angle_rad + TURN_MARGIN_RAD + 1e-9
+    limit_next = steps_k * contact_angle_rad + TURN_MARGIN_RAD + 1e-9
+    free = np.ones(len(pts), dtype=bool)
+    free[list(used)] = False
+    free[first_index] = False
     order: list[int | None] = [first_index] + [None] * (n_ribs - 1)
     rib, position, heading = 0, pts[first_index], 0.0
     first = True
     while rib < n_ribs - 1:
-        free = np.array([j for j in range(len(pts)) if j not in taken], dtype=int)
-        if free.size == 0:
+        if not free.any():
             return RibOrder(tuple(order), 'no more rib markers')
-        d = pts[free] - position
+        kmax = min(len(windows), n_ribs - 1 - rib)
+        d = pts - position
         dist = np.hypot(d[:, 0], d[:, 1])
         turn = np.abs((np.arctan2(d[:, 1], d[:, 0]) - heading + math.pi) % (2 * math.pi) - math.pi)
-        fits = []   # per candidate: the steps k whose window it fits
-        for j in range(free.size):
-            ks = []
-            for k, (lo, hi) in enumerate(windows, start=1):
-                if rib + k > n_ribs - 1:
-                    break
-                # chord of k segments turns by at most (k - 1/2) contact angles from the
-                # previous chord (from the x-axis, which is rib 0's tangent, at the start)
-                limit = ((k - 0.5) if first else k) * contact_angle_rad + TURN_MARGIN_RAD
-                if lo <= dist[j] <= hi and turn[j] <= limit + 1e-9:
-                    ks.append(k)
-            fits.append(ks)
-        steps = [min(ks) for ks in fits if ks and min(ks) <= max_gap + 1]
-        if not steps:
+        limit = (limit_first if first else limit_next)[:kmax]
+        # fits[j, k-1]: candidate j lies in the window of step k (k hidden ribs - 1)
+        fits = ((dist[:, None] >= lo[:kmax]) & (dist[:, None] <= hi[:kmax])
+                & (turn[:, None] <= limit) & free[:, None])
+        fitting = fits.any(axis=1)
+        if not fitting.any():
             return RibOrder(tuple(order), f'no rib marker after rib {rib}')
-        k = min(steps)
-        if k > max_gap + 1:
-            return RibOrder(tuple(order), f'more than {max_gap} hidden ribs after rib {rib}')
-        chosen = [j for j, ks in enumerate(fits) if ks and min(ks) == k]
-        if len(chosen) > 1:
-            return RibOrder(tuple(order), f'{len(chosen)} candidates for rib {rib + k}: ambiguous')
-        j = chosen[0]
-        lo1, hi1 = windows[0]
-        if k > 1 and np.any((dist >= lo1) & (dist <= hi1)):
+        nearest_step = np.where(fitting, np.argmax(fits, axis=1), len(windows))
+        k = int(nearest_step.min()) + 1
+        chosen = np.flatnonzero(nearest_step == k - 1)
+        if chosen.size > 1:
+            return RibOrder(tuple(order), f'{chosen.size} candidates for rib {rib + k}: ambiguous')
+        j = int(chosen[0])
+        if k > 1 and np.any(free & (dist >= lo[0]) & (dist <= hi[0])):
             # a marker one rib away that turns too far: a gap here would be a guess
             return RibOrder(tuple(order), f'a marker one rib after rib {rib} turns more than '
                             'rib contact allows: ambiguous')
-        if len(fits[j]) > 1:
+        if fits[j].sum() > 1:
             return RibOrder(tuple(order), f'the marker after rib {rib} could be rib '
-                            + ' or '.join(str(rib + q) for q in fits[j]) + ': ambiguous')
-        index = int(free[j])
-        order[rib + k] = index
-        taken.add(index)
+                            + ' or '.join(str(rib + 1 + q) for q in np.flatnonzero(fits[j]))
+                            + ': ambiguous')
+        order[rib + k] = j
+        free[j] = False
         heading = math.atan2(d[j, 1], d[j, 0])
-        position = pts[index]
+        position = pts[j]
         rib += k
         first = False
     return RibOrder(tuple(order), '')
