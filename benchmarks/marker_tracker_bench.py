@@ -52,6 +52,31 @@ def frames(n: int, tag: bool):
     return cam, info, out
 
 
+def star_frames(n: int):
+    """Five tagged modules in the brittle star's pentagon, 0.6 mm/px (the star is ~550 mm
+    across): what the physics demo's camera shows."""
+    from softsnap_model.scene import load_scene
+    scene = load_scene('brittle_star')
+    cam = Camera(width=1280, height=960, focal_px=1000.0, height_m=0.6)
+    dictionary = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50)
+    out = []
+    for i in range(n):
+        drawings, truths = [], {}
+        for m in scene.modules:
+            yaw = math.radians(72.0 * m.index)
+            c = 10.0 + 20.0 * ((i + m.index) % 3)
+            ribs = solve_forward(scene.skeleton, m.holes,
+                                 m.straight_length_mm - c).rib_centers
+            origin = (72.5 * math.cos(yaw), 72.5 * math.sin(yaw))
+            drawings.append(ModuleDrawing(ribs_mm=ribs, yaw_rad=yaw, origin_mm=origin,
+                                          base_marker=False, tag_id=m.tag_id))
+            truths[m.name] = ribs
+        out.append((render(cam, drawings, seed=i, tag_dictionary=dictionary), truths))
+    info = CameraInfo(width=cam.width, height=cam.height, camera_matrix=cam.K, distortion=cam.D)
+    targets = [TagTarget(m.name, m.tag_id) for m in scene.modules]
+    return cam, info, targets, out
+
+
 def run(label, fn, data, repeat):
     rates, cpus, errs = [], [], []
     for _ in range(repeat):
@@ -73,6 +98,8 @@ def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument('--frames', type=int, default=40)
     p.add_argument('--repeat', type=int, default=3)
+    p.add_argument('--star', action='store_true',
+                   help='also the five modules of the brittle star in one frame')
     args = p.parse_args(argv)
     cv2.setNumThreads(1)
     print(load_line('start'))
@@ -97,6 +124,31 @@ def main(argv=None):
                 return m.ribs_mm, m.visible
             run(f'ArUco tag (MarkerTracker), tag_scale={scale}, fit={fit}', tag_fn, tagged,
                 args.repeat)
+    if args.star:
+        cam5, info5, targets, star = star_frames(max(args.frames // 3, 4))
+        tracker = MarkerTracker(info5, cam5.height_m, targets)
+        rates, cpus, errs, tracked = [], [], [], 0
+        for rep in range(args.repeat):
+            wall0, cpu0 = time.perf_counter(), time.thread_time()
+            for image, truths in star:
+                result = tracker.track(image)
+                if rep == 0:
+                    for name, truth in truths.items():
+                        m = result.modules.get(name)
+                        if m is not None and m.error is None:
+                            tracked += 1
+                            errs.extend(np.hypot(*(m.ribs_mm[m.visible] - truth[m.visible]).T))
+            rates.append(len(star) / (time.perf_counter() - wall0))
+            cpus.append((time.thread_time() - cpu0) / len(star))
+        errs = np.array(errs)
+        print(f'\nbrittle star, five tagged modules, {len(star)} frames at 0.6 mm/px: '
+              f'{tracked} of {5 * len(star)} module views tracked')
+        print('| measurement | frames/s wall | CPU ms/frame | frames/s per CPU core | '
+              'rib error mean (mm) | max (mm) | ribs |')
+        print('|---|---|---|---|---|---|---|')
+        print(f'| MarkerTracker, 5 modules | {fmt_spread(rates)} | {fmt_spread(cpus, 1e3, 2)} | '
+              f'{fmt_spread([1 / c for c in cpus])} | {errs.mean():.3f} | {errs.max():.3f} | '
+              f'{errs.size} |')
     print(load_line('end'))
 
 

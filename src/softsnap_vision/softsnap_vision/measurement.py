@@ -34,8 +34,8 @@ FIRST_RIB_TOLERANCE_MM = 2.5
 
 #: Shape fit: finite-difference step (rad), convergence on the angle update (rad), cap.
 _FIT_STEP_RAD = 1e-6
-_FIT_TOL_RAD = 1e-9
-_FIT_MAX_ITER = 20
+_FIT_TOL_RAD = 1e-7
+_FIT_MAX_ITER = 10
 
 
 class MeasurementError(ValueError):
