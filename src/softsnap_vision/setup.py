@@ -25,6 +25,7 @@ setup(
             'softsnap-measure = softsnap_vision.measure:main',
             'softsnap-validate = softsnap_vision.validation:main',
             'softsnap-calibrate-camera = softsnap_vision.calibrate_camera:main',
+            'softsnap-calibrate-model = softsnap_vision.calibrate_model:main',
         ],
     },
 )
