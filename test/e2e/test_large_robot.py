@@ -38,6 +38,7 @@ def test_a_fifty_module_snake_runs_through_the_whole_graph(tmp_path):
         assert s['commands_lost'] == 0, (name, s['commands_sent'], s['driver_received'])
         assert s['driver_refused'] == 0, name
     processes = summary['processes']
-    # One shared simulator, one driver container, model, gait (no recorder, no bag).
-    assert set(processes) == {'sim_modules', 'driver_container', 'model_node', 'gait_node'}
+    # One shared simulator, the driver container, model, gait, robot_state (no recorder or bag).
+    assert set(processes) == {'sim_modules', 'driver_container', 'model_node', 'gait_node',
+                              'robot_state'}
     assert sum(p['rss_mib'] for p in processes.values()) < 3 * 1024
