@@ -121,6 +121,10 @@ class SceneModule:
         Pose of this module's base in the parent's tip-rib frame (only with ``parent``).
     index : int
         Position in `Scene.modules`.
+    tag_id : int or None
+        ArUco tag id on the module's case (the file's ``markers: {tag_id: N}``), by which
+        a camera tells the modules apart (softsnap_vision's marker_tracker); None when
+        the scene gives none (the tracker then takes the module's index).
     """
 
     name: str
@@ -139,6 +143,7 @@ class SceneModule:
     parent_offset_position_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
     parent_offset_orientation_xyzw: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
     index: int = 0
+    tag_id: int | None = None
 
     @property
     def address(self) -> str:
@@ -418,7 +423,11 @@ _TOP_OPTIONAL = {'frame', 'defaults', 'skeleton'}
 _DEFAULT_KEYS = {'host', 'counts_per_mm', 'max_contraction_mm', 'winch_speed_mm_s'}
 _MODULE_REQUIRED = {'name', 'threading', 'port', 'base'}
 _MODULE_OPTIONAL = {'host', 'counts_per_mm', 'max_contraction_mm', 'winch_speed_mm_s', 'color',
-                    'parent', 'parent_offset'}
+                    'parent', 'parent_offset', 'markers'}
+#: Keys of a module's ``markers`` (what a camera identifies it by, softsnap_vision).
+_MARKER_KEYS = {'tag_id'}
+#: Largest ArUco / AprilTag id a scene may give (the biggest dictionaries have 1000 ids).
+MAX_TAG_ID = 999
 _POSE_ORIENTATIONS = ('axes', 'rpy_deg', 'orientation_xyzw')
 _SKELETON_KEYS = {'n_ribs', 'spacing_mm', 'rib_length_mm', 'holes_mm', 'stiffness',
                   'rib_thickness_mm'}
@@ -608,6 +617,7 @@ def load_scene(path_or_name: str | os.PathLike) -> Scene:
     modules: list[SceneModule] = []
     seen_names: dict[str, int] = {}
     seen_addresses: dict[tuple[str, int], int] = {}
+    seen_tags: dict[int, int] = {}
     for i, raw in enumerate(raw_modules):
         key = f'modules[{i}]'
         chk.mapping(raw, key)
@@ -643,13 +653,24 @@ def load_scene(path_or_name: str | os.PathLike) -> Scene:
         elif 'parent_offset' in raw:
             chk.fail(f'{key}.parent_offset', 'parent_offset only together with parent',
                      show_value=False)
+        tag_id = None
+        if 'markers' in raw:
+            markers = chk.mapping(raw['markers'], f'{key}.markers')
+            chk.keys(markers, f'{key}.markers', set(), _MARKER_KEYS)
+            if 'tag_id' in markers:
+                tag_id = chk.integer(markers['tag_id'], f'{key}.markers.tag_id', low=0,
+                                     high=MAX_TAG_ID)
+                if tag_id in seen_tags:
+                    chk.fail(f'{key}.markers.tag_id', f'a tag id no other module has '
+                             f'(modules[{seen_tags[tag_id]}] has {tag_id})', tag_id)
+                seen_tags[tag_id] = i
         modules.append(SceneModule(
             name=mname, holes=holes, threading_mm=offsets, base_position_m=position,
             base_orientation_xyzw=orientation, host=host, port=port, counts_per_mm=cpm,
             straight_length_mm=straight, max_contraction_mm=max_c, winch_speed_mm_s=speed,
             color=color, parent=parent,
             parent_offset_position_m=offset_pos, parent_offset_orientation_xyzw=offset_q,
-            index=i))
+            index=i, tag_id=tag_id))
     for i, m in enumerate(modules):
         if m.parent is not None and m.parent not in seen_names:
             chk.fail(f'modules[{i}].parent', f'the name of another module ({", ".join(seen_names)})',
