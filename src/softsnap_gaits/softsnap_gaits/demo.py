@@ -995,6 +995,8 @@ def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
                 # it sent stays queued (STREAM_DEPTH) and is taken afterwards.
                 stop_gait(processes)
                 observer.drain(window_ns[1], lambda: not stop_requested)
+                if camera is not None:
+                    camera.wait_for_truth(observer.spin_for, window_ns[1])
     finally:
         # Stop the producers first (gait), the recorders last so they see everything.
         stop_gait(processes)

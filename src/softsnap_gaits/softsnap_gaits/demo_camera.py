@@ -132,6 +132,22 @@ class CameraObserver:
         out = [] if self.frame_stamps_ns else ['camera/camera_info']
         return out + [f'{n}/shape/measured' for n, t in self.modules.items() if not t.measured]
 
+    def _truth_behind(self, end_ns: int) -> bool:
+        for track in self.modules.values():
+            measured = [t for t, _p, _v in track.measured if t <= end_ns]
+            if measured and max(track.truth, default=-1) < max(measured):
+                return True
+        return False
+
+    def wait_for_truth(self, spin_for, end_ns: int, timeout_s: float = 20.0) -> None:
+        """Spin (``spin_for(seconds)``) until every module's ground truth reaches its last
+        measured shape up to `end_ns`, or `timeout_s` wall seconds pass: sim_robot's
+        publishing thread ran seconds behind the tracker on the loaded machine, and the
+        run's last frames had no truth yet when the gait stopped."""
+        deadline = time.monotonic() + timeout_s
+        while self._truth_behind(end_ns) and time.monotonic() < deadline:
+            spin_for(0.1)
+
     def summary(self, window_ns) -> dict:
         """The summary's ``camera`` entry for the run window (stamps, ns)."""
         inside = [i for i, t in enumerate(self.frame_stamps_ns) if window_ns[0] <= t <= window_ns[1]]
