@@ -84,8 +84,9 @@ def test_markers_are_where_the_published_intrinsics_project_the_rib_centres(bent
         for uv in expected:
             errors.append(np.min(np.linalg.norm(pink - uv, axis=1)))
     errors = np.array(errors)
-    # A 6 mm disc is ~8.5 px across here (0.7 mm/px): its centroid within 0.25 px.
-    assert errors.max() < 0.25, errors.max()
+    # A 6 mm disc (a 16-gon) is ~8.5 px across here (0.7 mm/px); the centroid of its
+    # pixel mask is off by the pixel grid only: within 0.35 px (0.25 mm), 0.15 px on average.
+    assert errors.max() < 0.35 and errors.mean() < 0.15, (errors.max(), errors.mean())
     # The bent legs really bent (the test is not of a straight star only).
     tip = np.asarray(sim.rib_centers(sim.module_names[0]))[-1]
     assert abs(tip[1]) > 0.03

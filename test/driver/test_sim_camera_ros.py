@@ -42,6 +42,8 @@ def test_the_camera_publishes_frames_with_honest_camera_info_and_ground_truth_st
     image = images[-1]
     assert (image.width, image.height, image.encoding, image.step) == (1280, 960, 'rgb8', 3840)
     assert len(image.data) == 1280 * 960 * 3
+    # camera_info follows its image (same stamp), on its own topic.
+    assert ros_node.spin_until(lambda: any(_stamp_ns(i) == _stamp_ns(image) for i in infos), 30.0)
     info = next(i for i in infos if _stamp_ns(i) == _stamp_ns(image))
     f = 480.0 / math.tan(math.radians(22.5))       # fovy 45 degrees over 960 rows
     assert np.allclose(info.k, [f, 0, 639.5, 0, f, 479.5, 0, 0, 1])

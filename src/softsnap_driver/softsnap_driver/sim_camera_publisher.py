@@ -33,7 +33,8 @@ from sensor_msgs.msg import CameraInfo, Image
 from softsnap_driver.sim_camera import (DEFAULT_CAMERA_RATE_HZ, DEFAULT_FOVY_DEG,
                                         DEFAULT_HEIGHT_PX, DEFAULT_WIDTH_PX,
                                         OPTICAL_IN_WORLD_WXYZ, CameraError, CameraSettings,
-                                        MarkerLayout, SimCamera, capture_frame_state)
+                                        MarkerLayout, SimCamera, capture_frame_state,
+                                        lower_thread_priority)
 from softsnap_driver.sim_observation import TickSchedule
 
 #: The node's camera options: name: (type, default, help), as sim_robot.OPTIONS.
@@ -147,6 +148,8 @@ class CameraPublisher:
 
     # -- the camera thread --------------------------------------------------------------
     def _run(self) -> None:
+        # Physics first: this thread and the rasteriser threads it starts run niced.
+        lower_thread_priority()
         try:
             self.camera = SimCamera(self.simulation, self._settings, self._markers)
             self._first_image = self.camera.render(capture_frame_state(self.simulation))

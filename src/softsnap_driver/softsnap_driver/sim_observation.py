@@ -99,7 +99,7 @@ class ObservationWorker:
     """
 
     def __init__(self, name: str, handle: Callable[[Any], None],
-                 failed: Callable[[Any, BaseException], None], depth: int = 4):
+                 failed: Callable[[Any, BaseException], None], depth: int = 16):
         self.handle = handle
         self.failed = failed
         self.dropped = 0

@@ -176,8 +176,10 @@ class SimRobotNode(SoftSnapNode):
         if self._ground_truth_schedule is None:
             return
         for name in self.runner.robot.module_names:
+            # Depth 100: a reader that falls seconds behind (a demo observer on a loaded
+            # machine) still gets every sample; they are small.
             self._ground_truth_publishers[name] = self.create_publisher(
-                MeasuredShape, f'{name}/shape/ground_truth', 10)
+                MeasuredShape, f'{name}/shape/ground_truth', 100)
         self._ground_truth_worker = ObservationWorker(
             'sim_robot.ground_truth', self.publish_ground_truth, self._observation_failed)
 

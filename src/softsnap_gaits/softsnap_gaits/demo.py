@@ -39,6 +39,9 @@ factor (the wall time the run took is shown beside it).
 The runner observes the robot with its own rclpy node; it holds no science itself (tip
 positions come from :func:`softsnap_model.geometry.rib_centers`, predicted shapes for
 simulated ones from :func:`softsnap_model.forward.solve_forward`).
+
+``--camera`` (with ``--physics``) adds sim_robot's camera and the marker tracker, and the
+summary's ``camera`` entry (:mod:`softsnap_gaits.demo_camera`).
 """
 from __future__ import annotations
 
@@ -59,6 +62,7 @@ import numpy as np
 from softsnap_model.geometry import rib_centers
 from softsnap_model.scene import SceneError, load_scene
 
+from .demo_camera import CameraObserver, print_camera, with_camera
 from .graph import DRIVER_MODES, SIM_MODULE_MODES, NodeSpec, robot_graph
 from .isolation import Slot, claim_slot
 
@@ -981,6 +985,8 @@ def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
                         bag=bag, bag_all=args.bag_all, physics=args.physics,
                         sim_robot_parameters=sim_robot_parameters, drivers=args.drivers,
                         sim_modules=sim_modules)
+    if args.camera:
+        specs = with_camera(specs, scene)
     # The observer in this process and every child use the slot's domain.
     os.environ['ROS_DOMAIN_ID'] = str(slot.domain_id)
     env = dict(os.environ, PYTHONUNBUFFERED='1')
@@ -996,7 +1002,7 @@ def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
 
     old_handlers = {sig: signal.signal(sig, request_stop) for sig in (signal.SIGINT, signal.SIGTERM)}
     processes: list[Process] = []
-    observer = None
+    observer = camera = None
     elapsed, usage_start, usage_end = 0.0, {}, {}
     window_ns = (0, 2**63)  # ROS time of the run: set below
     startup_s = None
@@ -1014,6 +1020,7 @@ def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
         observer = Observer(scene, f'/{scene.name}', physics=args.physics,
                             streams='robot' if len(scene.modules) > SHARED_SIMS_ABOVE
                             else 'modules')
+        camera = CameraObserver(observer.node, scene) if args.camera else None
         launched_at = time.monotonic()
         for spec in specs:
             processes.append(Process(spec, run_dir, env, pass_fds=(slot.lock_fd,)))
@@ -1035,14 +1042,16 @@ def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
             # The recorder too: on a loaded machine rerun_logger came up seconds after the
             # nodes it records, or took their messages seconds after it had subscribed,
             # and a short run's recording lacked shapes.
-            return observer.ready() and (args.no_rerun
-                                         or not recorder_missing(observer, args.physics))
+            return (observer.ready() and (camera is None or camera.ready())
+                    and (args.no_rerun or not recorder_missing(observer, args.physics)))
 
         deadline = time.monotonic() + args.ready_timeout
         while check_children() and not ready() and time.monotonic() < deadline:
             observer.spin_for(0.1)
         if check_children() and not observer.ready():
             not_ready = observer.missing()
+        elif check_children() and camera is not None and not camera.ready():
+            not_ready = {'camera': camera.missing()}
         elif check_children() and not ready():
             not_ready = {'rerun_logger': ['nothing taken from ' + ', '.join(
                 recorder_missing(observer, args.physics))]}
@@ -1078,6 +1087,8 @@ def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
                 # it sent stays queued (STREAM_DEPTH) and is taken afterwards.
                 stop_gait(processes)
                 observer.drain(window_ns[1], lambda: not stop_requested)
+                if camera is not None:
+                    camera.wait_for_truth(observer.spin_for, window_ns[1])
     finally:
         # Stop the producers first (gait), the recorders last so they see everything.
         stop_gait(processes)
@@ -1120,6 +1131,8 @@ def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
         sim = next((p for p in processes if p.spec.executable == 'sim_robot'), None)
         summary['physics'] = physics_summary(scene, args.gait or scene.default_gait, observer,
                                              window_ns, sim.tail(50) if sim else '')
+    if camera is not None:
+        summary['camera'] = camera.summary(window_ns)
     summary['processes'] = {
         name: {'cpu_percent': 100.0 * (usage_end[name][0] - usage_start[name][0]) / elapsed,
                'rss_mib': usage_end[name][1] / 2**20}
@@ -1129,6 +1142,8 @@ def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
         print(json.dumps(summary, indent=2, default=float))
     else:
         print_summary(summary)
+        if camera is not None:
+            print_camera(summary['camera'])
     if crashed:
         return 1
     return 130 if stop_requested else 0
@@ -1245,6 +1260,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--json', action='store_true', help='print the summary as JSON')
     parser.add_argument('--closed-loop', action='store_true', help='with --physics: the shape '
                         'controller reaching a target on a MuJoCo gripper finger (docs/control.md)')
+    parser.add_argument('--camera', action='store_true',
+                        help="with --physics: sim_robot's camera and the marker tracker")
     return parser
 
 
@@ -1257,6 +1274,8 @@ def main(argv: list[str] | None = None) -> int:
         build_parser().error(f'--seconds must be positive, got {args.seconds}')
     if args.physics and args.real:
         build_parser().error('--physics simulates the robot; it cannot drive --real modules')
+    if args.camera and not args.physics:
+        build_parser().error('--camera renders the physics simulation: add --physics')
     if not (0 < args.time_factor <= 100 and math.isfinite(args.time_factor)):
         build_parser().error(f'--time-factor must be in (0, 100], got {args.time_factor}')
     if not (args.ready_timeout > 0 and math.isfinite(args.ready_timeout)):

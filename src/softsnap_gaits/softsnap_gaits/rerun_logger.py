@@ -39,6 +39,9 @@ Parameters (read-only except ``rate``):
               do not log a module's shape again while it is unchanged (the model node
               re-sends unchanged modules in every RobotShape)
   world_view  3D view in the world frame, the robot moved by sim/base_pose (physics runs)
+  camera      also record sim_robot's camera (camera/image_raw, camera_info, pose), the
+              tracker's <module>/shape/measured and the prediction projected onto the
+              frames (softsnap_gaits.rerun_camera)
 """
 from __future__ import annotations
 
@@ -185,6 +188,10 @@ class RerunLoggerNode(SoftSnapNode):
         self.declare_parameter('world_view', False, ParameterDescriptor(
             description='3D view in the world frame: the robot moves by sim/base_pose '
                         '(runs simulated in physics)', read_only=True))
+        self.declare_parameter('camera', False, ParameterDescriptor(
+            description="sim_robot's camera images, the tracker's detections and the "
+                        'prediction projected onto them (softsnap_gaits.rerun_camera)',
+            read_only=True))
         self.add_on_set_parameters_callback(self.parameters_callback)
 
         scene = self._load_scene(self.get_parameter('scene').value)
@@ -262,6 +269,10 @@ class RerunLoggerNode(SoftSnapNode):
         self._module_subscriptions: dict[str, list] = {}
         for module in sorted(modules or ()):
             self._subscribe_module(module)
+        self.camera = None
+        if self.get_parameter('camera').value:
+            from .rerun_camera import attach_camera
+            self.camera = attach_camera(self, scene)
         rate = self.get_parameter('rate').value
         self.get_logger().info(
             f'recording {robot} to {self.output or "(no file)"}'
@@ -299,9 +310,10 @@ class RerunLoggerNode(SoftSnapNode):
         names = [n for n in (self.get_parameter('modules').value or []) if n]
         return frozenset(names) or None
 
-    def _subscribe(self, msg_type, topic: str, handler, raw: bool = False):
+    def _subscribe(self, msg_type, topic: str, handler, raw: bool = False,
+                   qos: QoSProfile = SUBSCRIPTION_QOS):
         subscription = self._inbox.create_subscription(msg_type, topic, lambda msg: None,
-                                                       SUBSCRIPTION_QOS, raw=raw)
+                                                       qos, raw=raw)
         self._drained.append((subscription, msg_type, raw, handler))
         self.taken.setdefault(subscription.topic_name, 0)
         return subscription
@@ -372,12 +384,18 @@ class RerunLoggerNode(SoftSnapNode):
         self._robot_shape(self._decode(data), 'commanded')
 
     def predicted_shape_callback(self, data: bytes) -> None:
-        self._robot_shape(self._decode(data), 'predicted')
+        shape = self._decode(data)
+        self._robot_shape(shape, 'predicted')
+        if self.camera is not None:
+            self.camera.predicted_shape(shape)
 
     def simulated_shape_callback(self, data: bytes) -> None:
         # Its base poses are in the world: the module frames keep the model's poses in
         # the robot frame, and the robot frame follows sim/base_pose.
-        self._robot_shape(self._decode(data), 'simulated', base_poses=False)
+        shape = self._decode(data)
+        self._robot_shape(shape, 'simulated', base_poses=False)
+        if self.camera is not None:
+            self.camera.simulated(shape)
 
     def _decode(self, data: bytes) -> cdr.RobotShapeCdr:
         """A raw RobotShape, read by the cdr module; see `_fallback`."""

@@ -31,7 +31,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Point
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
 from rclpy.executors import SingleThreadedExecutor
-from rclpy.qos import QoSProfile, qos_profile_sensor_data
+from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo as CameraInfoMsg
 from sensor_msgs.msg import Image
 
@@ -104,7 +104,16 @@ class MarkerTrackerNode(SoftSnapNode):
         self._predictions: dict[str, tuple[float, np.ndarray | None]] = {}
         self._warned_at: dict[str, float] = {}
 
-        self.create_subscription(Image, 'image_raw', self.image_callback, qos_profile_sensor_data)
+        # reliable_images (issue 33, the physics demo's camera): a 1280x960 rgb8 frame is
+        # 3.7 MB, ~57 UDP fragments; best effort on a loaded machine lost all but 2 of
+        # ~60 frames in the demo (any lost fragment loses the frame). Reliable with depth 1
+        # still keeps only the newest frame.
+        self.declare_parameter('reliable_images', False, ParameterDescriptor(
+            description='subscribe to image_raw reliable (depth 1) instead of sensor-data '
+                        'best effort (large frames over a loaded machine)', read_only=True))
+        image_qos = (QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
+                     if self.get_parameter('reliable_images').value else qos_profile_sensor_data)
+        self.create_subscription(Image, 'image_raw', self.image_callback, image_qos)
         self.create_subscription(CameraInfoMsg, 'camera_info', self.camera_info_callback,
                                  qos_profile_sensor_data)
         qos = QoSProfile(depth=10)
