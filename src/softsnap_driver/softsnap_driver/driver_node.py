@@ -46,11 +46,12 @@ from softsnap_interfaces.msg import CableLength, ModuleState
 from std_srvs.srv import Trigger
 
 from softsnap_driver.cdr import CdrError, decode_cable_length
-from softsnap_driver.core import DEFAULT_CLAMP_MARGIN_M, CableCalibration
+from softsnap_driver.core import DEFAULT_CLAMP_MARGIN_M, STOP_UNCONFIRMED_EXIT, CableCalibration
 from softsnap_driver.diagnostics import DriverHealth, battery_state, diagnostic_name
 from softsnap_driver.link import LinkConfig, LinkReport, ModuleLink
 from softsnap_driver.protocol import FIRMWARE_DEADBAND_COUNTS
 from softsnap_driver.ros_parameters import SoftSnapNode
+from softsnap_driver.service_queues import create_queued_service
 from softsnap_driver.spinning import inbox_node, run_nodes_main
 from softsnap_driver.state_wire import (CableLengthWire, ModuleStateFields, ModuleStateWire,
                                         fill_module_state)
@@ -358,7 +359,7 @@ class DriverNode(SoftSnapNode):
             self._inbox = inbox_node(f'{self.get_name()}_inbox', self.get_namespace(),
                                      self.context)
         self.trigger_services = [
-            self.create_service(Trigger, f'{m}/{kind}', self._trigger_callback(kind))
+            create_queued_service(self, Trigger, f'{m}/{kind}', self._trigger_callback(kind))
             for kind in ('calibrate', 'pause', 'resume', 'stop')]
         # (link clock, ROS time as (sec, nanosec)) of the latest error
         self._error_stamp = (math.nan, (0, 0))
@@ -595,6 +596,11 @@ class DriverNode(SoftSnapNode):
                 self.commands.stop(2 * COMMAND_WAIT_S)
         self.link.stop()
 
+    def last_stop_failed(self) -> bool:
+        """Whether the link's shutdown stop, its last act, ran and was not confirmed."""
+        outcome = self.link.shutdown_stop
+        return outcome is not None and not outcome.confirmed
+
     def destroy_node(self) -> None:
         self.stop_link()
         if self._inbox is not None:
@@ -627,7 +633,12 @@ def main(args=None):
 
     def build(at_exit):
         node = DriverNode(node_name)
-        at_exit(node.destroy_node)
+
+        def stop() -> int:
+            node.destroy_node()
+            return STOP_UNCONFIRMED_EXIT if node.last_stop_failed() else 0
+
+        at_exit(stop)
         return [node]
 
     return run_nodes_main(args, 'driver_node', build)

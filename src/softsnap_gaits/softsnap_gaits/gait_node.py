@@ -33,6 +33,7 @@ from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParam
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from softsnap_driver.ros_parameters import SoftSnapNode
+from softsnap_driver.service_queues import create_queued_service
 from softsnap_driver.spinning import init_ros, spin_until_shutdown
 from softsnap_interfaces.msg import CableLength, GaitPhase
 from softsnap_interfaces.srv import SetGait
@@ -124,11 +125,11 @@ class GaitNode(SoftSnapNode):
         self.phase_publisher = self.create_publisher(GaitPhase, 'gait/phase', 50)
         # Commands published per module since start (count), reported in every GaitPhase.
         self.commands_sent = {m.name: 0 for m in self.scene.modules}
-        self.create_service(Trigger, '~/start', self.start_callback)
-        self.create_service(Trigger, '~/stop', self.stop_callback)
-        self.create_service(Trigger, '~/pause', self.pause_callback)
-        self.create_service(Trigger, '~/resume', self.resume_callback)
-        self.create_service(SetGait, '~/set_gait', self.set_gait_callback)
+        create_queued_service(self, Trigger, '~/start', self.start_callback)
+        create_queued_service(self, Trigger, '~/stop', self.stop_callback)
+        create_queued_service(self, Trigger, '~/pause', self.pause_callback)
+        create_queued_service(self, Trigger, '~/resume', self.resume_callback)
+        create_queued_service(self, SetGait, '~/set_gait', self.set_gait_callback)
         self.timer = self.create_timer(1.0 / self.get_parameter('rate').value,
                                        self.timer_callback)
         self.add_on_set_parameters_callback(self.parameters_callback)

@@ -56,6 +56,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from . import geometry
+from .rrd_check import require_recording
 from .skeleton import Skeleton
 
 APPLICATION_ID = 'softsnap'
@@ -1043,8 +1044,7 @@ def serve_recording(path: str | Path, *, web_port: int = 9090, grpc_port: int = 
     alive while the page is open.
     """
     path = Path(path)
-    if not path.is_file():
-        raise ValueError(f'no recording at {path}')
+    require_recording(path)   # not a recording: a ValueError; cut short or damaged: a warning
     rec = rr.RecordingStream(f'{APPLICATION_ID}_view')
     rec.serve_grpc(grpc_port=grpc_port)
     rec.log_file_from_path(path)
