@@ -391,7 +391,7 @@ class DriverNode(SoftSnapNode):
         # The module's motion is timed on the simulation's clock when there is one.
         self.sim_time = bool(self.get_parameter('use_sim_time').value)
         motion_clock = self._ros_time_s if self.sim_time else None
-        self.link = ModuleLink(config, self.report_callback, self.get_logger(),
+        self.link = ModuleLink(config, self.report_callback, ShutdownSafeLogger(self),
                                motion_clock=motion_clock)
         self.link.start()
         self.commands = inbox if inbox is not None else CommandInbox(self._inbox)
@@ -606,6 +606,32 @@ class DriverNode(SoftSnapNode):
         if self._inbox is not None:
             self._inbox.destroy_node()
         super().destroy_node()
+
+
+class ShutdownSafeLogger:
+    """The node's logger while its ROS context runs; after that (SIGINT: rclpy shuts the
+    context down before the link's last confirmed stop is logged) a logger of the same
+    name plus ``.shutdown`` that is not tied to /rosout, so those lines still reach the
+    console and the log file instead of each giving "Failed to publish log message to
+    rosout: publisher's context is invalid" (44-51 such lines per Ctrl-C under ros2
+    launch)."""
+
+    def __init__(self, node: Node):
+        import rclpy.logging
+        self._node = node
+        self._detached = rclpy.logging.get_logger(f'{node.get_logger().name}.shutdown')
+
+    def _logger(self):
+        return self._node.get_logger() if self._node.context.ok() else self._detached
+
+    def info(self, message: str) -> None:
+        self._logger().info(message)
+
+    def warning(self, message: str) -> None:
+        self._logger().warning(message)
+
+    def error(self, message: str) -> None:
+        self._logger().error(message)
 
 
 def steady_timer(node: Node, period_s: float, callback):
