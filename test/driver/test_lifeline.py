@@ -80,7 +80,8 @@ def _run_supervisor(tmp_path, how: str, tie: str):
     return sup, log, _child_pid(log)
 
 
-@pytest.mark.parametrize('sig', [signal.SIGKILL, signal.SIGTERM, signal.SIGHUP])
+@pytest.mark.parametrize('sig', [signal.SIGKILL, signal.SIGTERM, signal.SIGHUP],
+                         ids=['SIGKILL', 'SIGTERM', 'SIGHUP'])
 def test_child_stops_when_its_supervisor_dies_by_any_signal(tmp_path, sig):
     sup, log, pid = _run_supervisor(tmp_path, 'direct', 'none')
     try:

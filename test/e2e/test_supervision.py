@@ -67,7 +67,8 @@ def _stop_report(run_dir: Path) -> tuple[int, int]:
             text.count('stop NOT confirmed'))
 
 
-@pytest.mark.parametrize('sig', [signal.SIGKILL, signal.SIGHUP, signal.SIGTERM])
+@pytest.mark.parametrize('sig', [signal.SIGKILL, signal.SIGHUP, signal.SIGTERM],
+                         ids=['SIGKILL', 'SIGHUP', 'SIGTERM'])
 def test_no_robot_process_outlives_the_demo(sig, tmp_path):
     run_dir = tmp_path / 'run'
     proc, tag = _start_demo(run_dir)
