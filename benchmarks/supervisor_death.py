@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -65,7 +66,8 @@ def one_run(sig: int) -> tuple[int, float, int, int, int]:
         text = (run_dir / 'driver_container.log').read_text(errors='replace')
         return (len(robot), gone_after if gone_after is not None else float('inf'),
                 alive_at if alive_at is not None else len(robot),
-                text.count('(shutdown): module holds at count'), text.count('stop NOT confirmed'))
+                text.count('(shutdown): module holds at count'),
+                len(re.findall(r'stop NOT confirmed[^\n]*\(shutdown\)', text)))
     finally:
         stop_process_tree(proc, tag, 15.0)
 

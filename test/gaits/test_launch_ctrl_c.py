@@ -11,6 +11,7 @@ the simulated modules must still answer while the drivers confirm their stops.
 from __future__ import annotations
 
 import os
+import re
 import signal
 import subprocess
 import time
@@ -59,7 +60,8 @@ def _launch_graph(tmp_path, slot_port):
     return procs, group, tag
 
 
-def test_launch_graph_ctrl_c_confirms_every_stop_without_traceback(tmp_path, slot_port):
+@pytest.mark.parametrize('presses', [1, 2], ids=['ctrl-c', 'ctrl-c-twice'])
+def test_launch_graph_ctrl_c_confirms_every_stop_without_traceback(presses, tmp_path, slot_port):
     procs, group, tag = _launch_graph(tmp_path, slot_port)
     try:
         recording = tmp_path / 'launch.rrd'
@@ -73,17 +75,26 @@ def test_launch_graph_ctrl_c_confirms_every_stop_without_traceback(tmp_path, slo
         assert _wait(running, 240.0, 0.5), {spec.name: log.read_text()[-800:]
                                             for spec, _, log in procs}
         os.killpg(group, signal.SIGINT)   # Ctrl-C: every node at once
+        if presses == 2:   # pressed again while the nodes stop
+            time.sleep(0.3)
+            try:
+                os.killpg(group, signal.SIGINT)
+            except ProcessLookupError:
+                pass
         for spec, p, log in procs:
             p.wait(120)
         logs = {spec.name: log.read_text(errors='replace') for spec, _, log in procs}
         codes = {spec.name: p.returncode for spec, p, _ in procs}
+        print(f"\nexit codes after {presses} Ctrl-C: {codes}")
         assert all(code == 0 for code in codes.values()), codes
         for name, text in logs.items():
             assert 'Traceback' not in text, (name, text[-3000:])
             assert 'Failed to publish log message to rosout' not in text, (name, text[-3000:])
         text = logs['driver_container']
         assert text.count('(shutdown): module holds at count') == len(MODULES), text[-3000:]
-        assert 'NOT confirmed' not in text
+        # (A stale-command stop before the Ctrl-C may fail on a starved machine: that is
+        # the watchdog's business, retried and reported; the last act is the shutdown's.)
+        assert not re.search(r'NOT confirmed[^\n]*\(shutdown\)', text), text[-3000:]
     finally:
         for spec, p, _ in procs:
             stop_process_tree(p, tag, 10.0)

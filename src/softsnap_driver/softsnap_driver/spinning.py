@@ -130,11 +130,23 @@ def _signals_held():
     Not restored: what follows is the exit."""
     hold_signals()
     yield
+    hold_signals(final=True)
 
 
-def hold_signals() -> None:
-    """From now on SIGINT, SIGTERM and SIGHUP only print that the process is stopping."""
+def hold_signals(final: bool = False) -> None:
+    """From now on SIGINT, SIGTERM and SIGHUP only print that the process is stopping.
+
+    ``final`` (call it after ``rclpy.try_shutdown``, which puts back the handlers rclpy
+    had replaced): they are ignored from then on. A Python handler is reset to the
+    default action by the interpreter's teardown, and a Ctrl-C then, while numpy and
+    rclpy are torn down (up to 2 s on a loaded machine), ended the process by SIGINT
+    (exit status -2); an ignored signal stays ignored.
+    """
     if threading.current_thread() is not threading.main_thread():
+        return
+    if final:
+        for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+            signal.signal(sig, signal.SIG_IGN)
         return
 
     def noted(signum, _frame):

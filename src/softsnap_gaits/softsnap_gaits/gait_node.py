@@ -34,7 +34,7 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from softsnap_driver.ros_parameters import SoftSnapNode
 from softsnap_driver.service_queues import create_queued_service
-from softsnap_driver.spinning import init_ros, spin_until_shutdown
+from softsnap_driver.spinning import hold_signals, init_ros, spin_until_shutdown
 from softsnap_interfaces.msg import CableLength, GaitPhase
 from softsnap_interfaces.srv import SetGait
 from std_srvs.srv import Trigger
@@ -303,9 +303,11 @@ def main(args=None) -> int:
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        hold_signals()   # a second Ctrl-C while stopping: no traceback
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
+        hold_signals(final=True)   # ignored from here to the exit
     return 0
 
 

@@ -58,8 +58,8 @@ from visualization_msgs.msg import MarkerArray
 from softsnap_driver.cdr import CdrError, decode_cable_length
 from softsnap_driver.ros_parameters import SoftSnapNode
 from softsnap_driver.service_queues import action_qos_kwargs, create_queued_service
-from softsnap_driver.spinning import (exit_without_teardown, inbox_node, init_ros,
-                                      spin_until_shutdown)
+from softsnap_driver.spinning import (exit_without_teardown, hold_signals, inbox_node,
+                                      init_ros, spin_until_shutdown)
 from softsnap_interfaces.msg import CableLength, Design, ModelDiagnostics, ModuleShape, RobotShape
 from softsnap_interfaces.action import DesignThreading
 from softsnap_interfaces.srv import ForwardShape, InverseDesign
@@ -1170,9 +1170,11 @@ def main(args=None):
         spin_until_shutdown(executor)
     finally:
         stopped = time.monotonic()
+        hold_signals()   # a second Ctrl-C while stopping: no traceback
         executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown()
+        hold_signals(final=True)   # ignored from here to the exit
     exit_without_teardown(0, node.context, stopped)
 
 
