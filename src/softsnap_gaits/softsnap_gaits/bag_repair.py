@@ -90,6 +90,7 @@ class McapScan:
     channels: dict
     damaged: tuple[DamagedRange, ...]
     complete: bool          # the writer finished it (data end and footer reached)
+    orphaned: int = 0       # messages of a channel whose definition was lost
 
     @property
     def message_count(self) -> int:
@@ -97,13 +98,16 @@ class McapScan:
 
     @property
     def ok(self) -> bool:
-        return self.complete and not self.damaged
+        return self.complete and not self.damaged and not self.orphaned
 
     def problems(self) -> list[str]:
         """One line per damaged range (empty when the file is whole)."""
         lines = [f'{self.path.name}: {d.describe()}' for d in self.damaged]
         if not self.complete and not any(d.reason.startswith('truncated') for d in self.damaged):
             lines.append(f'{self.path.name}: no summary or footer (the writer did not close it)')
+        if self.orphaned:
+            lines.append(f'{self.path.name}: {self.orphaned} message(s) of a channel whose '
+                         'definition was in a damaged range: skipped')
         return lines
 
 
@@ -150,8 +154,10 @@ def _decompress(data: bytes, compression: str, raw_size: int) -> bytes:
     return lz4.frame.decompress(data)
 
 
-def _records(b, schemas: dict, channels: dict, on_message) -> int:
-    """Parse the records of a chunk's content; the number of messages."""
+def _records(b, schemas: dict, channels: dict, on_message, orphans: list) -> int:
+    """Parse the records of a chunk's content; the number of messages. Messages of a
+    channel not (yet) defined (its channel record was in a damaged chunk) are counted in
+    ``orphans[0]``: they cannot be decoded."""
     o, n, count = 0, len(b), 0
     while o < n:
         if o + 9 > n:
@@ -183,6 +189,8 @@ def _records(b, schemas: dict, channels: dict, on_message) -> int:
             if length < 22:
                 raise ValueError(f'message record of {length} B')
             count += 1
+            if _u16(b, c) not in channels:
+                orphans[0] += 1
             if on_message is not None:
                 on_message(_u16(b, c), _u64(b, c + 6), bytes(b[c + 22:o]))
     return count
@@ -208,6 +216,7 @@ def _walk(path: Path, on_chunk_message=None) -> McapScan:
     chunks: list[ChunkSpan] = []
     damaged: list[DamagedRange] = []
     complete = False
+    orphans = [0]
     with open(path, 'rb') as handle, mmap.mmap(handle.fileno(), 0, access=mmap.ACCESS_READ) as b:
         o = len(MAGIC)
         while o < size:
@@ -253,7 +262,7 @@ def _walk(path: Path, on_chunk_message=None) -> McapScan:
                     found: list = []
                     count = _records(raw, schemas, channels,
                                      None if on_chunk_message is None else
-                                     lambda *m: found.append(m))
+                                     lambda *m: found.append(m), orphans)
                 except Exception as error:  # noqa: BLE001 - any decoding failure is damage
                     damaged.append(DamagedRange(o, end, f'chunk does not decode: {error}',
                                                 start_ns, end_ns))
@@ -268,7 +277,7 @@ def _walk(path: Path, on_chunk_message=None) -> McapScan:
                     found = []
                     count = _records(bytes(b[o:end]), schemas, channels,
                                      None if on_chunk_message is None else
-                                     lambda *m: found.append(m))
+                                     lambda *m: found.append(m), orphans)
                 except Exception as error:  # noqa: BLE001
                     damaged.append(DamagedRange(o, end, f'record does not decode: {error}'))
                     o = end
@@ -285,7 +294,7 @@ def _walk(path: Path, on_chunk_message=None) -> McapScan:
                 complete = True
                 break
             o = end
-    return McapScan(path, size, tuple(chunks), channels, tuple(damaged), complete)
+    return McapScan(path, size, tuple(chunks), channels, tuple(damaged), complete, orphans[0])
 
 
 def scan_mcap(path: str | Path) -> McapScan:

@@ -56,6 +56,7 @@ from pathlib import Path
 
 import numpy as np
 
+from softsnap_driver.lifeline import Lifeline
 from softsnap_model.geometry import rib_centers
 from softsnap_model.scene import SceneError, load_scene
 
@@ -916,7 +917,6 @@ def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
     # their lifeline end and stop too (softsnap_driver.lifeline).
     old_handlers = {sig: signal.signal(sig, request_stop)
                     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
-    from softsnap_driver.lifeline import Lifeline
     lifeline = Lifeline()
     env = lifeline.env(env)
     processes: list[Process] = []
