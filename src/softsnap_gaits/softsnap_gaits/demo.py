@@ -851,8 +851,8 @@ def print_summary(summary: dict) -> None:
     problems = summary.get('shutdown_problems')
     if problems is None:   # a summary without the shutdown's account: judge by exit codes
         problems = shutdown_problems(summary['exit_codes'])
-    print('processes: all stopped cleanly (in order: gait, drivers with confirmed stops, '
-          'simulators, model, recorders)' if not problems else
+    print('processes: all stopped cleanly (in order: gait, drivers, simulators, then model '
+          'and recorders)' if not problems else
           'processes with errors: ' + '; '.join(f'{k}: {v}' for k, v in problems.items()))
     if summary['recording']:
         print(f"recording: {summary['recording']} ({summary['recording_bytes'] / 1024:.0f} KiB); "
@@ -1000,7 +1000,7 @@ def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
                 observer.drain(window_ns[1], lambda: not stop_requested)
     finally:
         # Dependency order (supervision.py): gait, drivers (confirming their stops while
-        # the modules answer), simulators, model, recorders last so they see everything.
+        # the modules answer), simulators, then model and recorders.
         stops = stop_in_order(processes, STOP_TIMEOUT_S,
                               warn=lambda text: print(text, file=sys.stderr))
         for p in processes:
@@ -1029,6 +1029,7 @@ def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
     summary.update(_bag_summary(bag))
     summary['shutdown_problems'] = problems
     summary['shutdown_order'] = [r.name for r in stops]
+    summary['shutdown_seconds'] = {r.name: r.seconds for r in stops}  # from its stage's SIGINT
     summary['started'] = started
     summary['ros_domain_id'] = slot.domain_id
     if args.physics:

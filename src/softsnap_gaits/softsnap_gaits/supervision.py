@@ -8,8 +8,8 @@ stage only once the one before has exited:
    answers; a driver whose last stop was not confirmed exits with
    :data:`softsnap_driver.core.STOP_UNCONFIRMED_EXIT`;
 2. the simulators (``sim_module``, ``sim_robot``);
-3. the model;
-4. the recorders (``rerun_logger``, the bag recorder), so they record everything.
+3. the model and the recorders (``rerun_logger``, the bag recorder), which have then
+   recorded everything the drivers reported, their last stops included.
 
 Stopped all at once (SIGINT to every process, as before) the simulated modules went in
 the same instant as their drivers and every driver logged "stop NOT confirmed ...
@@ -22,6 +22,7 @@ the only "stopped cleanly". No ROS imports.
 from __future__ import annotations
 
 import dataclasses
+import re
 import signal
 import subprocess
 import time
@@ -34,7 +35,7 @@ SHUTDOWN_STAGES = {
     'driver_container': 1, 'driver_node': 1,
     'sim_module': 2, 'sim_robot': 2,
     'model_node': 3,
-    'rerun_logger': 4, 'bag': 4,
+    'rerun_logger': 3, 'bag': 3,
 }
 DEFAULT_STAGE = 3
 #: Exit statuses of a process stopped by its SIGINT (rclpy nodes: 0; Python's default
@@ -102,3 +103,16 @@ def shutdown_problems(exit_codes: dict[str, int | None], executables: dict[str, 
         elif code not in CLEAN_EXITS:
             problems[name] = f'exit status {code}'
     return problems
+
+
+_STOP_LINE = re.compile(r'\[(?:[\w/]+\.)*(\w+)_driver(?:\.shutdown)?\]: '
+                        r'stop (confirmed|NOT confirmed)[^\n]*?\(([a-z][a-z ]+[a-z])\)')
+
+
+def last_stop_outcomes(log_text: str) -> dict[str, tuple[bool, str]]:
+    """Module -> (confirmed, why) of each driver's last stop in a drivers' log (the
+    link's "stop confirmed at ... (why)" and "stop NOT confirmed ... (why)" lines)."""
+    outcomes = {}
+    for match in _STOP_LINE.finditer(log_text):
+        outcomes[match.group(1)] = (match.group(2) == 'confirmed', match.group(3))
+    return outcomes
