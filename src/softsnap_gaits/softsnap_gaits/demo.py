@@ -851,7 +851,7 @@ def print_summary(summary: dict) -> None:
     problems = summary.get('shutdown_problems')
     if problems is None:   # a summary without the shutdown's account: judge by exit codes
         problems = shutdown_problems(summary['exit_codes'])
-    print('processes: all stopped cleanly (in order: gait, drivers, simulators, then model '
+    print('processes: all stopped cleanly (in order: gait, drivers, then simulators, model '
           'and recorders)' if not problems else
           'processes with errors: ' + '; '.join(f'{k}: {v}' for k, v in problems.items()))
     if summary['recording']:
@@ -1000,7 +1000,7 @@ def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
                 observer.drain(window_ns[1], lambda: not stop_requested)
     finally:
         # Dependency order (supervision.py): gait, drivers (confirming their stops while
-        # the modules answer), simulators, then model and recorders.
+        # the modules answer), then simulators, model and recorders.
         stops = stop_in_order(processes, STOP_TIMEOUT_S,
                               warn=lambda text: print(text, file=sys.stderr))
         for p in processes:
