@@ -41,6 +41,9 @@ RANGE_TOL_M = 1e-9
 #: outside the allowed range are clamped (a planner's rounding, a slightly different
 #: straight length); further out they are refused as non-physical.
 DEFAULT_CLAMP_MARGIN_M = 0.005
+#: Exit status of a driver process whose last stop was not confirmed (the module may
+#: still move): a supervisor reports it as an error, never as a clean stop.
+STOP_UNCONFIRMED_EXIT = 3
 
 
 @dataclass(frozen=True)

@@ -40,8 +40,8 @@ from rclpy.exceptions import ParameterUninitializedException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from softsnap_driver.driver_node import (_NAME, COMMAND_WAIT_S, CommandInbox, DriverNode,
-                                         steady_timer)
+from softsnap_driver.driver_node import (_NAME, COMMAND_WAIT_S, STOP_UNCONFIRMED_EXIT,
+                                         CommandInbox, DriverNode, steady_timer)
 from softsnap_driver.link import SHUTDOWN_BUDGET_S
 from softsnap_driver.spinning import inbox_node, run_nodes_main
 
@@ -130,11 +130,12 @@ class DriverContainer(Node):
                 driver.get_logger().error(f'diagnostics failed: {exc!r}',
                                           throttle_duration_sec=1.0)
 
-    def stop_drivers(self) -> None:
+    def stop_drivers(self) -> int:
         """Stop every link at once (each within its own budget), then destroy the nodes.
 
         Each driver's stop_link closes its command route at once; the shared command
-        thread is told to end now and joined before its node is destroyed."""
+        thread is told to end now and joined before its node is destroyed. Returns the
+        exit status: STOP_UNCONFIRMED_EXIT if a driver's last stop was not confirmed."""
         if self.commands is not None:
             self.commands.stop(0.0)
         threads = [threading.Thread(target=d.stop_link, name=f'stop:{d.module}')
@@ -143,6 +144,7 @@ class DriverContainer(Node):
             thread.start()
         for thread in threads:
             thread.join(SHUTDOWN_BUDGET_S + 2 * COMMAND_WAIT_S + 0.1)
+        failed = [d.module for d in self.drivers if d.last_stop_failed()]
         for driver in self.drivers:
             driver.destroy_node()   # links already stopped: returns at once
         self.drivers = []
@@ -150,6 +152,10 @@ class DriverContainer(Node):
             self.commands.stop(2 * COMMAND_WAIT_S)
             self._inbox_node.destroy_node()
             self._inbox_node = None
+        if failed:
+            print(f'[driver_container] last stop NOT confirmed for: {", ".join(failed)}',
+                  file=sys.stderr, flush=True)
+        return STOP_UNCONFIRMED_EXIT if failed else 0
 
 
 def main(args=None):

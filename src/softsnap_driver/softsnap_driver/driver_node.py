@@ -46,11 +46,12 @@ from softsnap_interfaces.msg import CableLength, ModuleState
 from std_srvs.srv import Trigger
 
 from softsnap_driver.cdr import CdrError, decode_cable_length
-from softsnap_driver.core import DEFAULT_CLAMP_MARGIN_M, CableCalibration
+from softsnap_driver.core import DEFAULT_CLAMP_MARGIN_M, STOP_UNCONFIRMED_EXIT, CableCalibration
 from softsnap_driver.diagnostics import DriverHealth, battery_state, diagnostic_name
 from softsnap_driver.link import LinkConfig, LinkReport, ModuleLink
 from softsnap_driver.protocol import FIRMWARE_DEADBAND_COUNTS
 from softsnap_driver.ros_parameters import SoftSnapNode
+from softsnap_driver.service_queues import create_queued_service
 from softsnap_driver.spinning import inbox_node, run_nodes_main
 from softsnap_driver.state_wire import (CableLengthWire, ModuleStateFields, ModuleStateWire,
                                         fill_module_state)
@@ -358,7 +359,7 @@ class DriverNode(SoftSnapNode):
             self._inbox = inbox_node(f'{self.get_name()}_inbox', self.get_namespace(),
                                      self.context)
         self.trigger_services = [
-            self.create_service(Trigger, f'{m}/{kind}', self._trigger_callback(kind))
+            create_queued_service(self, Trigger, f'{m}/{kind}', self._trigger_callback(kind))
             for kind in ('calibrate', 'pause', 'resume', 'stop')]
         # (link clock, ROS time as (sec, nanosec)) of the latest error
         self._error_stamp = (math.nan, (0, 0))
@@ -390,7 +391,7 @@ class DriverNode(SoftSnapNode):
         # The module's motion is timed on the simulation's clock when there is one.
         self.sim_time = bool(self.get_parameter('use_sim_time').value)
         motion_clock = self._ros_time_s if self.sim_time else None
-        self.link = ModuleLink(config, self.report_callback, self.get_logger(),
+        self.link = ModuleLink(config, self.report_callback, ShutdownSafeLogger(self),
                                motion_clock=motion_clock)
         self.link.start()
         self.commands = inbox if inbox is not None else CommandInbox(self._inbox)
@@ -595,11 +596,42 @@ class DriverNode(SoftSnapNode):
                 self.commands.stop(2 * COMMAND_WAIT_S)
         self.link.stop()
 
+    def last_stop_failed(self) -> bool:
+        """Whether the link's shutdown stop, its last act, ran and was not confirmed."""
+        outcome = self.link.shutdown_stop
+        return outcome is not None and not outcome.confirmed
+
     def destroy_node(self) -> None:
         self.stop_link()
         if self._inbox is not None:
             self._inbox.destroy_node()
         super().destroy_node()
+
+
+class ShutdownSafeLogger:
+    """The node's logger while its ROS context runs; after that (SIGINT: rclpy shuts the
+    context down before the link's last confirmed stop is logged) a logger of the same
+    name plus ``.shutdown`` that is not tied to /rosout, so those lines still reach the
+    console and the log file instead of each giving "Failed to publish log message to
+    rosout: publisher's context is invalid" (44-51 such lines per Ctrl-C under ros2
+    launch)."""
+
+    def __init__(self, node: Node):
+        import rclpy.logging
+        self._node = node
+        self._detached = rclpy.logging.get_logger(f'{node.get_logger().name}.shutdown')
+
+    def _logger(self):
+        return self._node.get_logger() if self._node.context.ok() else self._detached
+
+    def info(self, message: str) -> None:
+        self._logger().info(message)
+
+    def warning(self, message: str) -> None:
+        self._logger().warning(message)
+
+    def error(self, message: str) -> None:
+        self._logger().error(message)
 
 
 def steady_timer(node: Node, period_s: float, callback):
@@ -627,7 +659,12 @@ def main(args=None):
 
     def build(at_exit):
         node = DriverNode(node_name)
-        at_exit(node.destroy_node)
+
+        def stop() -> int:
+            node.destroy_node()
+            return STOP_UNCONFIRMED_EXIT if node.last_stop_failed() else 0
+
+        at_exit(stop)
         return [node]
 
     return run_nodes_main(args, 'driver_node', build)

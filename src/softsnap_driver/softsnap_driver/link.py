@@ -234,6 +234,7 @@ class ModuleLink:
         self._clock = clock
         self._motion_clock = clock if motion_clock is None else motion_clock
         self._client_factory = client_factory
+        self.shutdown_stop: StopOutcome | None = None   # the last act (None: no stop needed)
         self._cond = threading.Condition()
         # Shared state, guarded by _cond.
         self._stop = False
@@ -801,7 +802,8 @@ class ModuleLink:
             wanted = self._stop_wanted is not None
             deadline = self._exit_deadline
         if config.stop_on_shutdown and (self._may_move or wanted):
-            self._stop_round(config, 'shutdown', min(deadline, self._clock() + config.stop_deadline_s))
+            self.shutdown_stop = self._stop_round(  # read by the node for its exit status
+                config, 'shutdown', min(deadline, self._clock() + config.stop_deadline_s))
 
     def _emit(self, config: LinkConfig, fresh: bool) -> None:
         now = self._clock()

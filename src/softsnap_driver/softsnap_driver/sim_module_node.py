@@ -119,7 +119,8 @@ def _stop(node: SimModuleNode) -> int:
 def main(argv: list[str] | None = None) -> int:
     # Plain options (before --ros-args) give the parameters' defaults; the servers run on
     # their own threads, the executor only serves the parameter services.
-    return run_simulator_main(argv, 'sim_module', build_parser, SimModuleNode, _stop)
+    return run_simulator_main(argv, 'sim_module', build_parser, SimModuleNode, _stop,
+                              served=lambda node: sum(s.connections for s in node.servers))
 
 
 if __name__ == '__main__':

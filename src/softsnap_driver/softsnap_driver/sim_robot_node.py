@@ -345,7 +345,8 @@ def _stop(node: SimRobotNode) -> int:
 def main(argv: list[str] | None = None) -> int:
     # The simulation and the servers run on their own threads; the executor publishes
     # snapshots and serves the parameter services.
-    return run_simulator_main(argv, 'sim_robot', build_node_parser, SimRobotNode, _stop)
+    return run_simulator_main(argv, 'sim_robot', build_node_parser, SimRobotNode, _stop,
+                              served=lambda node: node.runner.servers.connections)
 
 
 if __name__ == '__main__':

@@ -8,9 +8,12 @@ logger). Here any exception raised once the context is no longer ok is that shut
 """
 from __future__ import annotations
 
+import contextlib
 import gc
 import os
+import signal
 import sys
+import threading
 import time
 from typing import Callable, NoReturn
 
@@ -18,12 +21,19 @@ from rclpy.executors import Executor, ExternalShutdownException
 from rclpy.node import Node
 
 from softsnap_driver.dds_profile import use_node_profile
+from softsnap_driver.lifeline import supervise
 
 
 def init_ros(**init_kwargs) -> None:
-    """``rclpy.init(**init_kwargs)`` with the nodes' Fast DDS profile (every node's main)."""
+    """``rclpy.init(**init_kwargs)`` with the nodes' Fast DDS profile (every node's main).
+
+    First the process is tied to its supervisor (:func:`softsnap_driver.lifeline.supervise`):
+    it gets SIGTERM, its ordinary shutdown, when its parent dies by any signal, when the
+    lifeline pipe of a supervisor that passed one ends, and on SIGHUP.
+    """
     import rclpy
 
+    supervise()
     use_node_profile()
     rclpy.init(**init_kwargs)
 
@@ -112,6 +122,41 @@ def exit_without_teardown(status: int, context, spinning_ended: float) -> NoRetu
     os._exit(status)
 
 
+@contextlib.contextmanager
+def _signals_held():
+    """While a node stops (its driver's confirmed stop, files closed), a second SIGINT,
+    SIGTERM or SIGHUP (Ctrl-C pressed again, a supervisor escalating) is noted instead of
+    raising KeyboardInterrupt in the middle of the stop: the process is already ending.
+    Not restored: what follows is the exit."""
+    hold_signals()
+    yield
+    hold_signals(final=True)
+
+
+def hold_signals(final: bool = False) -> None:
+    """From now on SIGINT, SIGTERM and SIGHUP only print that the process is stopping.
+
+    ``final`` (call it after ``rclpy.try_shutdown``, which puts back the handlers rclpy
+    had replaced): they are ignored from then on. A Python handler is reset to the
+    default action by the interpreter's teardown, and a Ctrl-C then, while numpy and
+    rclpy are torn down (up to 2 s on a loaded machine), ended the process by SIGINT
+    (exit status -2); an ignored signal stays ignored.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        return
+    if final:
+        for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+            signal.signal(sig, signal.SIG_IGN)
+        return
+
+    def noted(signum, _frame):
+        print(f'[{os.path.basename(sys.argv[0]) or "node"}] {signal.Signals(signum).name} '
+              'while stopping: already stopping', file=sys.stderr, flush=True)
+
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        signal.signal(sig, noted)
+
+
 def inbox_node(name: str, namespace: str, context) -> Node:
     """A node whose subscriptions a thread of its own takes from, which no executor spins
     (the drivers' CommandInbox, model_node's PredictionThread); its node-local remap keeps
@@ -130,8 +175,31 @@ def _spin_nodes(nodes) -> None:
     spin_until_shutdown(executor)
 
 
+#: After its shutdown signal a simulator keeps serving its modules while a client still
+#: talks to it, until no request came for SIM_LINGER_IDLE_S, at most SIM_LINGER_MAX_S:
+#: under ``ros2 launch`` Ctrl-C reaches every node at once, and a simulator gone in the
+#: same instant as its driver refused the driver's last act, its confirmed stop (every
+#: driver logged "stop NOT confirmed ... refused the connection").
+SIM_LINGER_IDLE_S = 0.3
+SIM_LINGER_MAX_S = 1.2
+
+
+def linger_while_served(served: Callable[[], int], idle_s: float = SIM_LINGER_IDLE_S,
+                        max_s: float = SIM_LINGER_MAX_S) -> float:
+    """Wait while ``served()`` (requests answered so far) still grows; the seconds waited."""
+    start = time.monotonic()
+    last, quiet_since = served(), start
+    while time.monotonic() - start < max_s and time.monotonic() - quiet_since < idle_s:
+        time.sleep(0.02)
+        count = served()
+        if count != last:
+            last, quiet_since = count, time.monotonic()
+    return time.monotonic() - start
+
+
 def run_simulator_main(argv: list[str] | None, name: str, build_parser: Callable,
-                       make_node: Callable, stop_node: Callable) -> int:
+                       make_node: Callable, stop_node: Callable,
+                       served: Callable | None = None) -> int:
     """``main()`` of a simulator node whose plain options give its parameters' defaults.
 
     ``make_node(defaults)`` builds the node from the parsed plain options (those before
@@ -139,6 +207,8 @@ def run_simulator_main(argv: list[str] | None, name: str, build_parser: Callable
     external shutdown (the simulator's own threads do the work). Bad parameters or a
     port in use end it with one fatal line and exit status 2. ``stop_node(node)``
     destroys the node, prints what it did and returns an exit status (0 when clean).
+    ``served(node)``, if given, counts the requests the simulator answered: after a
+    shutdown signal it serves on while they still come (:func:`linger_while_served`).
     """
     import rclpy
     from rclpy.utilities import remove_ros_args
@@ -157,9 +227,12 @@ def run_simulator_main(argv: list[str] | None, name: str, build_parser: Callable
         rclpy.logging.get_logger(name).fatal(f'cannot start: {exc}')
         status = 2
     finally:
-        if node is not None:
-            status = stop_node(node) or status
-        rclpy.try_shutdown()
+        with _signals_held():
+            if node is not None and served is not None and status == 0:
+                linger_while_served(lambda: served(node))
+            if node is not None:
+                status = stop_node(node) or status
+            rclpy.try_shutdown()
     return status
 
 
@@ -169,12 +242,14 @@ def run_nodes_main(args: list[str] | None, program: str, build: Callable) -> int
     ``build(at_exit)`` creates the nodes and returns them; it registers with
     ``at_exit(callable)`` what must run at exit (stops, ``destroy_node``), as soon as
     the thing exists, so a failure half way through still cleans up what was started.
-    Cleanups run in reverse order. A ``ValueError`` while building (a bad argument) is
+    Cleanups run in reverse order; one that returns a non-zero int (a driver whose last
+    stop was not confirmed) makes that the exit status, the highest one wins. A ``ValueError`` while building (a bad argument) is
     printed after the program's name and ends with exit status 2.
     """
     import rclpy
 
     cleanups: list[Callable] = []
+    status = 0
     init_ros(args=args)
     try:
         _spin_nodes(build(cleanups.append))
@@ -182,9 +257,10 @@ def run_nodes_main(args: list[str] | None, program: str, build: Callable) -> int
         pass
     except ValueError as exc:
         print(f'{program}: {exc}', file=sys.stderr)
-        return 2
+        status = 2
     finally:
-        for cleanup in reversed(cleanups):
-            cleanup()
-        rclpy.try_shutdown()
-    return 0
+        with _signals_held():
+            for cleanup in reversed(cleanups):
+                status = max(status, cleanup() or 0)
+            rclpy.try_shutdown()
+    return status

@@ -15,6 +15,7 @@ Command line (``ros2 run softsnap_gaits bag ...``, ``.venv/lib/softsnap_gaits/ba
     bag record -o DIR [TOPIC ...] [--namespace NS ...] [--all] [--exclude REGEX ...]
     bag play DIR [--rate R] [--topics TOPIC ...] [--loop] [--delay S] [--wait-for-subscribers S]
     bag info DIR
+    bag reindex DIR
 
 This module is the core: topic selection, message definitions, the writer, reading and
 the playback schedule, with no rclpy. The ROS side (a recorder node subscribing with
@@ -29,6 +30,7 @@ import json
 import math
 import re
 import sys
+import time
 from pathlib import Path
 from typing import Callable, Iterable, Iterator, Sequence
 
@@ -43,6 +45,11 @@ ROSBAG2_VERSION = 9
 #: Queue depth of the recorder's subscriptions (messages): a recorder that falls behind for
 #: a few seconds on a loaded machine catches up instead of DDS overwriting its queue.
 RECORD_DEPTH = 1000
+#: The writer closes its current MCAP chunk (and hands it to the operating system) once
+#: it is this old (s): a recorder killed (SIGKILL, out of memory) loses at most the
+#: messages of the chunk it had open, and `bag reindex` recovers every closed one. The
+#: rosbags writer alone closes a chunk only at 1 MiB, minutes of a small robot's topics.
+CHUNK_PERIOD_S = 1.0
 #: Queue depth the player publishes with when the bag does not know the publisher's own
 #: (DDS discovery does not carry the history depth, so recorded profiles say 0).
 PLAY_DEPTH = 100
@@ -336,6 +343,8 @@ class BagWriter:
         self._connections: dict[str, object] = {}
         self._types: dict[str, str] = {}
         self.closed = False
+        self.chunks_closed = 0
+        self._chunk_opened_s: float | None = None   # monotonic s of the open chunk's first write
 
     @property
     def topics(self) -> dict[str, str]:
@@ -364,6 +373,28 @@ class BagWriter:
         if self.closed:
             raise BagError(f'{self.path} is closed')
         self._writer.write(connection, int(timestamp_ns), data)
+        if self._chunk_opened_s is None:
+            self._chunk_opened_s = time.monotonic()
+        self.flush_if_due()
+
+    def flush_if_due(self, period_s: float = CHUNK_PERIOD_S) -> bool:
+        """Close the open chunk and write it out if it is `period_s` old; True if it did.
+
+        Also called by the recorder between messages, so a chunk closes on time when
+        messages stop coming."""
+        opened = self._chunk_opened_s
+        if self.closed or opened is None or time.monotonic() - opened < period_s:
+            return False
+        storage = getattr(self._writer, 'storage', None)
+        chunk = getattr(storage, 'chunk', None)
+        if chunk is None or not hasattr(storage, 'close_chunk'):
+            return False   # another rosbags layout: chunks close at its own size
+        if chunk.bio.tell():
+            storage.close_chunk()
+            storage.bio.flush()   # in the kernel's hands: survives a SIGKILL of this process
+            self.chunks_closed += 1
+        self._chunk_opened_s = None
+        return True
 
     def close(self) -> BagSummary:
         """Finish the MCAP file and write metadata.yaml (idempotent)."""
@@ -406,7 +437,7 @@ def _open_reader(path: Path):
     path = Path(path)
     if not (path / 'metadata.yaml').is_file():
         raise BagError(f'{path} is not a bag: no metadata.yaml in it (a recording killed '
-                       'before it closed has none)')
+                       f'before it closed has none: `bag reindex {path}` rebuilds it)')
     try:
         reader = Reader(path)
         reader.open()
@@ -432,9 +463,50 @@ def bag_info(path: str | Path) -> BagInfo:
         reader.close()
 
 
-def read_messages(path: str | Path, topics: Iterable[str] | None = None
+def bag_damage(path: str | Path) -> list[str]:
+    """One line per damaged byte range of the bag's storage files (empty: the bag is
+    whole): every chunk is decompressed and parsed (softsnap_gaits.bag_repair)."""
+    from .bag_repair import DamagedBagError, scan_mcap
+    lines = []
+    for name in bag_info(path).files:
+        try:
+            lines += scan_mcap(Path(path) / name).problems()
+        except (DamagedBagError, OSError) as error:
+            lines.append(f'{name}: {error}')
+    return lines
+
+
+def read_messages(path: str | Path, topics: Iterable[str] | None = None,
+                  on_damage: Callable[[list[str]], None] | None = None
                   ) -> Iterator[tuple[str, str, int, bytes]]:
-    """(topic, type, receive time ns, CDR bytes) of every message, in receive-time order."""
+    """(topic, type, receive time ns, CDR bytes) of every message, in receive-time order.
+
+    A bag with damaged ranges (:func:`bag_damage`) is read from its intact chunks only,
+    after ``on_damage(lines)`` (default: BagError, naming the ranges). A read failing
+    in the middle anyway raises BagError, never the decoder's own exception."""
+    damage = bag_damage(path)
+    if damage:
+        if on_damage is None:
+            raise BagError(f'{path} is damaged: ' + '; '.join(damage))
+        on_damage(damage)
+        from .bag_repair import scan_messages
+        wanted = None if topics is None else set(topics)
+        for name in bag_info(path).files:
+            for channel, stamp, data in scan_messages(Path(path) / name):
+                if wanted is None or channel.topic in wanted:
+                    yield channel.topic, channel.type_name, stamp, data
+        return
+    try:
+        yield from _read_whole(path, topics)
+    except BagError:
+        raise
+    except Exception as error:  # noqa: BLE001 - a decoder's error (zstd, CRC): one clear line
+        raise BagError(f'cannot read {path} any further: {type(error).__name__}: {error}'
+                       ) from None
+
+
+def _read_whole(path: str | Path, topics: Iterable[str] | None
+                ) -> Iterator[tuple[str, str, int, bytes]]:
     reader = _open_reader(Path(path))
     try:
         wanted = None if topics is None else set(topics)
@@ -502,9 +574,13 @@ def build_parser() -> argparse.ArgumentParser:
                       help='first wait until every played topic has a subscriber, at most S '
                            'seconds (then play anyway, naming the topics without one; '
                            'default 0: do not wait)')
-    info = commands.add_parser('info', help="print a bag's topics, types and counts")
+    info = commands.add_parser('info', help="print a bag's topics, types and counts; "
+                                            'every chunk is checked (exit 1 if damaged)')
     info.add_argument('bag', help='the bag directory')
     info.add_argument('--json', action='store_true', help='print as JSON')
+    reindex = commands.add_parser('reindex', help="rebuild a bag's metadata.yaml and index "
+                                  'from the intact chunks of its MCAP file (a killed recorder)')
+    reindex.add_argument('bag', help='the bag directory')
     return parser
 
 
@@ -524,8 +600,23 @@ def _print_info(info: BagInfo, as_json: bool) -> None:
         print(f'  {t.name:{width}s}  {t.type_name}  {t.message_count}')
 
 
+def _reindex(path: str) -> int:
+    from .bag_repair import DamagedBagError, reindex
+    try:
+        result = reindex(path)
+    except (DamagedBagError, OSError) as error:
+        print(f'bag: {error}', file=sys.stderr)
+        return 1
+    seconds = (result.end_ns - result.start_ns) / 1e9 if result.messages else 0.0
+    print(f'bag: reindexed {result.path}: {result.messages} messages in {result.chunks} '
+          f'intact chunk(s), {seconds:.3f} s of receive time; original kept as {result.original}')
+    for damaged in result.damaged:
+        print(f'bag: warning: not recovered: {damaged.describe()}', file=sys.stderr)
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
-    """``bag record|play|info``: see the module docstring. Exit 0, 1 on error, 2 on bad use."""
+    """``bag record|play|info|reindex``: see the module docstring. Exit 0, 1 on error, 2 on bad use."""
     argv = list(sys.argv[1:] if argv is None else argv)
     ros_args: list[str] = []
     if '--ros-args' in argv:
@@ -536,7 +627,12 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.command == 'info':
             _print_info(bag_info(args.bag), args.json)
-            return 0
+            damage = bag_damage(args.bag)
+            for line in damage:
+                print(f'bag: warning: damaged: {line}', file=sys.stderr)
+            return 1 if damage else 0
+        if args.command == 'reindex':
+            return _reindex(args.bag)
         if args.command == 'record':
             if not (math.isfinite(args.discovery_period) and 0.05 <= args.discovery_period <= 60):
                 parser.error(f'--discovery-period must be 0.05-60 s, got {args.discovery_period}')

@@ -70,11 +70,12 @@ def _to_rclpy(qos) -> QoSProfile:
 
 
 class _StopFlag:
-    """SIGINT/SIGTERM set it; the spin loop checks it."""
+    """SIGINT/SIGTERM/SIGHUP set it; the spin loop checks it."""
 
     def __init__(self):
         self.signal = None
-        self._old = {sig: signal.signal(sig, self._handle) for sig in (signal.SIGINT, signal.SIGTERM)}
+        self._old = {sig: signal.signal(sig, self._handle)
+                     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
 
     def _handle(self, signum, _frame):
         self.signal = signum
@@ -170,6 +171,7 @@ def record(output: Path, selection: TopicFilter, discovery_period_s: float,
         recording = True
         while not stop and context.ok():
             executor.spin_once(timeout_sec=SPIN_STEP_S)
+            writer.flush_if_due()   # a chunk a second, also when messages stop coming
     finally:
         summary = writer.close()
         if not recording and summary.message_count == 0:
@@ -243,9 +245,19 @@ def play(bag: Path, rate: float, topics: tuple[str, ...] | None, loop: bool, del
                 node.get_logger().warning(f'playing without a subscriber on: {", ".join(lonely)}')
         playing = playing and wait_until(time.monotonic() + delay_s)
         passes = 0
+        damaged: list[str] = []
+
+        def skip_damage(lines: list[str]) -> None:
+            # Played from the intact chunks; named once, and the exit status says so.
+            if not damaged:
+                for line in lines:
+                    node.get_logger().warning(f'damaged, skipped: {line}')
+            damaged[:] = lines
+
         while playing:
             clock = None
-            for topic, _type, stamp, data in read_messages(bag, node.publishers_):
+            for topic, _type, stamp, data in read_messages(bag, node.publishers_,
+                                                           on_damage=skip_damage):
                 if clock is None:
                     clock = PlaybackClock(rate, stamp, time.monotonic())
                 if not wait_until(clock.due(stamp)):
@@ -264,4 +276,4 @@ def play(bag: Path, rate: float, topics: tuple[str, ...] | None, loop: bool, del
             node.destroy_node()
         rclpy.try_shutdown(context=context)
         stop.restore()
-    return 0
+    return 1 if damaged else 0

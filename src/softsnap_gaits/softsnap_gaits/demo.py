@@ -59,12 +59,14 @@ from pathlib import Path
 
 import numpy as np
 
+from softsnap_driver.lifeline import Lifeline
 from softsnap_model.geometry import rib_centers
 from softsnap_model.scene import SceneError, load_scene
 
 from .demo_camera import CameraObserver, print_camera, with_camera
 from .graph import DRIVER_MODES, SIM_MODULE_MODES, NodeSpec, robot_graph
 from .isolation import Slot, claim_slot
+from .supervision import shutdown_problems, stop_in_order
 
 STOP_TIMEOUT_S = 10.0  # per process, after SIGINT, before SIGKILL
 #: --physics: the run ends early (and says so) if the simulated time stood still this long
@@ -928,8 +930,12 @@ def print_summary(summary: dict) -> None:
         print(f'CPU (% of one core): {usage}')
     if summary.get('physics'):
         print_physics(summary['physics'])
-    crashed = {k: v for k, v in summary['exit_codes'].items() if v not in (0, None, -2, 130)}
-    print('processes: all stopped cleanly' if not crashed else f'processes with errors: {crashed}')
+    problems = summary.get('shutdown_problems')
+    if problems is None:   # a summary without the shutdown's account: judge by exit codes
+        problems = shutdown_problems(summary['exit_codes'])
+    print('processes: all stopped cleanly (in order: gait, drivers, then simulators, model '
+          'and recorders)' if not problems else
+          'processes with errors: ' + '; '.join(f'{k}: {v}' for k, v in problems.items()))
     if summary['recording']:
         print(f"recording: {summary['recording']} ({summary['recording_bytes'] / 1024:.0f} KiB); "
               f"open it with: .venv/bin/rerun {summary['recording']}")
@@ -1000,7 +1006,12 @@ def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
     def request_stop(signum, _frame):
         stop_requested.append(signum)
 
-    old_handlers = {sig: signal.signal(sig, request_stop) for sig in (signal.SIGINT, signal.SIGTERM)}
+    # SIGHUP (a closed terminal) like SIGTERM; if this process dies, the children see
+    # their lifeline end and stop too (softsnap_driver.lifeline).
+    old_handlers = {sig: signal.signal(sig, request_stop)
+                    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
+    lifeline = Lifeline()
+    env = lifeline.env(env)
     processes: list[Process] = []
     observer = camera = None
     elapsed, usage_start, usage_end = 0.0, {}, {}
@@ -1023,7 +1034,8 @@ def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
         camera = CameraObserver(observer.node, scene) if args.camera else None
         launched_at = time.monotonic()
         for spec in specs:
-            processes.append(Process(spec, run_dir, env, pass_fds=(slot.lock_fd,)))
+            processes.append(Process(spec, run_dir, env,
+                                     pass_fds=(slot.lock_fd, *lifeline.pass_fds)))
             if spec.executable == 'sim_robot':
                 # The robot first: the gait starts once the simulation runs, so its first
                 # cycle (the gripper's first grasp) happens in the physics.
@@ -1090,23 +1102,18 @@ def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
                 if camera is not None:
                     camera.wait_for_truth(observer.spin_for, window_ns[1])
     finally:
-        # Stop the producers first (gait), the recorders last so they see everything.
-        stop_gait(processes)
-        order = sorted(processes, key=lambda p: {'gait_node': 0, 'rerun_logger': 2,
-                                                 'bag_recorder': 2}.get(p.spec.name, 1))
-        for p in order:
-            p.signal(signal.SIGINT)
-        for p in order:
-            try:
-                p.popen.wait(STOP_TIMEOUT_S)
-            except subprocess.TimeoutExpired:
-                print(f'{p.spec.name} ignored SIGINT for {STOP_TIMEOUT_S:g} s: killing it', file=sys.stderr)
-                p.signal(signal.SIGKILL)
-                p.popen.wait()
+        # Dependency order (supervision.py): gait, drivers (confirming their stops while
+        # the modules answer), then simulators, model and recorders.
+        stops = stop_in_order(processes, STOP_TIMEOUT_S,
+                              warn=lambda text: print(text, file=sys.stderr))
+        for p in processes:
             p.close()
+        lifeline.close()
         for sig, handler in old_handlers.items():
             signal.signal(sig, handler)
     exit_codes = {p.spec.name: p.popen.returncode for p in processes}
+    problems = shutdown_problems(exit_codes, {p.spec.name: p.spec.executable for p in processes},
+                                 {r.name for r in stops if r.killed})
     for p in crashed:
         print(f'\n{p.spec.name} exited early with code {p.popen.returncode}'
               f'{"" if started else " (the robot did not start)"}; its last output:\n'
@@ -1123,6 +1130,9 @@ def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
         print(f'demo: the simulated time stood still for {CLOCK_STALL_S:g} s (sim_robot '
               'stalled?): the run ended early', file=sys.stderr)
     summary.update(_bag_summary(bag))
+    summary['shutdown_problems'] = problems
+    summary['shutdown_order'] = [r.name for r in stops]
+    summary['shutdown_seconds'] = {r.name: r.seconds for r in stops}  # from its stage's SIGINT
     summary['started'] = started
     # First process launched -> every module seen end to end (and the recorder taking).
     summary['startup_seconds'] = startup_s
@@ -1144,7 +1154,7 @@ def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
         print_summary(summary)
         if camera is not None:
             print_camera(summary['camera'])
-    if crashed:
+    if crashed or problems:
         return 1
     return 130 if stop_requested else 0
 

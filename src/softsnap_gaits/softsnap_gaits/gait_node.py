@@ -35,7 +35,8 @@ from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParam
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from softsnap_driver.ros_parameters import SoftSnapNode
-from softsnap_driver.spinning import init_ros, spin_until_shutdown
+from softsnap_driver.service_queues import create_queued_service
+from softsnap_driver.spinning import hold_signals, init_ros, spin_until_shutdown
 from softsnap_interfaces.msg import CableLength, GaitPhase
 from softsnap_interfaces.srv import ReleaseModules, SetGait
 from std_srvs.srv import Trigger
@@ -128,14 +129,14 @@ class GaitNode(SoftSnapNode):
         self.phase_publisher = self.create_publisher(GaitPhase, 'gait/phase', 50)
         # Commands published per module since start (count), reported in every GaitPhase.
         self.commands_sent = {m.name: 0 for m in self.scene.modules}
-        self.create_service(Trigger, '~/start', self.start_callback)
-        self.create_service(Trigger, '~/stop', self.stop_callback)
-        self.create_service(Trigger, '~/pause', self.pause_callback)
-        self.create_service(Trigger, '~/resume', self.resume_callback)
-        self.create_service(SetGait, '~/set_gait', self.set_gait_callback)
+        create_queued_service(self, Trigger, '~/start', self.start_callback)
+        create_queued_service(self, Trigger, '~/stop', self.stop_callback)
+        create_queued_service(self, Trigger, '~/pause', self.pause_callback)
+        create_queued_service(self, Trigger, '~/resume', self.resume_callback)
+        create_queued_service(self, SetGait, '~/set_gait', self.set_gait_callback)
         # Modules handed over to another commander (the shape controller): no commands.
         self.released: set[str] = set()
-        self.create_service(ReleaseModules, '~/release_modules', self.release_callback)
+        create_queued_service(self, ReleaseModules, '~/release_modules', self.release_callback)
         self.timer = self.create_timer(1.0 / self.get_parameter('rate').value,
                                        self.timer_callback)
         self.add_on_set_parameters_callback(self.parameters_callback)
@@ -335,9 +336,11 @@ def main(args=None) -> int:
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        hold_signals()   # a second Ctrl-C while stopping: no traceback
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
+        hold_signals(final=True)   # ignored from here to the exit
     return 0
 
 

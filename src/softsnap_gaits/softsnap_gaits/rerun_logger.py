@@ -66,7 +66,8 @@ from rclpy.serialization import deserialize_message
 
 from softsnap_driver.diagnostics import RECENT_S, key_values
 from softsnap_driver.ros_parameters import SoftSnapNode
-from softsnap_driver.spinning import exit_without_teardown, init_ros, spin_until_shutdown
+from softsnap_driver.spinning import (exit_without_teardown, hold_signals, init_ros,
+                                      spin_until_shutdown)
 from softsnap_interfaces.msg import CableLength, ModuleState, RobotShape
 from softsnap_model import recording
 
@@ -533,12 +534,14 @@ def main(args=None):
         status = 2
     finally:
         stopped = time.monotonic()
+        hold_signals()   # a second Ctrl-C while the recording closes: no traceback
         if node is not None:
             logger = node.get_logger()
             summary = node.close()
             node.destroy_node()
             logger.info(summary)
         rclpy.try_shutdown()
+        hold_signals(final=True)   # ignored from here to the exit
     # The recording is closed (flushed, footer written) and ROS is shut down: nothing of
     # ours is left to finish. Interpreter teardown of rerun's and pyarrow's runtime takes
     # 0.5-2 s more on a busy machine, past the 2 s a SIGINT may take: skip it.

@@ -57,8 +57,9 @@ from visualization_msgs.msg import MarkerArray
 
 from softsnap_driver.cdr import CdrError, decode_cable_length
 from softsnap_driver.ros_parameters import SoftSnapNode
-from softsnap_driver.spinning import (exit_without_teardown, inbox_node, init_ros,
-                                      spin_until_shutdown)
+from softsnap_driver.service_queues import action_qos_kwargs, create_queued_service
+from softsnap_driver.spinning import (exit_without_teardown, hold_signals, inbox_node,
+                                      init_ros, spin_until_shutdown)
 from softsnap_interfaces.msg import CableLength, Design, ModelDiagnostics, ModuleShape, RobotShape
 from softsnap_interfaces.action import DesignThreading
 from softsnap_interfaces.srv import ForwardShape, InverseDesign
@@ -425,7 +426,7 @@ class ModelNode(SoftSnapNode):
         self.marker_arrays_published = 0
         self.joint_states_published = 0
         self._health_reported = None
-        self.create_service(ForwardShape, '~/forward_shape', self.forward_shape_callback)
+        create_queued_service(self, ForwardShape, '~/forward_shape', self.forward_shape_callback)
         # An inverse design takes 0.1 s to design_timeout: it runs on a worker thread so
         # that predictions and forward solves go on meanwhile; the guard condition wakes
         # the executor when the answer is ready. The service and the action have a worker
@@ -440,14 +441,14 @@ class ModelNode(SoftSnapNode):
         self._action_worker = DesignWorker('design_threading')
         self._design_done = self.create_guard_condition(lambda: None,
                                                         callback_group=self._design_group)
-        self.create_service(InverseDesign, '~/inverse_design', self.inverse_design_callback,
-                            callback_group=self._design_group)
+        create_queued_service(self, InverseDesign, '~/inverse_design', self.inverse_design_callback,
+                              callback_group=self._design_group)
         self._active_goal = None  # (goal handle, accepted at monotonic s) while one runs
         self._design_action = ActionServer(
             self, DesignThreading, '~/design_threading', self.design_execute_callback,
             goal_callback=self.design_goal_callback,
             cancel_callback=self.design_cancel_callback,
-            callback_group=self._design_group)
+            callback_group=self._design_group, **action_qos_kwargs())
         self.diagnostics_timer = self.create_timer(
             self.get_parameter('diagnostics_period').value, self.diagnostics_callback)
         # Markers are built on the prediction thread when due (a 10 Hz executor timer
@@ -1169,9 +1170,11 @@ def main(args=None):
         spin_until_shutdown(executor)
     finally:
         stopped = time.monotonic()
+        hold_signals()   # a second Ctrl-C while stopping: no traceback
         executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown()
+        hold_signals(final=True)   # ignored from here to the exit
     exit_without_teardown(0, node.context, stopped)
 
 

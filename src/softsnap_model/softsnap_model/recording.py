@@ -56,6 +56,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from . import geometry
+from .rrd_check import require_recording
 from .skeleton import Skeleton
 
 APPLICATION_ID = 'softsnap'
@@ -1061,8 +1062,7 @@ def serve_recording(path: str | Path, *, web_port: int = 9090, grpc_port: int = 
     analytics, no web fonts, no examples list (:mod:`softsnap_model.viewer_offline`).
     """
     path = Path(path)
-    if not path.is_file():
-        raise ValueError(f'no recording at {path}')
+    require_recording(path)   # not a recording: a ValueError; cut short or damaged: a warning
     if not online:
         from . import viewer_offline
         viewer_offline.disable_analytics()   # before rerun's native side starts its sinks
