@@ -45,6 +45,7 @@ from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from softsnap_driver.diagnostics import key_values
 from softsnap_driver.ros_parameters import SoftSnapNode
+from softsnap_driver.service_queues import action_qos_kwargs, create_queued_service
 from softsnap_driver.spinning import init_ros, spin_until_shutdown
 from softsnap_interfaces.action import ReachShape
 from softsnap_interfaces.msg import CableLength, MeasuredShape
@@ -159,12 +160,14 @@ class ShapeControllerNode(SoftSnapNode):
         self.create_timer(1.0, self.diagnostics_callback, callback_group=self.group)
         # A restarted gait node has forgotten its releases: say them again now and then.
         self.create_timer(REASSERT_PERIOD_S, self.reassert_callback, callback_group=self.group)
-        self.create_service(SetShapeTarget, '~/set_target', self.set_target_callback,
-                            callback_group=self.group)
+        # Queues sized for bursts, lost requests counted (softsnap_driver.service_queues).
+        create_queued_service(self, SetShapeTarget, '~/set_target', self.set_target_callback,
+                              callback_group=self.group)
         self.action_server = ActionServer(
             self, ReachShape, '~/reach_shape', execute_callback=self.execute_callback,
             goal_callback=lambda goal: GoalResponse.ACCEPT,
-            cancel_callback=lambda handle: CancelResponse.ACCEPT, callback_group=self.group)
+            cancel_callback=lambda handle: CancelResponse.ACCEPT, callback_group=self.group,
+            **action_qos_kwargs())
         self.get_logger().info(
             f'scene {self.scene.name!r}: controlling {", ".join(names)} from '
             f'<module>/{p["measured_topic"]}; hand-over with '
