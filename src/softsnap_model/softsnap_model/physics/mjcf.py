@@ -56,7 +56,7 @@ import numpy as np
 from ..loads import (DEFAULT_BENDING_STIFFNESS_NMM, DEFAULT_END_RIB_MASS_KG,
                      DEFAULT_RIB_MASS_KG, MOTOR_BOX_MASS_KG_ESTIMATE, STANDARD_GRAVITY_MPS2)
 from ..skeleton import Skeleton
-from .rib_contact import RIB_CONTACT_MODES, hinge_limit_attributes
+from .rib_contact import RIB_CONTACT_MODES, hinge_armature_kgm2, hinge_limit_attributes
 from .frames import _mat_to_wxyz, _rot, _unit_quaternion, _vector
 
 __all__ = ['DEFAULT_LINKS_PER_SEGMENT', 'SKELETON_THICKNESS_MM', 'PhysicsParameters',
@@ -166,6 +166,9 @@ class PhysicsParameters:
         (3e-8 before issue 32 chatters there; :mod:`~softsnap_model.physics.rib_contact`).
         A module's first bending mode turns all hinges together, so the armature adds
         only ~1e-5 / n_hinges to its ~2e-4 kg m^2 (ribs up to 0.2 m from the base).
+    scale_armature : bool
+        Scale the armature with the step and N (:func:`~softsnap_model.physics.
+        rib_contact.hinge_armature_kgm2`); False: every hinge gets the value as given.
     rib_contact : str
         ``'hard'`` (default) or ``'soft'`` (the model before issue 32): see
         :mod:`softsnap_model.physics.rib_contact`.
@@ -195,6 +198,7 @@ class PhysicsParameters:
     constraint_damping_dt: float = 1.0
     constraint_impedance: float = 0.9999
     hinge_armature_kgm2: float = 1e-5
+    scale_armature: bool = True
     rib_contact: str = 'hard'
     rib_contact_stiffness_dt2: float = 0.25
     rib_contact_damping_dt: float = 1.0
@@ -538,7 +542,7 @@ def _add_module(parent, equality, tendons, *, name: str, skeleton: Skeleton,
             jname = f'{name}/seg{i}/hinge{j}'
             ET.SubElement(link, 'joint', name=jname, type='hinge', axis='0 0 1',
                           stiffness=_f(k_h), damping=_f(k_h * params.damping_time_s),
-                          armature=_f(params.hinge_armature_kgm2),
+                          armature=_f(hinge_armature_kgm2(params, n_links)),
                           **hinge_limit_attributes(params, a_c / n_links, j, coupled))
             # The link's rod from this hinge to the next (visual; mass numerical).
             ET.SubElement(link, 'geom', name=f'{name}/seg{i}/rod{j}', type='box',
