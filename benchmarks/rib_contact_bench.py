@@ -1,5 +1,5 @@
 """Hard rib contact in MuJoCo (issue 32): the 1 mm table and the real-time factors,
-the new parameters side by side with the model before issue 32 (``legacy_parameters``).
+``hard_contact_parameters()`` side by side with the default soft set (``legacy_parameters``).
 
 1. Fidelity: one module, gravity off, the winch shortened at 20 mm/s to 30, 65 and 95 %
    of the reachable contraction (``reachable_range``) of the yellow, blue, green and red
@@ -25,7 +25,7 @@ from softsnap_model import Skeleton
 from softsnap_model.forward import reachable_range
 from softsnap_model.physics.compare import QUASI_STATIC_DAMPING_TIME_S, static_fidelity
 from softsnap_model.physics.mjcf import PhysicsParameters
-from softsnap_model.physics.rib_contact import legacy_parameters
+from softsnap_model.physics.rib_contact import hard_contact_parameters, legacy_parameters
 from softsnap_model.physics.simulation import RobotSimulation
 from softsnap_model.reference import PAPER_THREADINGS
 
@@ -39,8 +39,8 @@ def load() -> str:
 
 
 def settings():
-    new = PhysicsParameters(damping_time_s=QUASI_STATIC_DAMPING_TIME_S)
-    return (('hard contact (default)', new), ('before issue 32', legacy_parameters(new)))
+    new = hard_contact_parameters(damping_time_s=QUASI_STATIC_DAMPING_TIME_S)
+    return (('hard contact', new), ('default (soft)', legacy_parameters(new)))
 
 
 def contraction_mm(name: str, fraction: float) -> float:
@@ -94,11 +94,11 @@ def realtime_table(seconds: float, amplitude_mm: float, repeats: int, links: int
     print('RTF = simulated time / CPU time of this process; median (range) of '
           f'{repeats} runs, new and old interleaved; largest joint speed at the end '
           '(rad/s or m/s) says whether the run stayed sane.\n')
-    print('| scene | hard contact (default) | before issue 32 | ratio new / old | '
+    print('| scene | hard contact | default (soft) | ratio hard / soft | '
           'max speed new / old |')
     print('| --- | ---: | ---: | ---: | ---: |')
     base = PhysicsParameters()
-    pairs = (('new', base), ('old', legacy_parameters(base)))
+    pairs = (('new', hard_contact_parameters(base)), ('old', legacy_parameters(base)))
     for scene in SCENES:
         rtf = {k: [] for k, _ in pairs}
         speed = {}

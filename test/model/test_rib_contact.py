@@ -17,7 +17,8 @@ import pytest
 from softsnap_model import Skeleton
 from softsnap_model.forward import reachable_range
 from softsnap_model.physics import PhysicsParameters, module_mjcf
-from softsnap_model.physics.rib_contact import hinge_limit_attributes, legacy_parameters
+from softsnap_model.physics.rib_contact import (hard_contact_parameters, hinge_limit_attributes,
+                                                legacy_parameters)
 from softsnap_model.reference import PAPER_THREADINGS
 
 mujoco = pytest.importorskip('mujoco')
@@ -30,7 +31,7 @@ CONTRACT_MM = 1.0
 #: moves the tension by a few per cent (the free segments barely lengthen the cable).
 TENSION_REL = 0.05
 FRACTIONS = (0.30, 0.65, 0.95)
-STATIC = PhysicsParameters(damping_time_s=QUASI_STATIC_DAMPING_TIME_S)
+STATIC = hard_contact_parameters(damping_time_s=QUASI_STATIC_DAMPING_TIME_S)
 
 
 def contraction(name, fraction):
@@ -81,25 +82,32 @@ def test_the_old_soft_limits_fail_the_contract():
 
 def test_only_the_first_hinge_of_a_coupled_segment_carries_the_limit():
     n = 3
+    hard = hard_contact_parameters()
     root = ET.fromstring(module_mjcf(Skeleton(), PAPER_THREADINGS['yellow'],
-                                     links_per_segment=n))
+                                     links_per_segment=n, parameters=hard))
     hinges = [j for j in root.iter('joint') if j.get('type') == 'hinge']
     limited = [j.get('name') for j in hinges if j.get('range')]
     assert len(limited) == 11 and all(name.endswith('hinge0') for name in limited)
     a_c = Skeleton().contact_angle_rad
     assert float(hinges[0].get('range').split()[1]) == pytest.approx(a_c / n)
-    dt = PhysicsParameters().timestep_s
+    dt = hard.timestep_s
     k, b = (float(v) for v in hinges[0].get('solreflimit').split())
     assert (k, b) == pytest.approx((-0.25 / dt ** 2, -1.0 / dt))
     # Uncoupled: every hinge; soft: every hinge, MuJoCo's default reference.
     loose = ET.fromstring(module_mjcf(Skeleton(), PAPER_THREADINGS['yellow'],
-                                      links_per_segment=n, coupled=False))
+                                      links_per_segment=n, coupled=False, parameters=hard))
     assert sum(1 for j in loose.iter('joint') if j.get('range')) == 11 * n
     soft = hinge_limit_attributes(legacy_parameters(), 0.4, 1, True)
     assert set(soft) == {'range'}
+    # The default stays soft: every hinge limited, MuJoCo's reference.
+    default = ET.fromstring(module_mjcf(Skeleton(), PAPER_THREADINGS['yellow'],
+                                        links_per_segment=n))
+    assert all(j.get('range') and not j.get('solreflimit')
+               for j in default.iter('joint') if j.get('type') == 'hinge')
 
 
 def test_bad_rib_contact_settings_are_refused():
+    assert PhysicsParameters().rib_contact == 'soft'
     with pytest.raises(ValueError, match='rib_contact'):
         PhysicsParameters(rib_contact='rigid')
     with pytest.raises(ValueError, match='rib_contact_impedance'):

@@ -23,10 +23,10 @@ Model of one module (conventions of :mod:`softsnap_model.geometry`, FACTS.md)
 * Damping per hinge ``c_h = k_h * damping_time_s``: each segment relaxes with that time
   constant (viscoelastic TPU; an estimate, see :class:`PhysicsParameters`). MuJoCo's
   implicit damping also keeps the light links stable at the 2 ms step.
-* Rib contact: a segment's first hinge is limited to ``|q| <= a_c / N`` (``a_c`` =
-  ``Skeleton.contact_angle_rad``; every hinge when uncoupled), a hard limit with its
-  own solver reference (:mod:`~softsnap_model.physics.rib_contact`), so a coupled
-  segment stops at the contact angle.
+* Rib contact: every hinge is limited to ``|q| <= a_c / N`` (``a_c`` =
+  ``Skeleton.contact_angle_rad``), MuJoCo's soft default limit; with
+  ``rib_contact.hard_contact_parameters()`` only a segment's first hinge, a hard limit
+  with its own solver reference (:mod:`~softsnap_model.physics.rib_contact`).
 * The cable is a spatial tendon through one site per rib at the threaded hole
   (``y = -d``): its length is the polyline through the holes, exactly the model's
   ``sum_i L(a_i; d_i, d_{i+1})``. The winch is the tendon's upper length limit: a
@@ -151,9 +151,9 @@ class PhysicsParameters:
         ``solref = (-k, -b)``), with impedance ``constraint_impedance``. These are
         acceleration-space values: the ribs weigh a gram, so a time-constant ``solref``
         stiff enough to hold the cable (0.1 mm stretch needs ~2 ms) chatters between
-        taut and slack. Default: the deadbeat reference of the explicit constraint
-        update (``k dt^2 = 0.25``, ``b dt = 1``); the overdamped ``1, 10`` of before
-        issue 32 only settled with the 3e-8 armature and blew up with 1e-5.
+        taut and slack; a heavily overdamped reference (``k dt^2 = 1``, ``b dt = 10``)
+        holds the cable within 0.001 mm below contact and settles with the 3e-8
+        armature (hard contact uses the deadbeat ``0.25, 1`` with 1e-5 instead).
     constraint_impedance : float
         ``solimp`` impedance of those constraints, in (0, 1): closer to 1 is harder.
     contact_rib_stride : int
@@ -161,17 +161,16 @@ class PhysicsParameters:
         rib). The spine is rigid out of its plane, so fewer contacts still carry a
         flat module; they cost less but concentrate the friction.
     hinge_armature_kgm2 : float
-        Armature added to every hinge (kg m^2), numerical: 1e-5 slows the light links'
-        local modes so that the 2 ms step holds a ~10 N cable against hard rib contact
-        (3e-8 before issue 32 chatters there; :mod:`~softsnap_model.physics.rib_contact`).
-        A module's first bending mode turns all hinges together, so the armature adds
-        only ~1e-5 / n_hinges to its ~2e-4 kg m^2 (ribs up to 0.2 m from the base).
+        Armature added to every hinge (kg m^2), numerical: 3e-8 (half a rib's own
+        moment of inertia) slows the light links' fastest local modes so that a 2 ms
+        step settles below contact up to N = 8. Hard rib contact needs 1e-5
+        (:func:`~softsnap_model.physics.rib_contact.hard_contact_parameters`).
     scale_armature : bool
         Scale the armature with the step and N (:func:`~softsnap_model.physics.
         rib_contact.hinge_armature_kgm2`); False: every hinge gets the value as given.
     rib_contact : str
-        ``'hard'`` (default) or ``'soft'`` (the model before issue 32): see
-        :mod:`softsnap_model.physics.rib_contact`.
+        ``'soft'`` (default: MuJoCo's default limit on every hinge) or ``'hard'``
+        (issue 32; use the whole set of ``rib_contact.hard_contact_parameters()``).
     rib_contact_stiffness_dt2, rib_contact_damping_dt, rib_contact_impedance : float
         The hard limit's ``k dt^2``, ``b dt`` and ``solimp`` impedance (deadbeat 0.25, 1,
         at 0.99: the cable's 0.9999 with these chatters on the links at full contact).
@@ -194,12 +193,12 @@ class PhysicsParameters:
     connector_density_kg_m3: float = 1240.0 * 0.4
     rib_friction: float = 0.6
     payload_friction: float = 0.8
-    constraint_stiffness_dt2: float = 0.25
-    constraint_damping_dt: float = 1.0
+    constraint_stiffness_dt2: float = 1.0
+    constraint_damping_dt: float = 10.0
     constraint_impedance: float = 0.9999
-    hinge_armature_kgm2: float = 1e-5
-    scale_armature: bool = True
-    rib_contact: str = 'hard'
+    hinge_armature_kgm2: float = 3e-8
+    scale_armature: bool = False
+    rib_contact: str = 'soft'
     rib_contact_stiffness_dt2: float = 0.25
     rib_contact_damping_dt: float = 1.0
     rib_contact_impedance: float = 0.99
