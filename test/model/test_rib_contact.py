@@ -73,8 +73,8 @@ def test_contact_segments_stop_at_the_contact_angle():
     assert np.max(np.abs(old)) > a_c + 0.05, old
 
 
-def test_the_old_soft_limits_fail_the_contract():
-    """The test above can fail: the parameters before issue 32 miss it at full contact."""
+def test_the_default_soft_limits_fail_the_contract():
+    """The contract test can fail: the default soft limits miss it at full contact."""
     r = static_fidelity('yellow', contraction('yellow', 0.95),
                         parameters=legacy_parameters(STATIC), max_time_s=5.0)
     assert not (r.settled and r.max_rib_error_mm < CONTRACT_MM), r.max_rib_error_mm
