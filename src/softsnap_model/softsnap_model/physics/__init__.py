@@ -10,6 +10,7 @@ quasi-static core's millimetres appear only in names ending in ``_mm``.
 """
 from .mjcf import (DEFAULT_LINKS_PER_SEGMENT, PhysicsParameters, Payload, RobotLayout,
                    module_mjcf, robot_mjcf, robot_mjcf_layout)
+from .rib_contact import hard_contact_parameters
 
 __all__ = ['DEFAULT_LINKS_PER_SEGMENT', 'PhysicsParameters', 'Payload', 'RobotLayout',
-           'module_mjcf', 'robot_mjcf', 'robot_mjcf_layout']
+           'module_mjcf', 'robot_mjcf', 'robot_mjcf_layout', 'hard_contact_parameters']

@@ -60,6 +60,8 @@ class FidelityResult:
     settled : bool
     sim_time_s, wall_time_s : float
         Simulated time (ramp and settling) and the wall-clock time it took.
+    settle_time_s : float
+        Simulated time from the end of the ramp until settled (or ``max_time_s``).
     rib_centers_mm, reference_rib_centers_mm : ndarray (n_ribs, 2)
         The two shapes (module base frame).
     """
@@ -77,6 +79,7 @@ class FidelityResult:
     wall_time_s: float
     rib_centers_mm: np.ndarray = None
     reference_rib_centers_mm: np.ndarray = None
+    settle_time_s: float = float('nan')
 
 
 def _closest_branch(skeleton, threading, length_mm, centers_mm):
@@ -138,7 +141,8 @@ def static_fidelity(threading, contraction_mm: float = 20.0, *,
         max_angle_error_rad=float(np.abs(sim.segment_angles('module') - ref.angles).max()),
         tension_n=sim.cable_tension('module'), reference_tension_n=float(ref.tension * k),
         settled=res.settled, sim_time_s=sim.time_s, wall_time_s=wall,
-        rib_centers_mm=centers, reference_rib_centers_mm=np.array(ref.rib_centers))
+        rib_centers_mm=centers, reference_rib_centers_mm=np.array(ref.rib_centers),
+        settle_time_s=res.time_s)
 
 
 # --------------------------------------------------------------------------- load cases

@@ -24,7 +24,9 @@ Model of one module (conventions of :mod:`softsnap_model.geometry`, FACTS.md)
   constant (viscoelastic TPU; an estimate, see :class:`PhysicsParameters`). MuJoCo's
   implicit damping also keeps the light links stable at the 2 ms step.
 * Rib contact: every hinge is limited to ``|q| <= a_c / N`` (``a_c`` =
-  ``Skeleton.contact_angle_rad``), so a coupled segment stops at the contact angle.
+  ``Skeleton.contact_angle_rad``), MuJoCo's soft default limit; with
+  ``rib_contact.hard_contact_parameters()`` only a segment's first hinge, a hard limit
+  with its own solver reference (:mod:`~softsnap_model.physics.rib_contact`).
 * The cable is a spatial tendon through one site per rib at the threaded hole
   (``y = -d``): its length is the polyline through the holes, exactly the model's
   ``sum_i L(a_i; d_i, d_{i+1})``. The winch is the tendon's upper length limit: a
@@ -54,6 +56,8 @@ import numpy as np
 from ..loads import (DEFAULT_BENDING_STIFFNESS_NMM, DEFAULT_END_RIB_MASS_KG,
                      DEFAULT_RIB_MASS_KG, MOTOR_BOX_MASS_KG_ESTIMATE, STANDARD_GRAVITY_MPS2)
 from ..skeleton import Skeleton
+from .rib_contact import RIB_CONTACT_MODES, hinge_armature_kgm2, hinge_limit_attributes
+from .frames import _mat_to_wxyz, _rot, _unit_quaternion, _vector
 
 __all__ = ['DEFAULT_LINKS_PER_SEGMENT', 'SKELETON_THICKNESS_MM', 'PhysicsParameters',
            'Payload', 'RobotLayout', 'ModuleLayout', 'module_mjcf', 'robot_mjcf',
@@ -148,8 +152,8 @@ class PhysicsParameters:
         acceleration-space values: the ribs weigh a gram, so a time-constant ``solref``
         stiff enough to hold the cable (0.1 mm stretch needs ~2 ms) chatters between
         taut and slack; a heavily overdamped reference (``k dt^2 = 1``, ``b dt = 10``)
-        holds the cable within 0.001 mm at the paper's tensions and settles (tests,
-        benchmarks/physics_bench.py).
+        holds the cable within 0.001 mm below contact and settles with the 3e-8
+        armature (hard contact uses the deadbeat ``0.25, 1`` with 1e-5 instead).
     constraint_impedance : float
         ``solimp`` impedance of those constraints, in (0, 1): closer to 1 is harder.
     contact_rib_stride : int
@@ -158,10 +162,18 @@ class PhysicsParameters:
         flat module; they cost less but concentrate the friction.
     hinge_armature_kgm2 : float
         Armature added to every hinge (kg m^2), numerical: 3e-8 (half a rib's own
-        moment of inertia, 6e-8) slows the light links' fastest local modes so that a
-        2 ms step settles up to N = 8 (1e-8 does not at N = 4; 1e-7 lets the snake's
-        chain oscillate on the ground). It adds about 1 % to the inertia of a module's
-        first bending mode (ribs at ~0.1 m: 1e-5 kg m^2).
+        moment of inertia) slows the light links' fastest local modes so that a 2 ms
+        step settles below contact up to N = 8. Hard rib contact needs 1e-5
+        (:func:`~softsnap_model.physics.rib_contact.hard_contact_parameters`).
+    scale_armature : bool
+        Scale the armature with the step and N (:func:`~softsnap_model.physics.
+        rib_contact.hinge_armature_kgm2`); False: every hinge gets the value as given.
+    rib_contact : str
+        ``'soft'`` (default: MuJoCo's default limit on every hinge) or ``'hard'``
+        (issue 32; use the whole set of ``rib_contact.hard_contact_parameters()``).
+    rib_contact_stiffness_dt2, rib_contact_damping_dt, rib_contact_impedance : float
+        The hard limit's ``k dt^2``, ``b dt`` and ``solimp`` impedance (deadbeat 0.25, 1,
+        at 0.99: the cable's 0.9999 with these chatters on the links at full contact).
     timestep_s : float
         Fixed integration step (s) with the ``implicitfast`` integrator. 2 ms is stable
         for the five scenes and the fidelity checks (implicit hinge damping; constraint
@@ -185,6 +197,11 @@ class PhysicsParameters:
     constraint_damping_dt: float = 10.0
     constraint_impedance: float = 0.9999
     hinge_armature_kgm2: float = 3e-8
+    scale_armature: bool = False
+    rib_contact: str = 'soft'
+    rib_contact_stiffness_dt2: float = 0.25
+    rib_contact_damping_dt: float = 1.0
+    rib_contact_impedance: float = 0.99
     contact_rib_stride: int = 1
     timestep_s: float = 0.002
     gravity_mps2: float = STANDARD_GRAVITY_MPS2
@@ -193,7 +210,8 @@ class PhysicsParameters:
         for name in ('bending_stiffness_nmm', 'damping_time_s', 'rib_mass_kg',
                      'end_rib_mass_kg', 'link_mass_kg', 'motor_box_mass_kg',
                      'battery_mass_kg', 'connector_density_kg_m3', 'rib_friction',
-                     'payload_friction', 'constraint_stiffness_dt2', 'constraint_damping_dt'):
+                     'payload_friction', 'constraint_stiffness_dt2', 'constraint_damping_dt',
+                     'rib_contact_stiffness_dt2', 'rib_contact_damping_dt'):
             object.__setattr__(self, name, _check_real(name, getattr(self, name), low=0.0,
                                                        low_open=True))
         object.__setattr__(self, 'timestep_s', _check_real(
@@ -216,6 +234,12 @@ class PhysicsParameters:
         st = self.contact_rib_stride
         if isinstance(st, bool) or not isinstance(st, numbers.Integral) or not 1 <= st <= 11:
             raise ValueError(f'contact_rib_stride must be an integer in [1, 11], got {st!r}')
+        if self.rib_contact not in RIB_CONTACT_MODES:
+            raise ValueError(f'rib_contact must be one of {RIB_CONTACT_MODES}, got '
+                             f'{self.rib_contact!r}')
+        object.__setattr__(self, 'rib_contact_impedance', _check_real(
+            'rib_contact_impedance', self.rib_contact_impedance, low=0.0, low_open=True,
+            high=0.9999))
         object.__setattr__(self, 'hinge_armature_kgm2', _check_real(
             'hinge_armature_kgm2', self.hinge_armature_kgm2, low=0.0, high=1.0))
 
@@ -517,8 +541,8 @@ def _add_module(parent, equality, tendons, *, name: str, skeleton: Skeleton,
             jname = f'{name}/seg{i}/hinge{j}'
             ET.SubElement(link, 'joint', name=jname, type='hinge', axis='0 0 1',
                           stiffness=_f(k_h), damping=_f(k_h * params.damping_time_s),
-                          range=_f(-a_c / n_links, a_c / n_links),
-                          armature=_f(params.hinge_armature_kgm2))
+                          armature=_f(hinge_armature_kgm2(params, n_links)),
+                          **hinge_limit_attributes(params, a_c / n_links, j, coupled))
             # The link's rod from this hinge to the next (visual; mass numerical).
             ET.SubElement(link, 'geom', name=f'{name}/seg{i}/rod{j}', type='box',
                           size=_f(*rod_half), pos=_f(rod_half[0], 0, 0),
@@ -634,25 +658,6 @@ def _append_nonempty(root, element):
         root.append(element)
 
 
-def _vector(name, value, n) -> tuple:
-    try:
-        arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise ValueError(f'{name} must be {n} numbers, got {value!r}') from None
-    if arr.shape != (n,) or not np.all(np.isfinite(arr)):
-        raise ValueError(f'{name} must be {n} finite numbers, got {value!r}')
-    return tuple(float(v) for v in arr)
-
-
-def _unit_quaternion(name, value) -> tuple:
-    q = np.array(_vector(name, value, 4))
-    norm = float(np.linalg.norm(q))
-    if abs(norm - 1.0) > 1e-6:
-        raise ValueError(f'{name} must be a unit quaternion (w, x, y, z), got {value!r} '
-                         f'(norm {norm:.6g})')
-    return tuple(float(v) for v in q / norm)
-
-
 # ------------------------------------------------------------------------------ robots
 
 #: Height of the gripper's connector centre above the ground (m) when its base is fixed
@@ -661,38 +666,6 @@ def _unit_quaternion(name, value) -> tuple:
 HANGING_BASE_HEIGHT_M = 0.40
 # A module hangs if its spine points within ~25 deg of straight down.
 _HANGING_COS = -0.9
-
-
-def _rot(xyzw) -> np.ndarray:
-    x, y, z, w = xyzw
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
-
-
-def _mat_to_wxyz(r: np.ndarray) -> tuple:
-    # Shepperd's method: the largest diagonal term keeps the square root well conditioned.
-    tr = np.trace(r)
-    if tr > 0:
-        sq = math.sqrt(tr + 1.0) * 2
-        q = (0.25 * sq, (r[2, 1] - r[1, 2]) / sq, (r[0, 2] - r[2, 0]) / sq,
-             (r[1, 0] - r[0, 1]) / sq)
-    elif r[0, 0] > r[1, 1] and r[0, 0] > r[2, 2]:
-        sq = math.sqrt(1.0 + r[0, 0] - r[1, 1] - r[2, 2]) * 2
-        q = ((r[2, 1] - r[1, 2]) / sq, 0.25 * sq, (r[0, 1] + r[1, 0]) / sq,
-             (r[0, 2] + r[2, 0]) / sq)
-    elif r[1, 1] > r[2, 2]:
-        sq = math.sqrt(1.0 + r[1, 1] - r[0, 0] - r[2, 2]) * 2
-        q = ((r[0, 2] - r[2, 0]) / sq, (r[0, 1] + r[1, 0]) / sq, 0.25 * sq,
-             (r[1, 2] + r[2, 1]) / sq)
-    else:
-        sq = math.sqrt(1.0 + r[2, 2] - r[0, 0] - r[1, 1]) * 2
-        q = ((r[1, 0] - r[0, 1]) / sq, (r[0, 2] + r[2, 0]) / sq, (r[1, 2] + r[2, 1]) / sq,
-             0.25 * sq)
-    q = np.array(q)
-    q /= np.linalg.norm(q)
-    return tuple(float(v) for v in (q if q[0] >= 0 else -q))
 
 
 def _mount_m(scene) -> float:
