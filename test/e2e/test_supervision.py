@@ -76,7 +76,9 @@ def test_no_robot_process_outlives_the_demo(sig, tmp_path):
         assert _wait(lambda: _running(run_dir, proc), 240.0, 0.5), proc.stderr.read()[-3000:]
         robot = _robot(tag, proc.pid)
         names = sorted(' '.join(p.cmdline()[1:2]).rsplit('/', 1)[-1] for p in robot)
-        assert len(robot) == 10, names
+        # 5 sim_modules, driver_container, model_node, robot_state, gait_node, rerun_logger
+        # and the bag recorder.
+        assert len(robot) == 11, names
         os.kill(proc.pid, sig)
         killed_at = time.monotonic()
         out, err = proc.communicate(timeout=120)

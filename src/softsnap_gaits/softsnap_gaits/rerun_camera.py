@@ -51,8 +51,11 @@ class CameraRecorder:
     """Logs frames and projected shapes to `rec` (one thread: the logger's executor)."""
 
     def __init__(self, rec: rr.RecordingStream, spacing_mm: float,
-                 rate_hz: float = DEFAULT_RATE_HZ):
+                 rate_hz: float = DEFAULT_RATE_HZ, sim_time: bool = False):
         self.rec = rec
+        # The logger's kind of ros_time (a duration on simulated time): one timeline
+        # with two types makes rerun refuse the file's closing chunks.
+        self.sim_time = bool(sim_time)
         self.spacing_mm = float(spacing_mm)
         self.limiter = recording.RateLimiter(rate_hz)
         self.k: np.ndarray | None = None
@@ -125,7 +128,7 @@ class CameraRecorder:
                                 [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
         if not ok:
             raise ValueError('the frame could not be JPEG-encoded')
-        recording.set_stamp(self.rec, stamp)
+        recording.set_stamp(self.rec, stamp, self.sim_time)
         self.rec.log(IMAGE_PATH, rr.EncodedImage(contents=jpeg.tobytes(), media_type='image/jpeg'))
         for module, points in self.measured.items():
             uv = self._project(module, points)
@@ -149,7 +152,8 @@ def attach_camera(node, scene, rate_hz: float = DEFAULT_RATE_HZ) -> CameraRecord
     from sensor_msgs.msg import CameraInfo, Image
     from softsnap_interfaces.msg import MeasuredShape
     spacing = scene.skeleton.spacing_mm if scene is not None else recording.RIB_SPACING_MM
-    camera = CameraRecorder(node.rec, spacing, rate_hz)
+    camera = CameraRecorder(node.rec, spacing, rate_hz,
+                            sim_time=bool(node.get_parameter('use_sim_time').value))
     colors, bounds = recording.scene_style(scene) if scene is not None else (None, None)
     node.rec.send_blueprint(camera_blueprint(recording.build_blueprint(
         colors, bounds, node.get_parameter('world_view').value)))

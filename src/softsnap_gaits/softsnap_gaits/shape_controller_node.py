@@ -46,7 +46,7 @@ from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from softsnap_driver.diagnostics import key_values
 from softsnap_driver.ros_parameters import SoftSnapNode
 from softsnap_driver.service_queues import action_qos_kwargs, create_queued_service
-from softsnap_driver.spinning import init_ros, spin_until_shutdown
+from softsnap_driver.spinning import hold_signals, init_ros, spin_until_shutdown
 from softsnap_interfaces.action import ReachShape
 from softsnap_interfaces.msg import CableLength, MeasuredShape
 from softsnap_interfaces.srv import ReleaseModules, SetShapeTarget
@@ -487,9 +487,11 @@ def main(args=None) -> int:
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        hold_signals()   # a second Ctrl-C while stopping: no traceback
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
+        hold_signals(final=True)   # ignored from here to the exit
     return 0
 
 

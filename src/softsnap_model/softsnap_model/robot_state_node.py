@@ -34,7 +34,7 @@ from std_msgs.msg import String
 from tf2_msgs.msg import TFMessage
 
 from softsnap_driver.ros_parameters import SoftSnapNode
-from softsnap_driver.spinning import init_ros, spin_until_shutdown
+from softsnap_driver.spinning import hold_signals, init_ros, spin_until_shutdown
 from softsnap_interfaces.msg import RobotShape
 
 from .robot_description import ROOT_FRAME, describe_robot
@@ -177,9 +177,11 @@ def main(args=None) -> int:
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        hold_signals()   # a second Ctrl-C while stopping: no traceback
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
+        hold_signals(final=True)   # ignored from here to the exit
     return 0
 
 

@@ -30,13 +30,14 @@ import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Point
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
-from rclpy.executors import SingleThreadedExecutor
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo as CameraInfoMsg
 from sensor_msgs.msg import Image
 
 from softsnap_driver.ros_parameters import SoftSnapNode
-from softsnap_driver.spinning import exit_without_teardown, init_ros, spin_until_shutdown
+from softsnap_driver.spinning import (exit_without_teardown, hold_signals, init_ros,
+                                      spin_until_shutdown)
 from softsnap_interfaces.msg import CableLength, MeasuredShape
 from softsnap_model import solve_forward
 from softsnap_model.scene import SceneError, load_scene
@@ -261,11 +262,15 @@ def main(args=None):
     executor.add_node(node)
     try:
         spin_until_shutdown(executor)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
     finally:
         stopped = time.monotonic()
+        hold_signals()   # a second Ctrl-C while stopping: no traceback
         executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown()
+        hold_signals(final=True)   # ignored from here to the exit
     exit_without_teardown(0, node.context, stopped)
 
 
