@@ -468,7 +468,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--list', action='store_true', help='list the mutants, run nothing')
     parser.add_argument('--pytest-args', default='', help='extra pytest arguments')
     args = parser.parse_args(argv)
-    files = [Path(f) for spec in args.files for f in spec.split()]
+    files = [Path(f).resolve() for spec in args.files for f in spec.split()]
     tests = [t for spec in args.tests for t in spec.split()]
     workers = max(1, min(args.workers, MAX_WORKERS))
     equivalent = load_equivalent()
@@ -480,7 +480,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.lines:
             low, _, high = args.lines.partition('-')
             picked = [m for m in picked if int(low) <= m.line <= int(high or low)]
-        print(f'{path}: {len(candidates)} candidate mutants, {len(picked)} sampled '
+        print(f'{path.relative_to(REPO)}: {len(candidates)} candidate mutants, {len(picked)} sampled '
               f'(seed {args.seed})')
         sampled += picked
     if args.list:

@@ -139,35 +139,35 @@ def test_count_range_is_exact_where_float_products_miss_whole_counts(sign):
 @pytest.mark.parametrize('min_contraction_m', [-1e-9, -0.001, math.nan, -math.inf, math.inf])
 def test_negative_or_non_finite_min_contraction_is_refused(min_contraction_m):
     # A negative minimum would let the winch pay out cable beyond the calibrated straight length.
-    with pytest.raises(ValueError, match='min_contraction_m'):
+    with pytest.raises(ValueError, match='^min_contraction_m must be >= 0'):
         CableCalibration(counts_per_mm=100.0, straight_length_m=0.2, max_contraction_m=0.05,
                          min_contraction_m=min_contraction_m)
 
 
 @pytest.mark.parametrize('kwargs, name', [
-    (dict(counts_per_mm=-89.13), 'counts_per_mm'),
-    (dict(counts_per_mm=math.inf), 'counts_per_mm'),
-    (dict(counts_per_mm=True), 'counts_per_mm'),          # a bool is not a calibration
-    (dict(straight_length_m=0.0), 'straight_length_m'),
-    (dict(straight_length_m=math.inf), 'straight_length_m'),
-    (dict(straight_length_m=False), 'straight_length_m'),
-    (dict(max_contraction_m=math.nan), 'max_contraction_m'),
-    (dict(max_contraction_m=0.198), 'max_contraction_m'),  # the whole cable
-    (dict(max_contraction_m=-0.001), 'max_contraction_m'),
-    (dict(max_contraction_m=True), 'max_contraction_m'),
-    (dict(min_contraction_m=True), 'min_contraction_m'),
-    (dict(clamp_margin_m=True), 'clamp_margin_m'),
-    (dict(clamp_margin_m='0.001'), 'clamp_margin_m'),
-    (dict(count_sign=True), 'count_sign'),                # True == 1 but is not a sign
-    (dict(count_sign=2), 'count_sign'),
-    (dict(count_sign=1.0), 'count_sign'),
+    (dict(counts_per_mm=-89.13), 'counts_per_mm must be'),
+    (dict(counts_per_mm=math.inf), 'counts_per_mm must be'),
+    (dict(counts_per_mm=True), 'counts_per_mm must be'),          # a bool is not a calibration
+    (dict(straight_length_m=0.0), 'straight_length_m must be positive'),
+    (dict(straight_length_m=math.inf), 'straight_length_m must be'),
+    (dict(straight_length_m=False), 'straight_length_m must be'),
+    (dict(max_contraction_m=math.nan), 'max_contraction_m must be'),
+    (dict(max_contraction_m=0.198), 'max_contraction_m must be'),  # the whole cable
+    (dict(max_contraction_m=-0.001), 'max_contraction_m must be'),
+    (dict(max_contraction_m=True), 'max_contraction_m must be'),
+    (dict(min_contraction_m=True), 'min_contraction_m must be'),
+    (dict(clamp_margin_m=True), 'clamp_margin_m must be'),
+    (dict(clamp_margin_m='0.001'), 'clamp_margin_m must be'),
+    (dict(count_sign=True), 'count_sign must be'),                # True == 1 but is not a sign
+    (dict(count_sign=2), 'count_sign must be'),
+    (dict(count_sign=1.0), 'count_sign must be'),
     (dict(counts_per_mm=0.01, max_contraction_m=0.0004, min_contraction_m=0.0003),
-     'no whole encoder count'),
+     r'the contraction range \[0.0003, 0.0004\] m holds no whole encoder count'),
 ])
 def test_more_bad_calibrations_are_refused(kwargs, name):
     values = dict(counts_per_mm=89.13, straight_length_m=0.198, max_contraction_m=0.08)
     values.update(kwargs)
-    with pytest.raises(ValueError, match=name):
+    with pytest.raises(ValueError, match=f'^{name}'):   # the check that names the value
         CableCalibration(**values)
 
 
@@ -238,3 +238,13 @@ def test_reboot_evidence_boundaries():
     assert 'from 5 to 4' in reboot_suspected(3000, 5, 3000, 4, 0.1, 3000, **REBOOT)
     assert 'target was unknown' in reboot_suspected(3000, 0, 0, 0, 0.1, None, **REBOOT)
     assert 'target was 3000' in reboot_suspected(3000, 0, 0, 0, 0.1, 3000, **REBOOT)
+
+
+def test_calibration_and_commands_are_immutable():
+    # count_range and length_range_m are cached: a calibration changed in place would
+    # keep clamping to the old range.
+    import dataclasses
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        CAL.max_contraction_m = 0.15
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        CAL.command(0.19).count = 7000
