@@ -283,14 +283,26 @@ class _Collector(ast.NodeVisitor):
             self.visit(node.slice)  # not type parameters such as tuple[int, int]
 
 
+def display_path(path: Path) -> str:
+    """``path`` relative to the repository root when inside it, else absolute."""
+    path = path.resolve()
+    return str(path.relative_to(REPO)) if path.is_relative_to(REPO) else str(path)
+
+
 def collect_mutants(path: Path) -> list[Mutant]:
     """Every candidate mutant of one file that still compiles, in source order."""
     source = path.read_bytes()
-    relative = str(path.resolve().relative_to(REPO))
+    relative = display_path(path)
     collector = _Collector(relative, source)
     collector.visit(ast.parse(source, filename=relative))
-    seen, mutants = set(), []
+    seen, mutants, occurrences = set(), [], {}
     for mutant in sorted(collector.mutants, key=lambda m: (m.start, m.end, m.description)):
+        # The same change twice in one scope (two `0` constants): number the later ones
+        # so that every key names one mutant.
+        nth = occurrences[mutant.scope, mutant.description] = \
+            occurrences.get((mutant.scope, mutant.description), 0) + 1
+        if nth > 1:
+            mutant = dataclasses.replace(mutant, description=f'{mutant.description} ({nth})')
         mutated = mutant.apply(source)
         digest = hashlib.sha1(mutated).digest()
         if digest in seen or mutated == source:
@@ -467,6 +479,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--lines', default='', help='only mutants on these lines, e.g. 80-120')
     parser.add_argument('--list', action='store_true', help='list the mutants, run nothing')
     parser.add_argument('--pytest-args', default='', help='extra pytest arguments')
+    parser.add_argument('--survivors-out', default='',
+                        help='write the keys of the surviving mutants to this file')
+    parser.add_argument('--only', default='',
+                        help='run only the sampled mutants whose keys this file lists (a '
+                             '--survivors-out file: re-check survivors after adding tests)')
     args = parser.parse_args(argv)
     files = [Path(f).resolve() for spec in args.files for f in spec.split()]
     tests = [t for spec in args.tests for t in spec.split()]
@@ -480,7 +497,10 @@ def main(argv: list[str] | None = None) -> int:
         if args.lines:
             low, _, high = args.lines.partition('-')
             picked = [m for m in picked if int(low) <= m.line <= int(high or low)]
-        print(f'{path.relative_to(REPO)}: {len(candidates)} candidate mutants, {len(picked)} sampled '
+        if args.only:
+            wanted = set(Path(args.only).read_text().splitlines())
+            picked = [m for m in picked if m.key in wanted]
+        print(f'{display_path(path)}: {len(candidates)} candidate mutants, {len(picked)} sampled '
               f'(seed {args.seed})')
         sampled += picked
     if args.list:
@@ -529,7 +549,7 @@ def report(files: list[Path], outcomes: list[Outcome], equivalent: dict[str, str
     print('| file | mutants | killed | timeouts | equivalent | survived | score |')
     print('| --- | --- | --- | --- | --- | --- | --- |')
     for path in files:
-        relative = str(path.resolve().relative_to(REPO))
+        relative = display_path(path)
         mine = [o for o in outcomes if o.mutant.path == relative and o.status != 'skipped']
         killed = sum(o.status in ('killed', 'timeout') for o in mine)
         timeouts = sum(o.status == 'timeout' for o in mine)
@@ -540,6 +560,9 @@ def report(files: list[Path], outcomes: list[Outcome], equivalent: dict[str, str
         print(f'| `{relative}` | {len(mine)} | {killed} | {timeouts} | {equal} | {survived} '
               f'| {score} |')
     survivors = [o.mutant for o in outcomes if o.status == 'survived']
+    if args.survivors_out:
+        Path(args.survivors_out).write_text(''.join(f'{m.key}\n' for m in survivors
+                                                    if m.key not in equivalent))
     if survivors:
         print('\nsurvivors:')
         for m in sorted(survivors, key=lambda m: (m.path, m.line)):

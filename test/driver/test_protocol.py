@@ -318,18 +318,21 @@ def test_general_parser_takes_the_limits_and_defaults():
 
 def test_reply_size_limit_is_exact():
     # Both paths: a reply of exactly MAX_REPLY_BYTES is read, one byte more is refused.
-    for make in (firmware_reply, framed):
-        base = make()
+    # (firmware_reply with an override has spaces in its JSON: the general path)
+    for base in (firmware_reply(pause=False), framed(battery='4.15')):
         exact = base + b' ' * (MAX_REPLY_BYTES - len(base))
-        assert parse_reply(exact).battery_voltage == pytest.approx(4.15)
-        with pytest.raises(MalformedReply, match='exceeds'):
-            parse_reply(exact + b' ')
+        for raw in (exact, bytearray(exact)):
+            assert parse_reply(raw).battery_voltage == pytest.approx(4.15)
+            with pytest.raises(MalformedReply, match='exceeds'):
+                parse_reply(raw + b' ')
 
 
 def test_reply_head_variants():
     body = SimModule(start_time=0.0).status_json()
     lf_only = ('HTTP/1.0 200 OK\nContent-type: application/json\n\n' + body + '\n').encode()
     assert parse_reply(lf_only).encoder_count == 0
+    no_reason = ('HTTP/1.1 200\r\n\r\n' + body).encode()   # no reason phrase
+    assert parse_reply(no_reason).encoder_count == 0
     for raw, why in ((b'HTTP/1.1\r\n\r\n{}', 'not an HTTP'), (b'HTTP/2 200\r\n\r\n{}', 'not an HTTP'),
                      (b'HTTP/1.1 200 OK\r\n\r\n \r\n', 'no JSON body'),
                      (http_reply(body.replace('"ok"', '"OK"')), 'reply status')):
@@ -448,5 +451,53 @@ def test_client_refuses_more_bad_arguments(kwargs):
 
 
 def test_client_limits_are_accepted():
+    default = ModuleClient('127.0.0.1')
+    assert (default.port, default.timeout_s) == (80, 1.0)        # the firmware's port (FACTS.md)
     assert ModuleClient('127.0.0.1', 65535, timeout_s=1).timeout_s == 1.0
     assert repr(ModuleClient('h', 1, timeout_s=0.25)) == "ModuleClient('h', 1, timeout_s=0.25)"
+
+
+def test_reply_values_in_messages_are_cut_at_40_characters():
+    exact = 'x' * 38                                   # repr: 40 characters with its quotes
+    with pytest.raises(MalformedReply, match=f"got '{exact}'$"):
+        parse_reply(firmware_reply(m_current=exact))
+    with pytest.raises(MalformedReply, match=f"got '{exact}x\\.\\.\\.$"):  # first 40, then ...
+        parse_reply(firmware_reply(m_current=exact + 'xy'))
+
+
+def test_number_limit_is_checked_before_the_voltage():
+    # 1e15 is the largest magnitude taken before any float conversion.
+    with pytest.raises(MalformedReply, match="'battery' out of range"):
+        parse_reply(firmware_reply(battery=10 ** 15 + 1))
+    with pytest.raises(MalformedReply, match='not a plausible voltage'):
+        parse_reply(firmware_reply(battery=10 ** 15))
+    with pytest.raises(MalformedReply, match='not a plausible voltage'):
+        parse_reply(firmware_reply(battery=-10 ** 15))
+    with pytest.raises(MalformedReply, match="'battery' out of range"):
+        parse_reply(firmware_reply(battery=-10 ** 15 - 1))
+
+
+def test_power_history_reads_like_a_tuple_of_watts():
+    from softsnap_driver.protocol import PowerHistory, parse_power_history
+    history = parse_power_history('0001' + '2710' + 'ffff')
+    watts = (1 * 1e-4, 10000 * 1e-4, 65535 * 1e-4)     # 0.1 mW per unit
+    assert len(history) == 3 and history.count(watts[0]) == 1
+    assert (history[0], history[1], history[-1]) == watts[::2][:1] + watts[1:]
+    assert history[-3] == history[0] and history[2] == history[-1] == pytest.approx(6.5535)
+    for index in (3, -4, 300):
+        with pytest.raises(IndexError, match=rf'power history index {index} outside \[-3, 3\)'):
+            history[index]
+    assert history[1:] == watts[1:] and isinstance(history[:1], tuple)
+    assert list(history) == list(watts)
+    assert history == watts == history and history == list(watts)
+    assert history == PowerHistory(bytes.fromhex('00012710ffff'))
+    assert history != PowerHistory(bytes.fromhex('00012710fffe')) and history != watts[:2]
+    assert (history == 'text') is False and hash(history) == hash(watts)
+    assert repr(history) == 'PowerHistory(3 samples)' and len(PowerHistory()) == 0
+    with pytest.raises(ValueError, match='whole 2-byte samples, got 3 bytes'):
+        PowerHistory(b'abc')
+    assert len(parse_power_history('0' * 1024)) == 256
+    for bad, why in (('0' * 1028, 'at most 256 samples of 4 hex digits, got 1028'),
+                     ('000', 'got 3 characters'), ('0000' + '00g0', "sample 1 is not hex: '00g0'")):
+        with pytest.raises(MalformedReply, match=why):
+            parse_power_history(bad)
