@@ -423,10 +423,12 @@ class Runner:
             status = 'survived' if process.returncode == 0 else 'killed'
             if process.returncode in (4, 5):  # usage error, no tests: not a verdict
                 status = 'error'
+            if self.stopping:                 # killed by Ctrl-C, not by a test
+                status = 'skipped'
         except subprocess.TimeoutExpired:
             self.kill(process)
             output, _ = process.communicate()
-            status = 'timeout'
+            status = 'skipped' if self.stopping else 'timeout'
         finally:
             with self.lock:
                 self.processes.discard(process)
@@ -449,7 +451,7 @@ class Runner:
         try:
             target.write_bytes(mutant.apply(original))
             status, seconds, output = self.run_tests(overlay, self.timeout_s)
-            if status == 'error':
+            if status == 'error' and not self.stopping:
                 raise RuntimeError(f'pytest could not run for {mutant.key}:\n{output[-2000:]}')
             return Outcome(mutant, status, seconds)
         finally:
@@ -457,11 +459,14 @@ class Runner:
             with self.lock:
                 self.free.append(overlay)
 
-    def close(self) -> None:
-        self.stopping = True
+    def kill_running(self) -> None:
         with self.lock:
             for process in list(self.processes):
                 self.kill(process)
+
+    def close(self) -> None:
+        self.stopping = True
+        self.kill_running()
         self.tempdir.cleanup()
 
 
@@ -523,7 +528,8 @@ def main(argv: list[str] | None = None) -> int:
             runner.timeout_s = 5 * clean_s + 30
         print(f'clean run {clean_s:.1f} s; timeout {runner.timeout_s:.0f} s per mutant; '
               f'{workers} worker(s); {len(sampled)} mutants', flush=True)
-        with concurrent.futures.ThreadPoolExecutor(workers) as pool:
+        pool = concurrent.futures.ThreadPoolExecutor(workers)
+        try:
             for index, outcome in enumerate(pool.map(runner.run_mutant, sampled), 1):
                 outcomes.append(outcome)
                 if outcome.status == 'survived':
@@ -533,8 +539,15 @@ def main(argv: list[str] | None = None) -> int:
                           f'{m.description}{tag}', flush=True)
                 elif index % 10 == 0:
                     print(f'  [{index}/{len(sampled)}] ...', flush=True)
+        finally:
+            # On Ctrl-C: no new mutant starts, the running pytest groups are killed (their
+            # outcomes are not counted), queued ones are dropped.
+            runner.stopping = True
+            runner.kill_running()
+            pool.shutdown(wait=True, cancel_futures=True)
     except KeyboardInterrupt:
-        print('\ninterrupted: partial results below', flush=True)
+        print(f'\ninterrupted: partial results below ({len(outcomes)} of {len(sampled)} '
+              f'mutants)', flush=True)
     finally:
         runner.close()
         for path, digest in digests.items():

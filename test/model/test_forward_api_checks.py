@@ -133,3 +133,22 @@ def test_mirror_flip_gives_the_mirror_image_of_the_tie_break_segments():
         solve_forward(SK, ['R3'] * 12, 175.0, mirror_flip=[0])
     assert not solve_forward(SK, ['R3'] * 12, 175.0).tie_break_segments
     assert math.isfinite(res.min_curvature) and res.is_minimum
+
+
+def test_batch_poses_are_the_geometry_of_the_batch_angles():
+    # The batch's vectorised rib frames (forward.api._frames) against geometry's own,
+    # with a straight (slack) item, a mirror threading and both bend directions.
+    from softsnap_model import solve_forward_batch
+    names = [['R3'] * 12, MIXED, MIRROR, ['L1'] * 12, ['R3'] * 12]
+    lengths = [within_range(n, f) for n, f in zip(names, (0.3, 0.6, 0.5, 0.8, 2.0))]
+    batch = solve_forward_batch(SK, names, lengths)
+    assert batch.converged.all() and batch.rib_centers.shape == (5, 12, 2)
+    for i, n in enumerate(names):
+        d = SK.threading_mm(n)
+        np.testing.assert_allclose(batch.rib_centers[i], rib_centers(batch.angles[i], SK.spacing_mm),
+                                   atol=1e-9)
+        np.testing.assert_allclose(batch.cable_path[i],
+                                   cable_path(batch.angles[i], d, SK.spacing_mm), atol=1e-9)
+        single = solve_forward(SK, n, lengths[i])
+        np.testing.assert_allclose(batch.cable_path[i], single.cable_path, atol=1e-9)
+    assert not batch.angles[4].any()
