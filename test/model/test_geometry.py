@@ -140,3 +140,89 @@ def test_skeleton_validation_and_yaml(tmp_path):
     assert Skeleton.from_dict(loaded.to_dict()) == loaded
     with pytest.raises(ValueError, match='unknown skeleton keys'):
         Skeleton.from_dict({'n_rib': 3})
+
+
+# -- half-angle functions and poses against mpmath, every evaluation path (docs/testing.md)
+def mp_half_angle(u):
+    u = mp.mpf(u)
+    if u == 0:
+        return 1.0, 1.0 / 3.0, 1.0
+    return (float(mp.sin(u) / u), float((mp.sin(u) - u * mp.cos(u)) / u ** 3), float(mp.cos(u)))
+
+
+HALF_ANGLES = [0.0, 1e-9, -1e-4, 0.3, -1.0, 1.5, math.pi / 2, -(math.pi / 2 + 1e-9), 1.6, -2.0,
+               2.5, 3.0, -4.0, 6.0, 10.0, -25.0]
+
+
+@pytest.mark.parametrize('size', [1, 256, 257, 1024, 1025])
+def test_half_angle_functions_match_mpmath_on_every_path(size):
+    # The friction and load models use the second function beyond |u| = pi/2 too (the
+    # closed form there); sizes straddle the three series evaluations.
+    from softsnap_model.geometry import half_angle_functions
+    mp.mp.dps = 40
+    u = np.resize(np.array(HALF_ANGLES), size)
+    f0, f1, cos_u = half_angle_functions(u)
+    assert f0.shape == f1.shape == cos_u.shape == u.shape
+    for j, x in enumerate(u[:len(HALF_ANGLES)]):
+        ref = mp_half_angle(x)
+        for k, got in enumerate((f0[j], f1[j], cos_u[j])):
+            assert abs(got - ref[k]) <= 1e-15 * max(abs(ref[k]), 1e-3), (x, k, got, ref[k])
+    scalar = half_angle_functions(2.0)
+    assert np.ndim(scalar[0]) == 0 and scalar[1] == pytest.approx(mp_half_angle(2.0)[1], rel=1e-14)
+
+
+def test_g_and_derivatives_match_mpmath_on_both_sides_of_the_switch():
+    from softsnap_model.geometry import g_and_derivatives
+    mp.mp.dps = 40
+
+    def g(x):
+        return mp.mpf(1) if x == 0 else (2 * mp.sin(x / 2) / x) ** 2
+
+    for a in [0.0, 1e-6, -0.7, 3.0, math.pi, -(math.pi + 1e-9), 3.2, -4.5, 7.0, 20.0]:
+        got = g_and_derivatives(np.array([a, a]))
+        ref = [float(g(mp.mpf(a))), float(mp.diff(g, mp.mpf(a))), float(mp.diff(g, mp.mpf(a), 2))]
+        for k in range(3):
+            assert got[k].shape == (2,)
+            assert abs(got[k][0] - ref[k]) <= 2e-15 * max(1.0, abs(ref[k])), (a, k)
+
+
+def mp_poses(angles, d, s):
+    """Rib centres and hole positions by walking the arcs in mpmath (FACTS.md)."""
+    x = y = t = mp.mpf(0)
+    centres, holes = [(0.0, 0.0)], [(float(d[0] * mp.sin(t)), float(-d[0] * mp.cos(t)))]
+    for k, a in enumerate(angles):
+        a = mp.mpf(a)
+        chord = s * (mp.sin(a / 2) / (a / 2) if a != 0 else 1)
+        x += chord * mp.cos(t + a / 2)
+        y += chord * mp.sin(t + a / 2)
+        t += a
+        centres.append((float(x), float(y)))
+        holes.append((float(x + d[k + 1] * mp.sin(t)), float(y - d[k + 1] * mp.cos(t))))
+    return np.array(centres), np.array(holes)
+
+
+def test_rib_centres_and_holes_match_an_mpmath_walk():
+    mp.mp.dps = 30
+    rng = np.random.default_rng(38)
+    for spacing in (18.0, 12.5):
+        a = np.concatenate([[0.0, 2.5, -3.5], rng.uniform(-1.5, 1.5, 8)])
+        d = rng.choice(HOLES, 12)
+        centres, holes = mp_poses(a, d, spacing)
+        np.testing.assert_allclose(rib_centers(a, spacing), centres, atol=1e-12)
+        np.testing.assert_allclose(cable_path(a, d, spacing), holes, atol=1e-12)
+        batch = cable_path(np.stack([a, -a]), np.stack([d, -d]), spacing)
+        np.testing.assert_allclose(batch[0], holes, atol=1e-12)
+        np.testing.assert_allclose(batch[1], holes * [1, -1], atol=1e-12)   # mirror image
+
+
+def test_segment_length_matches_mpmath_for_large_angles_and_arrays():
+    mp.mp.dps = 40
+    a = np.array([0.0, 1e-7, -0.4, 1.2, -2.9, 3.3, 4.0, -6.0])
+    for d1, d2 in [(10.0, -6.5), (-3.0, -3.0), (0.5, 10.0)]:
+        got = segment_length(a, d1, d2, 18.0)
+        ref = [float(mp_length(x, d1, d2)) for x in a]
+        # (absolute slack: a short cable near a hole's centre of curvature loses digits)
+        np.testing.assert_allclose(got, ref, rtol=4e-15, atol=3e-14)
+        spaced = segment_length(a, d1, d2, np.full(a.shape, 12.0))
+        np.testing.assert_allclose(spaced, [float(mp_length(x, d1, d2, 12.0)) for x in a],
+                                   rtol=4e-15, atol=3e-14)

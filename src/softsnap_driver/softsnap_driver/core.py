@@ -90,6 +90,13 @@ class CableCalibration:
     clamp_margin_m: float = DEFAULT_CLAMP_MARGIN_M
 
     def __post_init__(self):
+        # bool is an int subclass: True would pass every check below as 1 (a 1 m
+        # contraction, a +1 sign), so refuse it by name.
+        for name in ('counts_per_mm', 'straight_length_m', 'max_contraction_m',
+                     'min_contraction_m', 'clamp_margin_m'):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise ValueError(f'{name} must be a number, got {value!r}')
         if not (math.isfinite(self.counts_per_mm) and self.counts_per_mm > 0):
             raise ValueError(f'counts_per_mm must be positive and finite, got {self.counts_per_mm!r}')
         if not (math.isfinite(self.straight_length_m) and self.straight_length_m > 0):
@@ -101,10 +108,9 @@ class CableCalibration:
             raise ValueError(
                 f'max_contraction_m must be in [min_contraction_m={self.min_contraction_m}, '
                 f'straight_length_m={self.straight_length_m}), got {self.max_contraction_m!r}')
-        if not (isinstance(self.clamp_margin_m, (int, float)) and math.isfinite(self.clamp_margin_m)
-                and 0 <= self.clamp_margin_m <= 1.0):
+        if not (math.isfinite(self.clamp_margin_m) and 0 <= self.clamp_margin_m <= 1.0):
             raise ValueError(f'clamp_margin_m must be in [0, 1] m, got {self.clamp_margin_m!r}')
-        if self.count_sign not in (1, -1):
+        if type(self.count_sign) is not int or self.count_sign not in (1, -1):
             raise ValueError(f'count_sign must be +1 or -1, got {self.count_sign!r}')
         if self.count_range[0] > self.count_range[1]:
             raise ValueError(f'the contraction range [{self.min_contraction_m}, {self.max_contraction_m}] m '

@@ -393,10 +393,11 @@ class ModuleClient:
     """
 
     def __init__(self, host: str, port: int = DEFAULT_PORT, timeout_s: float = 1.0):
-        if not isinstance(port, int) or not 1 <= port <= 65535:
+        # bool is an int subclass: refuse True as port 1 or as a 1 s deadline.
+        if isinstance(port, bool) or not isinstance(port, int) or not 1 <= port <= 65535:
             raise ValueError(f'port must be in [1, 65535], got {port!r}')
-        if not (isinstance(timeout_s, (int, float)) and math.isfinite(timeout_s)
-                and timeout_s > 0):
+        if not (isinstance(timeout_s, (int, float)) and not isinstance(timeout_s, bool)
+                and math.isfinite(timeout_s) and timeout_s > 0):
             raise ValueError(f'timeout_s must be a positive number of seconds, got {timeout_s!r}')
         self.host = host
         self.port = port
