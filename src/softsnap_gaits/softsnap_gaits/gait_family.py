@@ -73,7 +73,7 @@ class DecodedGait:
 
 
 def _lerp(u: float, bounds: tuple[float, float]) -> float:
-    return bounds[0] + (bounds[1] - bounds[0]) * u
+    return float(bounds[0] + (bounds[1] - bounds[0]) * float(u))
 
 
 class GaitFamily:
@@ -152,7 +152,7 @@ class GaitFamily:
             excess = 1.0 / factor - 1.0
             amps = amps * factor
             rise_min = rise_max
-        rise = rise_min + (rise_max - rise_min) * float(x[2])
+        rise = float(rise_min + (rise_max - rise_min) * float(x[2]))
         # Rounded so the YAML holds exactly what was scored; the rise time is rounded
         # up and the amplitude down (a gait exactly at the winch limit stays within it).
         rise = min(math.ceil(rise * 1e4) / 1e4, math.floor(rise_max * 1e4) / 1e4)

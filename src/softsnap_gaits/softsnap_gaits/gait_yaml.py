@@ -95,6 +95,7 @@ def write_scene_gait(scene_file: str | os.PathLike, name: str, spec: Mapping, *,
         with os.fdopen(fd, 'w') as f:
             f.write(text)
         make_gait(name, load_scene(tmp))      # refuses anything the scene would refuse
+        os.chmod(tmp, source.stat().st_mode & 0o777)
         os.replace(tmp, target)
     except BaseException:
         os.unlink(tmp)
