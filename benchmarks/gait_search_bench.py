@@ -48,7 +48,8 @@ def main(argv=None) -> int:
     backends = {'1 worker': make_backend('serial'),
                 '2 processes': make_backend('process', workers=2),
                 'Ray (local, 2 CPUs)': make_backend('ray', num_cpus=2, include_dashboard=False,
-                                                    configure_logging=False)}
+                                                    configure_logging=False,
+                                                    object_store_memory=200 * 2**20)}
     try:
         # Warm-up: spawn the workers and import MuJoCo in each before timing.
         for b in backends.values():

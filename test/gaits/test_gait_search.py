@@ -1,10 +1,12 @@
 """Gait search: families, the MuJoCo objective, CMA-ES on processes and Ray, the YAML writer.
 
 Rollouts are real (SimRobot: firmware, loaded winches, MuJoCo) but short and coarse
-(one link per segment, 1-2 s of gait), so the whole file takes a few CPU minutes.
+(one link per segment, one gait cycle), so the whole file takes a few CPU minutes; the
+searches' timeouts allow for a machine loaded many times over.
 """
 from __future__ import annotations
 
+import json
 import math
 import shutil
 from dataclasses import replace
@@ -13,7 +15,7 @@ import numpy as np
 import pytest
 import yaml
 
-from softsnap_gaits.gait_family import gait_family
+from softsnap_gaits.gait_family import FamilyBounds, gait_family
 from softsnap_gaits.gait_objective import DEFAULT_SETTINGS, SimSetting, rollout
 from softsnap_gaits.gait_search import SearchConfig, make_backend, search
 from softsnap_gaits.gait_yaml import write_scene_gait
@@ -21,6 +23,8 @@ from softsnap_gaits.gaits import GaitError, WINCH_SPEED_MARGIN, make_gait
 from softsnap_model.scene import load_scene
 
 COARSE = SimSetting('coarse', links_per_segment=1)
+#: Short periods for the searches here: a rollout is one cycle of 1-1.5 s.
+SHORT = FamilyBounds(period_s=(1.0, 1.5))
 COARSE_JITTER = SimSetting('coarse-jitter', links_per_segment=1, jitter_s=0.03, rib_friction=0.5,
                            stiffness_scale=1.2, seed=3)
 
@@ -66,6 +70,7 @@ def test_a_hand_gait_encodes_to_a_point_that_decodes_back_to_it():
     assert spec['amplitude_mm'] == pytest.approx(dict(gait.params['amplitude_mm']), abs=1e-2)
 
 
+@pytest.mark.timeout(900)
 def test_rollout_is_deterministic_and_a_straight_robot_stays_put():
     scene = load_scene('brittle_star')
     walk = dict(scene.gaits['walk'])
@@ -80,7 +85,7 @@ def test_rollout_is_deterministic_and_a_straight_robot_stays_put():
 
 def _tiny(scene='brittle_star', **kw):
     return SearchConfig(scene=scene, family='pulse', seed=kw.pop('seed', 3), generations=2,
-                        popsize=4, sigma0=0.3, seconds=kw.pop('seconds', 2.0),
+                        popsize=4, sigma0=0.3, seconds=kw.pop('seconds', 1.0),
                         settings=kw.pop('settings', (COARSE,)), **kw)
 
 
@@ -91,27 +96,29 @@ def _bad_start(family):
     return tuple([0.5, 0.5, 0.5] + [0.0] * n + [amp] * n)
 
 
+@pytest.mark.timeout(1800)
 def test_a_tiny_search_improves_a_bad_gait_and_is_reproducible():
     scene = load_scene('brittle_star')
-    family = gait_family('walk', scene)
+    family = gait_family('walk', scene, bounds=SHORT)
     config = _tiny(x0=_bad_start(family))
     backend = make_backend('serial')
     first = search(config, family, backend)
     assert abs(first.start_score) < 0.5
-    assert first.best_score > first.start_score + 1.0, (first.start_score, first.best_score)
+    assert first.best_score > first.start_score + 0.5, (first.start_score, first.best_score)
     # The written best is what was scored: its rollout reproduces the score.
-    again = rollout('brittle_star', first.best_spec, COARSE, seconds=2.0)
+    again = rollout('brittle_star', first.best_spec, COARSE, seconds=1.0)
     assert again == first.best_results[0]
     second = search(config, family, backend)
-    assert [g.best_score for g in second.history] == [g.best_score for g in first.history]
+    assert [g.mean_score for g in second.history] == [g.mean_score for g in first.history]
     assert np.array_equal(second.best_x, first.best_x)
-    other = search(replace(config, seed=4), family, backend)
-    assert not np.array_equal(other.best_x, first.best_x)
+    other = search(replace(config, seed=4, generations=1), family, backend)
+    assert other.history[0].mean_score != first.history[0].mean_score
 
 
+@pytest.mark.timeout(1800)
 def test_process_pool_gives_the_serial_result():
     scene = load_scene('brittle_star')
-    family = gait_family('walk', scene)
+    family = gait_family('walk', scene, bounds=SHORT)
     config = _tiny(settings=(COARSE, COARSE_JITTER), seconds=1.0)
     config = replace(config, generations=1)
     serial = search(config, family, make_backend('serial'))
@@ -120,21 +127,21 @@ def test_process_pool_gives_the_serial_result():
         parallel = search(config, family, pool)
     finally:
         pool.close()
-    assert parallel.history == [] or [g.best_score for g in parallel.history] == \
-        [g.best_score for g in serial.history]
+    assert [g.mean_score for g in parallel.history] == [g.mean_score for g in serial.history]
     assert np.array_equal(parallel.best_x, serial.best_x)
     assert parallel.best_results == serial.best_results
 
 
+@pytest.mark.timeout(1800)
 def test_ray_backend_on_a_local_cluster_gives_the_serial_result():
     ray = pytest.importorskip('ray')
     scene = load_scene('snake')
-    family = gait_family('concertina', scene)
+    family = gait_family('concertina', scene, bounds=SHORT)
     config = SearchConfig(scene='snake', family='wave', seed=5, generations=1, popsize=3,
                           seconds=1.0, settings=(COARSE,))
     serial = search(config, family, make_backend('serial'))
     backend = make_backend('ray', num_cpus=2, include_dashboard=False,
-                           configure_logging=False)
+                           configure_logging=False, object_store_memory=200 * 2**20)
     try:
         assert ray.is_initialized()
         on_ray = search(config, family, backend)
@@ -191,6 +198,7 @@ def test_a_gait_too_fast_for_the_winches_is_refused_and_nothing_written(tmp_path
         write_scene_gait(path, 'bad name', fast)
 
 
+@pytest.mark.timeout(1800)
 def test_the_command_line_writes_curve_recording_and_scene(tmp_path, read_rrd):
     from PIL import Image
     from softsnap_gaits.optimise import main
@@ -204,9 +212,12 @@ def test_the_command_line_writes_curve_recording_and_scene(tmp_path, read_rrd):
     scene = load_scene(out / 'brittle_star.yaml')
     assert 'walk_try' in scene.gaits and scene.default_gait == 'walk'
     make_gait('walk_try', scene)
+    result = json.loads((out / 'result.json').read_text())
+    assert result['best_spec'] == scene.gaits['walk_try']
     rec = read_rrd(out / 'best.rrd')
     frames = rec.rows['world/robot/ribs']
-    assert len(frames) == 10               # 1 s sampled every 0.1 s
+    # The gait's whole cycles, sampled every 0.1 s.
+    assert len(frames) == round(result['best_results'][0]['seconds'] / 0.1)
     assert len(frames[0]['LineStrips3D:strips']) == 5     # one strip per leg
     assert all(math.isfinite(v) for strip in frames[-1]['LineStrips3D:strips']
                for p in strip for v in p)

@@ -9,7 +9,8 @@ rollout is a deterministic function of its gait and its :class:`SimSetting`.
 Measured over the gait's run (after a 0.3 s settle, from the gait's start):
 
 * ``travel_mm_s``: the robot frame's displacement along the chosen heading (robot frame
-  at the start, degrees counter-clockwise from its x axis) per simulated second;
+  at the start, degrees counter-clockwise from its x axis) per simulated second, over
+  the whole number of gait cycles nearest to the rollout's ``seconds`` (at least one);
 * ``fell``: some module's base tipped more than 60 degrees from upright (sampled every
   0.1 s);
 * ``lag_mm``: the mean distance (mm of cable) between each winch's commanded and actual
@@ -199,7 +200,9 @@ def rollout(scene_ref: str, spec: dict, setting: SimSetting, *, seconds: float,
     fell = False
     times, ribs, base = [], [], []
     t = start
-    end = start + seconds
+    # Whole cycles only: a part cycle would reward a lurch the rest of the cycle undoes.
+    cycles = max(1, round(seconds / gait.period_s))
+    end = start + cycles * gait.period_s
     while t < end - 1e-9:
         t = min(end, t + SAMPLE_S)
         robot.run_until(t, on_step)

@@ -144,7 +144,10 @@ def main(argv=None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     ray_init = {}
     if args.backend == 'ray' and args.address is None:
-        ray_init = {'num_cpus': args.ray_num_cpus or args.workers or 1, 'include_dashboard': False}
+        # A local Ray for this run only: no dashboard, a small object store (the tasks
+        # pass a few kB each).
+        ray_init = {'num_cpus': args.ray_num_cpus or args.workers or 1, 'include_dashboard': False,
+                    'object_store_memory': 200 * 2**20}
     backend = make_backend(args.backend, args.workers, args.address, **ray_init)
     print(f'optimise: scene {scene.name}, family {family.kind} ({family.dimension} numbers), '
           f'seed {args.seed}, {args.generations} x {args.popsize} candidates x '
