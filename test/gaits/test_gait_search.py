@@ -221,3 +221,12 @@ def test_the_command_line_writes_curve_recording_and_scene(tmp_path, read_rrd):
     assert len(frames[0]['LineStrips3D:strips']) == 5     # one strip per leg
     assert all(math.isfinite(v) for strip in frames[-1]['LineStrips3D:strips']
                for p in strip for v in p)
+
+
+def test_the_shipped_optimised_gait_is_a_pulse_gait_the_winches_follow():
+    scene = load_scene('brittle_star')
+    gait = make_gait('walk_optimised', scene)
+    assert gait.type == 'pulse' and scene.default_gait == 'walk'
+    limit = WINCH_SPEED_MARGIN * np.array([m.winch_speed_mm_s for m in scene.modules])
+    assert np.all(_numeric_peak_speed_mm_s(gait) <= limit * 1.001)
+    assert np.all(gait.peak_contraction_mm <= gait.limit_contraction_mm)

@@ -153,6 +153,10 @@ class ProcessBackend:
         self._pool.shutdown(wait=True, cancel_futures=True)
 
 
+#: Tries to start a local Ray before giving up.
+LOCAL_RAY_START_ATTEMPTS = 3
+
+
 class RayBackend:
     """Ray tasks: on the cluster at `address`, or a local Ray (``ray.init`` with `init_kwargs`)."""
 
@@ -163,7 +167,16 @@ class RayBackend:
         self._ray = ray
         self._owned = not ray.is_initialized()
         if self._owned:
-            ray.init(address=address, **init_kwargs)
+            for attempt in range(LOCAL_RAY_START_ATTEMPTS):
+                try:
+                    ray.init(address=address, **init_kwargs)
+                    break
+                except Exception:
+                    # Ray gives a starting node a fixed 30 s to register: a machine loaded
+                    # many times over misses it (seen at a load average of 45 on 2 CPUs).
+                    ray.shutdown()
+                    if address is not None or attempt + 1 == LOCAL_RAY_START_ATTEMPTS:
+                        raise
         self.workers = int(ray.cluster_resources().get('CPU', 1))
         self._remote = ray.remote(num_cpus=1)(evaluate_task)
 
@@ -202,8 +215,13 @@ def _score_population(backend, config: SearchConfig, settings, decoded) -> list:
 
 
 def search(config: SearchConfig, family: GaitFamily, backend,
-           progress: Callable[[Generation], None] | None = None) -> SearchResult:
-    """Run CMA-ES (``cma``) on `family` with `backend`; see the module docstring."""
+           progress: Callable[[Generation], None] | None = None,
+           on_best: Callable[[dict, float], None] | None = None) -> SearchResult:
+    """Run CMA-ES (``cma``) on `family` with `backend`; see the module docstring.
+
+    `progress(generation)` is called after every generation, `on_best(spec, score)` each
+    time the best candidate improves (a checkpoint: a stopped search keeps its best).
+    """
     import cma
     started = time.monotonic()
     settings = with_seed(config.settings, config.seed)
@@ -229,6 +247,8 @@ def search(config: SearchConfig, family: GaitFamily, backend,
         if values[k] > best[0]:
             best = (values[k], np.asarray(xs[k]).copy(), decoded[k].spec, scored[k][1],
                     scored[k][2])
+            if on_best is not None:
+                on_best(best[2], float(best[0]))
         gen = Generation(index=g + 1, evaluations=(g + 1) * len(xs) + 1, rollouts=rollouts,
                          best_score=float(values[k]), best_so_far=float(best[0]),
                          mean_score=float(np.mean(values)), wall_s=time.monotonic() - started)

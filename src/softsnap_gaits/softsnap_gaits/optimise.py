@@ -9,7 +9,8 @@ prints one progress line per generation (a bar, the best score so far), and writ
 ``--out`` (default ``runs/optimise-<scene>-<UTC>/``): ``learning_curve.png`` (best and mean
 score per generation), ``best.rrd`` (the best gait's rollout on the nominal setting, a
 rerun recording), ``<scene>.yaml`` (the scene with the best gait added under ``--name``)
-and ``result.json`` (scores per setting, the spec, the command). ``--into-scene`` writes
+and ``result.json`` (scores per setting, the spec, the command); ``best_so_far.json`` holds the
+best gait each time it improves, so a stopped search keeps it. ``--into-scene`` writes
 the gait into the scene file itself instead of a copy.
 """
 from __future__ import annotations
@@ -154,7 +155,10 @@ def main(argv=None) -> int:
           f'{len(settings)} settings ({args.aggregate}), {args.seconds:g} s rollouts, '
           f'backend {backend.name} ({backend.workers} workers)', flush=True)
     try:
-        result = search(config, family, backend, progress=_progress(args.generations))
+        checkpoint = out / 'best_so_far.json'
+        result = search(config, family, backend, progress=_progress(args.generations),
+                        on_best=lambda spec, value: checkpoint.write_text(
+                            json.dumps({'score_mm_s': value, 'spec': spec}, indent=2)))
     finally:
         backend.close()
     command = 'python -m softsnap_gaits.optimise ' + ' '.join(sys.argv[1:] if argv is None else argv)
