@@ -33,7 +33,7 @@ def tasks(n: int, seconds: float) -> list:
     family = gait_family('walk', scene)
     rng = np.random.default_rng(0)
     setting = next(s for s in DEFAULT_SETTINGS if s.name == 'coarse-jitter')
-    return [(str(scene.path), family.decode(x).spec, setting, seconds, 0.0)
+    return [(str(scene.path), family.decode(x).spec, setting, seconds, 0.0, 0)
             for x in rng.uniform(0.2, 0.8, (n, family.dimension))]
 
 

@@ -157,10 +157,14 @@ def _upright(quats_wxyz: np.ndarray) -> np.ndarray:
 
 
 def rollout(scene_ref: str, spec: dict, setting: SimSetting, *, seconds: float,
-            heading_deg: float = 0.0, record: bool = False) -> RolloutResult:
+            heading_deg: float | None = 0.0, record: bool = False,
+            warmup_cycles: int = 0) -> RolloutResult:
     """Run gait `spec` on scene `scene_ref` (name or path) under `setting` for `seconds`.
 
-    Deterministic: the same arguments give the same result in any process.
+    `warmup_cycles` gait cycles run before the measured ones (the first cycle starts from
+    the straight robot, its legs resting until their onsets: a gait can lurch there in a
+    way it never repeats). `heading_deg` None scores the straight-line distance in any
+    direction. Deterministic: the same arguments give the same result in any process.
     """
     from softsnap_driver.sim_robot import SimRobot
     from softsnap_model.physics.mjcf import PhysicsParameters
@@ -177,7 +181,7 @@ def rollout(scene_ref: str, spec: dict, setting: SimSetting, *, seconds: float,
     p0, q0 = sim.robot_base_pose()
     w, x, y, z = q0
     yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-    h = yaw + math.radians(heading_deg)
+    h = yaw + math.radians(heading_deg or 0.0)
     heading = np.array([math.cos(h), math.sin(h)])
     start = robot.clock()
     commands = _JitteredCommands(gait.contraction_mm, start, setting.jitter_s, setting.seed)
@@ -198,13 +202,19 @@ def rollout(scene_ref: str, spec: dict, setting: SimSetting, *, seconds: float,
         last[:] = pos
 
     fell = False
+    p0 = None if warmup_cycles else p0
+    t_measure = robot.clock()
     times, ribs, base = [], [], []
     t = start
     # Whole cycles only: a part cycle would reward a lurch the rest of the cycle undoes.
     cycles = max(1, round(seconds / gait.period_s))
-    end = start + cycles * gait.period_s
+    measure_from = start + int(warmup_cycles) * gait.period_s
+    end = measure_from + cycles * gait.period_s
     while t < end - 1e-9:
         t = min(end, t + SAMPLE_S)
+        if p0 is None and t >= measure_from - 1e-9:
+            robot.run_until(measure_from, on_step)
+            p0, t_measure = sim.robot_base_pose()[0], robot.clock()
         robot.run_until(t, on_step)
         quats = sim.module_states()[3]
         fell = fell or bool(np.any(_upright(np.asarray(quats)) < UPRIGHT_MIN))
@@ -214,13 +224,14 @@ def rollout(scene_ref: str, spec: dict, setting: SimSetting, *, seconds: float,
             base.append(sim.robot_base_pose()[0])
     p1 = sim.robot_base_pose()[0]
     d = (np.asarray(p1) - np.asarray(p0))[:2] * 1e3
-    duration = robot.clock() - start
+    duration = robot.clock() - t_measure
     steps = max(acc['steps'], 1)
+    travel = float(d @ heading) if heading_deg is not None else float(np.hypot(*d))
     return RolloutResult(
-        setting=setting.name, seconds=duration, travel_mm_s=float(d @ heading) / duration,
+        setting=setting.name, seconds=duration, travel_mm_s=travel / duration,
         displacement_mm=(float(d[0]), float(d[1])),
         distance_mm_s=float(np.hypot(*d)) / duration, fell=fell,
-        lag_mm=float(acc['lag']) / steps, power_w=float(acc['energy']) / duration,
+        lag_mm=float(acc['lag']) / steps, power_w=float(acc['energy']) / (robot.clock() - start),
         times_s=np.array(times) if record else None,
         ribs_m=np.array(ribs) if record else None, base_m=np.array(base) if record else None)
 

@@ -51,8 +51,11 @@ class SearchConfig:
         CMA-ES's initial step size in the unit cube.
     seconds : float
         Simulated gait time per rollout (s).
-    heading_deg : float
-        Direction of travel scored, degrees counter-clockwise from the robot's x axis.
+    heading_deg : float or None
+        Direction of travel scored, degrees counter-clockwise from the robot's x axis;
+        None: the straight-line distance in any direction.
+    warmup_cycles : int
+        Gait cycles run before the measured ones (see :func:`rollout`).
     aggregate : str
         ``mean`` or ``worst`` over the settings.
     settings : tuple of SimSetting
@@ -67,7 +70,8 @@ class SearchConfig:
     popsize: int = 8
     sigma0: float = 0.25
     seconds: float = 6.0
-    heading_deg: float = 0.0
+    heading_deg: float | None = 0.0
+    warmup_cycles: int = 0
     aggregate: str = 'mean'
     settings: tuple[SimSetting, ...] = DEFAULT_SETTINGS
     penalties: Penalties = Penalties()
@@ -112,12 +116,13 @@ class SearchResult:
 
 
 def evaluate_task(task: tuple) -> tuple:
-    """(scene, spec, setting, seconds, heading) -> the rollout's RolloutResult.
+    """(scene, spec, setting, seconds, heading, warmup cycles) -> the rollout's RolloutResult.
 
     Top-level and pure, so any worker of any backend computes the same answer.
     """
-    scene, spec, setting, seconds, heading = task
-    return rollout(scene, spec, setting, seconds=seconds, heading_deg=heading)
+    scene, spec, setting, seconds, heading, warmup = task
+    return rollout(scene, spec, setting, seconds=seconds, heading_deg=heading,
+                   warmup_cycles=warmup)
 
 
 class SerialBackend:
@@ -202,7 +207,7 @@ def make_backend(name: str = 'process', workers: int = 1, address: str | None = 
 
 
 def _score_population(backend, config: SearchConfig, settings, decoded) -> list:
-    tasks = [(config.scene, d.spec, s, config.seconds, config.heading_deg)
+    tasks = [(config.scene, d.spec, s, config.seconds, config.heading_deg, config.warmup_cycles)
              for d in decoded for s in settings]
     results = backend.map(tasks)
     n = len(settings)

@@ -47,6 +47,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--seconds', type=float, default=6.0, help='simulated gait time per rollout, s')
     p.add_argument('--heading-deg', type=float, default=0.0,
                    help='direction scored, deg counter-clockwise from the robot x axis')
+    p.add_argument('--any-heading', action='store_true',
+                   help='score the straight-line distance in any direction (the demo\'s measure)')
+    p.add_argument('--warmup-cycles', type=int, default=1,
+                   help='gait cycles run before the measured ones (default 1: the first cycle '
+                   'starts from the straight robot and can lurch in a way it never repeats)')
     p.add_argument('--aggregate', choices=('mean', 'worst'), default='mean',
                    help='combine the settings by their mean or their worst score')
     p.add_argument('--settings', default='all',
@@ -139,7 +144,8 @@ def main(argv=None) -> int:
     config = SearchConfig(scene=str(scene.path), family=family.kind, seed=args.seed,
                           generations=args.generations, popsize=args.popsize,
                           sigma0=args.sigma, seconds=args.seconds,
-                          heading_deg=args.heading_deg, aggregate=args.aggregate,
+                          heading_deg=None if args.any_heading else args.heading_deg,
+                          warmup_cycles=args.warmup_cycles, aggregate=args.aggregate,
                           settings=settings, x0=x0)
     out = Path(args.out or f'runs/optimise-{scene.name}-{time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())}')
     out.mkdir(parents=True, exist_ok=True)
@@ -165,7 +171,8 @@ def main(argv=None) -> int:
     per = ', '.join(f'{s.name} {v:+.2f}' for s, v in zip(settings, result.best_scores))
     comments = [f'Found by softsnap_gaits.optimise (docs/gait_search.md): score '
                 f'{result.best_score:+.2f} mm/s ({args.aggregate} of {len(settings)} settings, '
-                f'heading {args.heading_deg:g} deg; start {result.start_score:+.2f} mm/s),',
+                f'heading {"any" if args.any_heading else f"{args.heading_deg:g} deg"}; '
+                f'{args.warmup_cycles} warm-up cycles; start {result.start_score:+.2f} mm/s),',
                 f'{result.rollouts} rollouts of {args.seconds:g} s. Per setting: {per}.',
                 f'Command: {command}']
     scene_out = write_scene_gait(scene.path, name, result.best_spec, comments=comments,
@@ -176,7 +183,7 @@ def main(argv=None) -> int:
     recorded = None
     if not args.no_record:
         recorded = record_rollout(str(scene.path), result.best_spec, DEFAULT_SETTINGS[0],
-                                  args.seconds, args.heading_deg, out / 'best.rrd',
+                                  args.seconds, config.heading_deg, out / 'best.rrd',
                                   f'{scene.name} / {name}: best gait of the search, nominal setting')
     summary = {'scene': scene.name, 'name': name, 'family': family.kind, 'seed': args.seed,
                'command': command, 'best_score_mm_s': result.best_score,
