@@ -3,7 +3,8 @@
 No ROS. Example (the brittle star's ``walk_optimised``, docs/gait_search.md)::
 
     python -m softsnap_gaits.optimise --scene brittle_star --family walk --start-gait walk \\
-        --name walk_optimised --seed 1 --generations 12 --popsize 8 --workers 2
+        --name walk_optimised --seed 3 --generations 10 --popsize 8 --sigma 0.3 --seconds 6 \\
+        --warmup-cycles 1 --any-heading --workers 2 --out runs/opt3-brittle_star
 
 prints one progress line per generation (a bar, the best score so far), and writes into
 ``--out`` (default ``runs/optimise-<scene>-<UTC>/``): ``learning_curve.png`` (best and mean
