@@ -92,8 +92,9 @@ def test_no_robot_process_outlives_the_demo(sig, tmp_path):
         # Every driver's last act: a confirmed stop (the simulated modules serve until then).
         assert set(last) == set(MODULES) and all(ok for ok, _ in last.values()), last
         if sig == signal.SIGKILL:
+            # (Which of the parent-death signal and the lifeline pipe reaches a node first
+            # is a race; test_lifeline.py shows each on its own.)
             assert proc.returncode == -signal.SIGKILL
-            assert 'the supervisor is gone' in (run_dir / 'gait_node.log').read_text()
         else:   # an orderly stop of the whole graph, with its summary
             assert proc.returncode == 130, err[-3000:]
             summary = json.loads(out[out.index('{'):])
@@ -101,7 +102,7 @@ def test_no_robot_process_outlives_the_demo(sig, tmp_path):
             order = summary['shutdown_order']
             assert order[0] == 'gait_node' and order[1] == 'driver_container'
             assert set(order[2:]) == {f'sim_{m}' for m in MODULES} | {
-                'model_node', 'rerun_logger', 'bag_recorder'}
+                'model_node', 'robot_state', 'rerun_logger', 'bag_recorder'}
             print('seconds from each stage\'s SIGINT to the exit:', summary['shutdown_seconds'])
     finally:
         stop_process_tree(proc, tag, 15.0)
