@@ -120,7 +120,10 @@ compgen -G '/usr/lib/*/dri/swrast_dri.so' > /dev/null || missing_gl+=(libgl1-mes
 if [ "${#missing_gl[@]}" -gt 0 ]; then
   if [ "$(id -u)" = 0 ] && command -v apt-get > /dev/null; then
     log "installing the simulated camera's offscreen OpenGL (missing: ${missing_gl[*]})"
-    DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends "${missing_gl[@]}" >&2 \
+    # A new machine's package lists may be empty: update them once if the install fails.
+    { DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends "${missing_gl[@]}" >&2 \
+        || { apt-get update -qq >&2 && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq \
+               --no-install-recommends "${missing_gl[@]}" >&2; }; } \
       || log "could not install ${missing_gl[*]}: sim_robot's camera will refuse to start"
   else
     log "missing ${missing_gl[*]} (offscreen OpenGL): sim_robot's camera will refuse to start; install them as root"
