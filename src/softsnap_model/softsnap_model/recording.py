@@ -1096,8 +1096,11 @@ def main(argv: Sequence[str] | None = None) -> int:
                                        grpc_port=args.grpc_port, online=args.online)
         print(f'open {url}  (Ctrl-C to stop)', flush=True)
         try:
+            # Short sleeps: a Ctrl-C the kernel hands to one of rerun's threads only sets
+            # Python's flag, and a long sleep of the main thread would not see it for an
+            # hour (a test saw `view` ignore SIGINT that way).
             while True:
-                time.sleep(3600)
+                time.sleep(0.2)
         except KeyboardInterrupt:
             return 0
     except (ValueError, RuntimeError) as exc:
