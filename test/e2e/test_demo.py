@@ -392,7 +392,7 @@ def test_ctrl_c_stops_every_process(tmp_path):
         out, err = demo.communicate(timeout=60)
     finally:
         demo.stop()
-    assert demo.returncode == 130, err[-2000:]
+    assert demo.returncode == 130, out[-3000:] + err[-2000:]
     assert 'SoftSnap demo: gripper' in out  # the summary is still printed
     assert demo_children(run_dir) == []
 

@@ -328,6 +328,10 @@ def main(args=None) -> int:
         except ValueError as exc:  # SceneError, GaitError, a bad parameter value
             rclpy.logging.get_logger('gait_node').fatal(f'cannot start: {exc}')
             return 2
+        except Exception:   # noqa: BLE001 - rclpy's RCLError once the context is gone
+            if not rclpy.ok():   # Ctrl-C while starting: rclpy shut the context down
+                return 0
+            raise
         # One thread: the timer, services and parameter callbacks all touch the player,
         # and serial execution keeps them consistent without locks.
         executor = SingleThreadedExecutor()

@@ -171,6 +171,10 @@ def main(args=None) -> int:
         except ValueError as exc:  # SceneError, a bad parameter value
             rclpy.logging.get_logger('robot_state').fatal(f'cannot start: {exc}')
             return 2
+        except Exception:   # noqa: BLE001 - rclpy's RCLError once the context is gone
+            if not rclpy.ok():   # Ctrl-C while starting: rclpy shut the context down
+                return 0
+            raise
         executor = SingleThreadedExecutor()
         executor.add_node(node)
         spin_until_shutdown(executor)
