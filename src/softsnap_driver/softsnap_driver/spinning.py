@@ -236,6 +236,44 @@ def run_simulator_main(argv: list[str] | None, name: str, build_parser: Callable
     return status
 
 
+def run_node_main(args: list[str] | None, name: str, make_node: Callable[[], Node],
+                  make_executor: Callable[[], Executor] | None = None) -> int:
+    """``main()`` of a process serving one node: build it, spin until shutdown, stop.
+
+    A ``ValueError`` while building (a bad scene or parameter) is logged as fatal and ends
+    with exit status 2; a Ctrl-C while building (rclpy shut the context down under the
+    constructor) is a clean stop, exit 0. A second Ctrl-C while stopping prints no
+    traceback (hold_signals). `make_executor` defaults to a single-threaded executor.
+    """
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+
+    init_ros(args=args)
+    node = None
+    try:
+        try:
+            node = make_node()
+        except ValueError as exc:
+            rclpy.logging.get_logger(name).fatal(f'cannot start: {exc}')
+            return 2
+        except Exception:   # noqa: BLE001 - rclpy's RCLError once the context is gone
+            if not rclpy.ok():   # Ctrl-C while starting
+                return 0
+            raise
+        executor = (make_executor or SingleThreadedExecutor)()
+        executor.add_node(node)
+        spin_until_shutdown(executor)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        hold_signals()   # a second Ctrl-C while stopping: no traceback
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+        hold_signals(final=True)   # ignored from here to the exit
+    return 0
+
+
 def run_nodes_main(args: list[str] | None, program: str, build: Callable) -> int:
     """``main()`` of a process whose nodes are served by one single-threaded executor.
 

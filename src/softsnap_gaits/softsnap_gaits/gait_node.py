@@ -30,13 +30,11 @@ from __future__ import annotations
 
 import math
 
-import rclpy
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParametersResult
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from softsnap_driver.ros_parameters import SoftSnapNode
 from softsnap_driver.service_queues import create_queued_service
-from softsnap_driver.spinning import hold_signals, init_ros, spin_until_shutdown
+from softsnap_driver.spinning import run_node_main
 from softsnap_interfaces.msg import CableLength, GaitPhase
 from softsnap_interfaces.srv import ReleaseModules, SetGait
 from std_srvs.srv import Trigger
@@ -320,32 +318,9 @@ class GaitNode(SoftSnapNode):
 
 
 def main(args=None) -> int:
-    init_ros(args=args)
-    node = None
-    try:
-        try:
-            node = GaitNode()
-        except ValueError as exc:  # SceneError, GaitError, a bad parameter value
-            rclpy.logging.get_logger('gait_node').fatal(f'cannot start: {exc}')
-            return 2
-        except Exception:   # noqa: BLE001 - rclpy's RCLError once the context is gone
-            if not rclpy.ok():   # Ctrl-C while starting: rclpy shut the context down
-                return 0
-            raise
-        # One thread: the timer, services and parameter callbacks all touch the player,
-        # and serial execution keeps them consistent without locks.
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        spin_until_shutdown(executor)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        hold_signals()   # a second Ctrl-C while stopping: no traceback
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-        hold_signals(final=True)   # ignored from here to the exit
-    return 0
+    # One thread: the timer, services and parameter callbacks all touch the player, and
+    # serial execution keeps them consistent without locks.
+    return run_node_main(args, 'gait_node', GaitNode)
 
 
 if __name__ == '__main__':

@@ -42,11 +42,11 @@ from geometry_msgs.msg import Point
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.executors import MultiThreadedExecutor
 from softsnap_driver.diagnostics import key_values
 from softsnap_driver.ros_parameters import SoftSnapNode
 from softsnap_driver.service_queues import action_qos_kwargs, create_queued_service
-from softsnap_driver.spinning import hold_signals, init_ros, spin_until_shutdown
+from softsnap_driver.spinning import run_node_main
 from softsnap_interfaces.action import ReachShape
 from softsnap_interfaces.msg import CableLength, MeasuredShape
 from softsnap_interfaces.srv import ReleaseModules, SetShapeTarget
@@ -470,29 +470,11 @@ class ShapeControllerNode(SoftSnapNode):
 
 
 def main(args=None) -> int:
-    init_ros(args=args)
-    node = None
-    try:
-        try:
-            node = ShapeControllerNode()
-        except ValueError as exc:
-            rclpy.logging.get_logger('shape_controller').fatal(f'cannot start: {exc}')
-            return 2
-        # Several threads: the action's loop waits on the controllers while the timer,
-        # measurements and the gait node's reply keep arriving (one lock guards the
-        # controllers).
-        executor = MultiThreadedExecutor(num_threads=4)
-        executor.add_node(node)
-        spin_until_shutdown(executor)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        hold_signals()   # a second Ctrl-C while stopping: no traceback
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-        hold_signals(final=True)   # ignored from here to the exit
-    return 0
+    # Several threads: the action's loop waits on the controllers while the timer,
+    # measurements and the gait node's reply keep arriving (one lock guards the
+    # controllers).
+    return run_node_main(args, 'shape_controller', ShapeControllerNode,
+                         lambda: MultiThreadedExecutor(num_threads=4))
 
 
 if __name__ == '__main__':

@@ -24,9 +24,7 @@ from __future__ import annotations
 
 import math
 
-import rclpy
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, QoSProfile
 from geometry_msgs.msg import PoseStamped, TransformStamped
 from sensor_msgs.msg import JointState
@@ -34,7 +32,7 @@ from std_msgs.msg import String
 from tf2_msgs.msg import TFMessage
 
 from softsnap_driver.ros_parameters import SoftSnapNode
-from softsnap_driver.spinning import hold_signals, init_ros, spin_until_shutdown
+from softsnap_driver.spinning import run_node_main
 from softsnap_interfaces.msg import RobotShape
 
 from .robot_description import ROOT_FRAME, describe_robot
@@ -163,30 +161,7 @@ class RobotStateNode(SoftSnapNode):
 
 
 def main(args=None) -> int:
-    init_ros(args=args)
-    node = None
-    try:
-        try:
-            node = RobotStateNode()
-        except ValueError as exc:  # SceneError, a bad parameter value
-            rclpy.logging.get_logger('robot_state').fatal(f'cannot start: {exc}')
-            return 2
-        except Exception:   # noqa: BLE001 - rclpy's RCLError once the context is gone
-            if not rclpy.ok():   # Ctrl-C while starting: rclpy shut the context down
-                return 0
-            raise
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        spin_until_shutdown(executor)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        hold_signals()   # a second Ctrl-C while stopping: no traceback
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-        hold_signals(final=True)   # ignored from here to the exit
-    return 0
+    return run_node_main(args, 'robot_state', RobotStateNode)
 
 
 if __name__ == '__main__':
