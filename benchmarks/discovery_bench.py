@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """How late a process joining a running graph gets its first messages, with and without
-the nodes' Fast DDS profile (``softsnap_driver/fastdds_profile.xml``), side by side.
+the nodes' Fast DDS profile (``softsnap_ros/fastdds_profile.xml``), side by side.
 
 Five publisher processes (rclpy, 100 Hz each on one topic) run for a while; then a
 late joiner, a plain rclpy process without any profile (as ``ros2 bag record`` or a
@@ -41,7 +41,7 @@ TOPIC = '/discovery_bench'
 
 def env_for(domain: int, profile: bool) -> dict:
     """A child's environment: ``domain``, loopback only, the nodes' profile or none."""
-    from softsnap_driver.dds_profile import PROFILES_FILE_VARIABLES, use_node_profile
+    from softsnap_ros.dds_profile import PROFILES_FILE_VARIABLES, use_node_profile
 
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
     for name in PROFILES_FILE_VARIABLES:

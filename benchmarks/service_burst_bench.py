@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """Service bursts: how many of N simultaneous calls are answered, ROS's default service
-queue (depth 10) against the stack's (softsnap_driver.service_queues, depth 1000), side
+queue (depth 10) against the stack's (softsnap_ros.service_queues, depth 1000), side
 by side in the same run, and model_node's ``forward_shape`` itself.
 
 The servers run as their own processes: a plain rclpy node whose Trigger callback takes
@@ -32,7 +32,7 @@ import sys, time
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from std_srvs.srv import Trigger
-from softsnap_driver.service_queues import create_queued_service
+from softsnap_ros.service_queues import create_queued_service
 rclpy.init()
 node = rclpy.create_node('burst_server')
 def work(request, response):
@@ -54,7 +54,7 @@ except BaseException:
 
 def burst(node, executor, srv_type, name, n, request) -> tuple[int, float]:
     """(answered, seconds until the last answer) of n clients calling at once."""
-    from softsnap_driver.service_queues import service_qos
+    from softsnap_ros.service_queues import service_qos
     clients = [node.create_client(srv_type, name, qos_profile=service_qos()) for _ in range(n)]
     deadline = time.monotonic() + 120
     while not all(c.service_is_ready() for c in clients) and time.monotonic() < deadline:

@@ -10,7 +10,7 @@ is microseconds (one CI failure in many runs); here each child registers
 destroys them all when spinning ends:
 
 - ``plain``: ``executor.spin()``, destroyed right after KeyboardInterrupt (the old code);
-- ``fixed``: :func:`softsnap_driver.spinning.spin_until_shutdown`, which returns once the
+- ``fixed``: :func:`softsnap_ros.spinning.spin_until_shutdown`, which returns once the
   signal thread has shut the context down.
 
 Each run starts a child, sends SIGINT while it spins and records its exit status
@@ -35,7 +35,7 @@ def child(kind: str, guards: int) -> None:
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
     from rclpy.signals import SignalHandlerGuardCondition
 
-    from softsnap_driver.spinning import spin_until_shutdown
+    from softsnap_ros.spinning import spin_until_shutdown
 
     rclpy.init()
     node = rclpy.create_node('sigint_race_stress', start_parameter_services=False)

@@ -27,8 +27,8 @@ def main() -> int:
 
     import rclpy
     from softsnap_interfaces.msg import CableLength, ModuleState
-    from softsnap_driver.state_wire import (CableLengthWire, ModuleStateFields, ModuleStateWire,
-                                            fill_module_state)
+    from softsnap_ros.cdr import (CableLengthWire, ModuleStateFields, ModuleStateWire,
+                                  fill_module_state)
 
     rclpy.init()
     node = rclpy.create_node('state_publish_bench')

@@ -40,7 +40,7 @@ os.environ.setdefault('MUJOCO_GL', 'egl')
 # The nodes' Fast DDS profile (service replies wait for a client that has just started,
 # participants announced every second), in this process and every process it starts, as
 # in every node's main (init_ros).
-from softsnap_driver.dds_profile import use_node_profile  # noqa: E402  (no ROS imports)
+from softsnap_ros.dds_profile import use_node_profile  # noqa: E402  (no ROS imports)
 
 use_node_profile()
 

@@ -6,8 +6,6 @@ setup(
     name=package_name,
     version='0.1.0',
     packages=find_packages(exclude=['test']),
-    # The Fast DDS profile the nodes load (softsnap_driver.spinning.init_ros).
-    package_data={package_name: ['fastdds_profile.xml']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),

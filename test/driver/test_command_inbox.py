@@ -18,7 +18,7 @@ from softsnap_interfaces.msg import CableLength  # noqa: E402
 
 from softsnap_driver import driver_node  # noqa: E402
 from softsnap_driver.driver_node import CommandInbox  # noqa: E402
-from softsnap_driver.spinning import inbox_node  # noqa: E402
+from softsnap_ros.spinning import inbox_node  # noqa: E402
 
 NS = '/inbox_test'
 

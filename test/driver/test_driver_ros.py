@@ -358,7 +358,7 @@ def test_command_decoding_equals_rclpy_deserialisation():
     import struct
     from rclpy.serialization import deserialize_message, serialize_message
     from softsnap_interfaces.msg import CableLength
-    from softsnap_driver.cdr import CdrError, decode_cable_length
+    from softsnap_ros.cdr import CdrError, decode_cable_length
     rng = random.Random(5)
     for text in range(12):
         for value in (0.15, 0.0, -1.0, math.nan, math.inf, -math.inf, 5e-324, 1e308):

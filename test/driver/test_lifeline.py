@@ -1,4 +1,4 @@
-"""A process tied to its supervisor (softsnap_driver.lifeline) stops when the supervisor
+"""A process tied to its supervisor (softsnap_ros.lifeline) stops when the supervisor
 dies by any signal, SIGKILL included, and takes SIGHUP like SIGTERM.
 
 Real processes, real signals: a supervisor process starts a child that calls
@@ -19,7 +19,7 @@ import pytest
 #: The child: a SIGTERM handler that reports, then waits (in C, like an idle executor).
 CHILD = r'''
 import os, signal, sys, threading, time
-from softsnap_driver.lifeline import supervise
+from softsnap_ros.lifeline import supervise
 stop = threading.Event()
 def on_term(signum, frame):
     print('child: SIGTERM, stopping', flush=True)
@@ -36,7 +36,7 @@ print('child: stopped cleanly', flush=True)
 #: so that only the lifeline pipe can tell it), prints the child's pid, then waits.
 SUPERVISOR = r'''
 import os, subprocess, sys, time
-from softsnap_driver.lifeline import Lifeline
+from softsnap_ros.lifeline import Lifeline
 lifeline = Lifeline() if sys.argv[2] == 'lifeline' else None
 env = lifeline.env(dict(os.environ)) if lifeline else dict(os.environ)
 argv = [sys.executable, '-c', sys.argv[3]]

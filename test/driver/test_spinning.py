@@ -13,7 +13,7 @@ import time
 
 import pytest
 
-from softsnap_driver.spinning import SHUTDOWN_GRACE_S, spin_until_shutdown
+from softsnap_ros.spinning import SHUTDOWN_GRACE_S, spin_until_shutdown
 
 
 def _executor_raising(exception: BaseException):

@@ -6,8 +6,8 @@ import struct
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from softsnap_driver.state_wire import (CableLengthWire, ModuleStateFields, ModuleStateWire,
-                                        fill_module_state)
+from softsnap_ros.cdr import (CableLengthWire, ModuleStateFields, ModuleStateWire,
+                              fill_module_state)
 
 FUZZ = settings(max_examples=300, deadline=None)
 NAMES = st.text(st.characters(min_codepoint=0x30, max_codepoint=0x7a), min_size=1, max_size=13)
@@ -55,7 +55,7 @@ def test_module_state_bytes_read_back_as_the_message_object(frame_id, module, st
 def test_cable_length_bytes_read_back_as_the_message_object(frame_id, stamp, length):
     from rclpy.serialization import deserialize_message
     from softsnap_interfaces.msg import CableLength
-    from softsnap_driver.cdr import decode_cable_length
+    from softsnap_ros.cdr import decode_cable_length
     raw = CableLengthWire(frame_id).serialize(stamp, length)
     got = deserialize_message(raw, CableLength)
     assert got.header.frame_id == frame_id
@@ -76,9 +76,9 @@ def test_any_command_header_stamp_echoes_as_a_time_rclpy_accepts(sec, nanosec):
     ModuleState.last_command_stamp: normalised, and held at the latest representable
     time when it would overflow int32 seconds (it used to make every state publish fail)."""
     from builtin_interfaces.msg import Time
-    from softsnap_driver.driver_node import TIME_SEC_MAX, stamp_sec_nanosec
+    from softsnap_ros.units import TIME_SEC_MAX, sec_nanosec
     stamp_ns = sec * 10**9 + nanosec
-    got = stamp_sec_nanosec(stamp_ns)
+    got = sec_nanosec(stamp_ns)
     Time(sec=got[0], nanosec=got[1])   # raises if either is out of its type's range
     assert 0 <= got[1] < 10**9
     if stamp_ns <= TIME_SEC_MAX * 10**9 + 999_999_999:

@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from softsnap_driver import cdr
-from softsnap_driver.cdr import (CdrError, decode_cable_length, decode_module_state,
-                                 decode_robot_shape)
+from softsnap_ros import cdr
+from softsnap_ros.cdr import (CdrError, decode_cable_length, decode_module_state,
+                              decode_robot_shape)
 
 sys.path.insert(0, str(Path(__file__).parent))
 from process_group import stop_process_group  # noqa: E402  (benchmarks/, put on sys.path by conftest)

@@ -10,8 +10,8 @@ from softsnap_interfaces.msg import CableLength, ModuleShape, RobotShape
 
 from softsnap_model.predictor import SOURCES, RobotPredictor
 from softsnap_model.scene import load_scene
-from softsnap_driver.cdr import decode_cable_length
-from softsnap_model.shape_wire import ModuleShapeWire, RobotShapeWire
+from softsnap_ros.cdr import decode_cable_length
+from softsnap_ros.cdr import ModuleShapeWire, RobotShapeWire
 
 
 @pytest.fixture(scope='module')

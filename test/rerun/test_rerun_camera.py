@@ -53,7 +53,7 @@ def test_frames_detections_and_prediction_are_recorded_over_the_markers(tmp_path
     import cv2
     import mujoco
     import rerun as rr
-    from softsnap_driver import cdr
+    from softsnap_ros import cdr
     from softsnap_driver.sim_camera import PINK_RGB, CameraSettings, SimCamera, capture_frame_state
     from softsnap_driver.sim_robot import build_simulation
     from softsnap_gaits.rerun_camera import IMAGE_PATH, CameraRecorder

@@ -1,4 +1,4 @@
-"""The nodes' Fast DDS profile (softsnap_driver.dds_profile), observed from outside.
+"""The nodes' Fast DDS profile (softsnap_ros.dds_profile), observed from outside.
 
 Service replies wait for a client that has just started. Fast DDS drops a service reply when, by the time the server sends it, the server has not
 discovered the calling client's reply reader; it waits its reply writer's
@@ -26,9 +26,9 @@ import xml.etree.ElementTree as ET
 
 import pytest
 
-from softsnap_driver.dds_profile import (ANNOUNCEMENT_PERIOD_S, NODE_PROFILE,
-                                         PROFILES_FILE_VARIABLES, SERVICE_REPLY_WAIT_S,
-                                         use_node_profile)
+from softsnap_ros.dds_profile import (ANNOUNCEMENT_PERIOD_S, NODE_PROFILE,
+                                      PROFILES_FILE_VARIABLES, SERVICE_REPLY_WAIT_S,
+                                      use_node_profile)
 
 DROPPED = 'client will not receive response'
 FASTDDS_NS = '{http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles}'
@@ -56,7 +56,7 @@ def test_the_profile_is_used_only_where_the_user_chose_none(environ, chosen):
 
 
 def test_a_profile_missing_from_the_install_is_not_pointed_to(monkeypatch, tmp_path):
-    from softsnap_driver import dds_profile
+    from softsnap_ros import dds_profile
     monkeypatch.setattr(dds_profile, 'NODE_PROFILE', tmp_path / 'absent.xml')
     environ = {}
     assert dds_profile.use_node_profile(environ) is None

@@ -3,7 +3,7 @@
 Users type ``-p rate:=50``, ``rate: 50`` in a params file and ``ros2 param set ... rate
 50``: all three are INTEGER values. Each node must start with them, report the
 parameters as doubles, take an integer at run time (with effect), and still refuse a
-non-number with a reason (softsnap_driver.ros_parameters.SoftSnapNode).
+non-number with a reason (softsnap_ros.node.SoftSnapNode).
 """
 from __future__ import annotations
 

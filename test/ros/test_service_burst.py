@@ -2,7 +2,7 @@
 
 ROS's default service queue (10 requests) answered 11 of 20 simultaneous
 ``forward_shape`` calls and logged nothing. model_node's services now queue
-SERVICE_QUEUE_DEPTH requests (softsnap_driver.service_queues): 30 and 100 clients calling
+SERVICE_QUEUE_DEPTH requests (softsnap_ros.service_queues): 30 and 100 clients calling
 at once are all answered. A server whose queue is made small on purpose shows that what
 still does not fit is counted and logged, and that requests are taken in arrival order
 (the middleware's receive stamps).
@@ -28,8 +28,8 @@ import sys, time
 import rclpy
 from rclpy.executors import SingleThreadedExecutor, ExternalShutdownException
 from std_srvs.srv import Trigger
-from softsnap_driver.service_queues import create_queued_service
-from softsnap_driver.spinning import init_ros
+from softsnap_ros.service_queues import create_queued_service
+from softsnap_ros.spinning import init_ros
 init_ros()
 node = rclpy.create_node('slow_server', namespace='/burst')
 def slow(request, response):
@@ -51,7 +51,7 @@ print(f'ledger answered={ledger.answered} lost={ledger.lost} out_of_order={ledge
 
 
 def _burst(ros_node, srv_type, name, n_clients, request_factory, calls_each=1, timeout=600.0):
-    from softsnap_driver.service_queues import service_qos
+    from softsnap_ros.service_queues import service_qos
     clients = [ros_node.create_client(srv_type, name, qos_profile=service_qos())
                for _ in range(n_clients)]
     assert ros_node.spin_until(lambda: all(c.service_is_ready() for c in clients), 120.0)

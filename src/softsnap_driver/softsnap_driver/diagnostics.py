@@ -16,16 +16,17 @@ import math
 from dataclasses import fields
 from typing import TYPE_CHECKING
 
-from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticStatus
 from sensor_msgs.msg import BatteryState
 
-if TYPE_CHECKING:  # annotations only: the model node and rerun_logger use key_values and
-    # RECENT_S without loading the link and the HTTP protocol client (~30 ms at start)
+from softsnap_ros.diagnostics import key_values
+
+if TYPE_CHECKING:  # annotations only: rerun_logger uses RECENT_S without loading the
+    # link and the HTTP protocol client (~30 ms at start)
     from .link import Counters, LinkReport
 
 __all__ = ['BATTERY_WARN_V', 'BATTERY_ERROR_V', 'RECENT_S', 'STALE_AFTER_S',
-           'BATTERY_DESIGN_CAPACITY_AH', 'DriverHealth', 'battery_state', 'diagnostic_name',
-           'key_values']
+           'BATTERY_DESIGN_CAPACITY_AH', 'DriverHealth', 'battery_state', 'diagnostic_name']
 
 #: Battery voltage (mean of the module's last 8 samples) below which the status is WARN
 #: (V): a single Li-ion cell (FACTS.md: 80130 Li-ion, 3.7 V nominal) is nearly empty.
@@ -56,16 +57,6 @@ def diagnostic_name(namespace: str, module: str) -> str:
     """``softsnap/<robot>/<module>/driver``: the robot is the node's namespace (may be empty)."""
     robot = namespace.strip('/')
     return '/'.join(part for part in ('softsnap', robot, module, 'driver') if part)
-
-
-def key_values(values: dict) -> list[KeyValue]:
-    """DiagnosticStatus values from a dict: floats to 6 significant digits, the rest str()."""
-    out = []
-    for key, value in values.items():
-        if isinstance(value, float):
-            value = f'{value:.6g}'
-        out.append(KeyValue(key=key, value=str(value)))
-    return out
 
 
 class DriverHealth:

@@ -43,7 +43,7 @@ from rclpy.parameter import Parameter
 from softsnap_driver.driver_node import (_NAME, COMMAND_WAIT_S, STOP_UNCONFIRMED_EXIT,
                                          CommandInbox, DriverNode, steady_timer)
 from softsnap_driver.link import SHUTDOWN_BUDGET_S
-from softsnap_driver.spinning import inbox_node, run_nodes_main
+from softsnap_ros.spinning import inbox_node, run_nodes_main
 
 
 def _read_only_array(kind: int, description: str) -> ParameterDescriptor:

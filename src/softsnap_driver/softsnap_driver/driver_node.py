@@ -33,28 +33,27 @@ import sys
 import threading
 import time
 
-from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
-                                SetParametersResult)
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.clock import Clock, ClockType
-from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.serialization import deserialize_message, serialize_message
 from diagnostic_msgs.msg import DiagnosticArray
 from sensor_msgs.msg import BatteryState
 from softsnap_interfaces.msg import CableLength, ModuleState
 from std_srvs.srv import Trigger
 
-from softsnap_driver.cdr import CdrError, decode_cable_length
+from softsnap_ros.cdr import check_wire, read_cable_length
 from softsnap_driver.core import DEFAULT_CLAMP_MARGIN_M, STOP_UNCONFIRMED_EXIT, CableCalibration
 from softsnap_driver.diagnostics import DriverHealth, battery_state, diagnostic_name
 from softsnap_driver.link import LinkConfig, LinkReport, ModuleLink
 from softsnap_driver.protocol import FIRMWARE_DEADBAND_COUNTS
-from softsnap_driver.ros_parameters import SoftSnapNode
-from softsnap_driver.service_queues import create_queued_service
-from softsnap_driver.spinning import inbox_node, run_nodes_main
-from softsnap_driver.state_wire import (CableLengthWire, ModuleStateFields, ModuleStateWire,
-                                        fill_module_state)
+from softsnap_ros.node import SoftSnapNode, float_range, integer_range
+from softsnap_ros.service_queues import create_queued_service
+from softsnap_ros.spinning import inbox_node, run_nodes_main
+from softsnap_ros.units import sec_nanosec
+from softsnap_ros.wait_loop import SubscriptionWaiter
+from softsnap_ros.cdr import (CableLengthWire, ModuleStateFields, ModuleStateWire,
+                              fill_module_state)
 
 #: Default winch: 2800 counts per output revolution (N20 encoder, 7 PPR x4, 1:100) on a
 #: 10 mm diameter spool. Calibrate it per module (docs/driver.md).
@@ -63,57 +62,46 @@ DEFAULT_COUNTS_PER_MM = 2800.0 / (math.pi * 10.0)
 _NAME = re.compile(r'^[A-Za-z][A-Za-z0-9_]*$')
 
 
-def _float(description, low, high, step=0.0):
-    return ParameterDescriptor(description=description, floating_point_range=[
-        FloatingPointRange(from_value=float(low), to_value=float(high), step=float(step))])
-
-
-def _int(description, low, high, step=1, read_only=False):
-    return ParameterDescriptor(description=description, read_only=read_only, integer_range=[
-        IntegerRange(from_value=low, to_value=high, step=step)])
-
-
 # name: (default, descriptor). One declarative table: the README's table mirrors it.
 PARAMETERS = {
     'module': ('m1', ParameterDescriptor(
         description='Module name; topics and services live under <module>/', read_only=True)),
     'host': ('127.0.0.1', ParameterDescriptor(
         description='Module IP address (or host name without the words status/set/...)', read_only=True)),
-    'port': (80, _int('Module TCP port (80 on the firmware)', 1, 65535, read_only=True)),
-    'counts_per_mm': (DEFAULT_COUNTS_PER_MM, _float(
+    'port': (80, integer_range('Module TCP port (80 on the firmware)', 1, 65535, read_only=True)),
+    'counts_per_mm': (DEFAULT_COUNTS_PER_MM, float_range(
         'Encoder counts per millimetre of cable (calibrated per winch), counts/mm', 0.01, 100000.0)),
-    'straight_length_m': (0.198, _float('Cable length of the straight module, m', 0.001, 10.0)),
-    'min_contraction_m': (0.0, _float('Smallest allowed contraction (straight minus cable length), m', 0.0, 10.0)),
-    'max_contraction_m': (0.080, _float('Largest allowed contraction, m', 0.0, 10.0)),
-    'count_sign': (1, _int('+1 if positive encoder counts shorten the cable, -1 otherwise', -1, 1, 2)),
-    'pwm_power': (200, _int('Motor PWM power sent with every target, 0-255', 0, 255)),
-    'poll_rate_hz': (10.0, _float('Status polls per second, Hz', 0.1, 200.0)),
-    'command_timeout_s': (1.0, _float(
+    'straight_length_m': (0.198, float_range('Cable length of the straight module, m', 0.001, 10.0)),
+    'min_contraction_m': (0.0, float_range('Smallest allowed contraction (straight minus cable length), m', 0.0, 10.0)),
+    'max_contraction_m': (0.080, float_range('Largest allowed contraction, m', 0.0, 10.0)),
+    'count_sign': (1, integer_range('+1 if positive encoder counts shorten the cable, -1 otherwise', -1, 1, 2)),
+    'pwm_power': (200, integer_range('Motor PWM power sent with every target, 0-255', 0, 255)),
+    'poll_rate_hz': (10.0, float_range('Status polls per second, Hz', 0.1, 200.0)),
+    'command_timeout_s': (1.0, float_range(
         'Stop the module where it is when no command came for this long, s (0: never)', 0.0, 3600.0)),
-    'request_timeout_s': (0.5, _float('Deadline of one HTTP request to the module, s', 0.01, 30.0)),
-    'offline_after_failures': (3, _int('Consecutive failed requests before the module is offline', 1, 1000)),
-    'max_backoff_s': (5.0, _float('Longest wait between retries of an offline module, s', 0.01, 600.0)),
-    'reboot_zero_band_counts': (60, _int('A count this close to 0 may mean a reboot, counts', 0, 1_000_000)),
-    'reboot_min_jump_counts': (300, _int('Only a fall from at least this far is a reboot, counts', 1, 1_000_000_000)),
-    'max_speed_counts_per_s': (20000.0, _float(
+    'request_timeout_s': (0.5, float_range('Deadline of one HTTP request to the module, s', 0.01, 30.0)),
+    'offline_after_failures': (3, integer_range('Consecutive failed requests before the module is offline', 1, 1000)),
+    'max_backoff_s': (5.0, float_range('Longest wait between retries of an offline module, s', 0.01, 600.0)),
+    'reboot_zero_band_counts': (60, integer_range('A count this close to 0 may mean a reboot, counts', 0, 1_000_000)),
+    'reboot_min_jump_counts': (300, integer_range('Only a fall from at least this far is a reboot, counts', 1, 1_000_000_000)),
+    'max_speed_counts_per_s': (20000.0, float_range(
         'Fastest the winch can move; faster falls to 0 are reboots, counts/s', 1.0, 1e9)),
-    'stall_timeout_s': (1.0, _float(
+    'stall_timeout_s': (1.0, float_range(
         'Outside the deadband with no progress for this long: stalled, stop it, s (0: never)', 0.0, 3600.0)),
     'stop_on_shutdown': (True, ParameterDescriptor(
         description='Stop the module (confirmed reach, within the shutdown budget) when the driver exits')),
-    'clamp_margin_m': (DEFAULT_CLAMP_MARGIN_M, _float(
+    'clamp_margin_m': (DEFAULT_CLAMP_MARGIN_M, float_range(
         'Commands at most this far outside the allowed length range are clamped; further out refused, m',
         0.0, 1.0)),
-    'stop_deadline_s': (1.0, _float(
+    'stop_deadline_s': (1.0, float_range(
         'Retry reach until the stop is confirmed, for at most this long, then report and keep trying, s',
         0.05, 60.0)),
-    'target_deadband_counts': (FIRMWARE_DEADBAND_COUNTS, _int(
+    'target_deadband_counts': (FIRMWARE_DEADBAND_COUNTS, integer_range(
         'A new target this close to the module\'s target waits for the next poll slot '
         '(at most one poll period) instead of a request of its own, counts (0: send every change)',
         0, 100_000)),
-    'diagnostics_period_s': (1.0, ParameterDescriptor(
-        description='Period of /diagnostics and <module>/battery messages, s', read_only=True,
-        floating_point_range=[FloatingPointRange(from_value=0.1, to_value=60.0)])),
+    'diagnostics_period_s': (1.0, float_range(
+        'Period of /diagnostics and <module>/battery messages, s', 0.1, 60.0, read_only=True)),
 }
 
 
@@ -123,24 +111,6 @@ COMMAND_WAIT_S = 0.05
 #: net only, since a stop, a new or closed route and the context's shutdown each wake it
 #: through its guard condition (it woke 20 times a second, idle, before).
 COMMAND_IDLE_WAIT_S = 1.0
-
-
-#: Largest second a builtin_interfaces/Time holds (int32).
-TIME_SEC_MAX = 2**31 - 1
-
-
-def stamp_sec_nanosec(stamp_ns: int) -> tuple[int, int]:
-    """A stamp in ns as (sec, nanosec) of a builtin_interfaces/Time, nanosec < 1e9.
-
-    A command's stamp is echoed back in ``ModuleState``; a sender's header with
-    ``nanosec`` >= 1e9 near the end of int32 seconds would not fit once normalised,
-    and every state message would then fail to publish: such a stamp is held at the
-    latest representable time.
-    """
-    sec, nanosec = divmod(stamp_ns, 1_000_000_000)
-    if sec > TIME_SEC_MAX:
-        return TIME_SEC_MAX, 999_999_999
-    return sec, nanosec
 
 
 class _Route:
@@ -171,7 +141,7 @@ class CommandInbox:
     burst instead of once per command (five modules at 50 Hz: ~85 wakes a second
     instead of 250). A ``driver_node`` has one route.
 
-    Each message is taken serialised, decoded (:func:`softsnap_driver.cdr.decode_cable_length`,
+    Each message is taken serialised, decoded (:func:`softsnap_ros.cdr.decode_cable_length`,
     rclpy's deserialisation for another encoding) and goes straight to its own route's
     ``handle(cable_length_m, stamp_ns)``, in the order the topic delivered them. A
     message that cannot be read is logged (throttled, on the route's logger) and
@@ -188,7 +158,7 @@ class CommandInbox:
         self._lock = threading.Lock()       # guards _routes and every route's ``open``
         self._routes: tuple[_Route, ...] = ()
         self._stop = threading.Event()
-        self._guard = _rclpy.GuardCondition(node.context.handle)
+        self._waiter = SubscriptionWaiter(node.context)
         # Kept as a weak reference by rclpy. It sets the stop: a wake that also brings a
         # command would otherwise skip the context check below and sleep again.
         node.context.on_shutdown(self._on_context_shutdown)
@@ -219,64 +189,31 @@ class CommandInbox:
 
     def _wake(self) -> None:
         """End the thread's current wait (it then looks at its routes and the stop)."""
-        try:
-            self._guard.trigger_guard_condition()
-        except Exception:  # noqa: BLE001 - destroyed with the thread's end: nothing waits
-            pass
+        self._waiter.wake()
 
     def _run(self) -> None:
         context = self._node.context
-        timeout_ns = int(COMMAND_IDLE_WAIT_S * 1e9)
         routes: tuple[_Route, ...] = ()
-        handles = ()
-        by_pointer: dict[int, _Route] = {}
-        wait_set = None
-        # Every subscription taken from is held (``__enter__``) until the thread ends:
-        # destroying the inbox node while a wait is in progress is then deferred by
-        # rclpy until the thread lets go.
-        held = [self._guard]
-        self._guard.__enter__()
+        waiter = self._waiter
         try:
             while not self._stop.is_set():
                 try:
                     if self._routes is not routes:
-                        # Built aside and adopted only when complete: a rebuild that
-                        # raises is tried again at the next pass, never half applied.
-                        new_routes = self._routes
-                        new_handles = tuple(route.rcl for route in new_routes)
-                        for handle in new_handles:
-                            if handle not in held:
-                                handle.__enter__()
-                                held.append(handle)
-                        new_by_pointer = {route.rcl.pointer: route for route in new_routes}
-                        new_wait_set = (_rclpy.WaitSet(len(new_routes), 1, 0, 0, 0, 0,
-                                                       context.handle) if new_routes else None)
-                        routes, handles, by_pointer, wait_set = (
-                            new_routes, new_handles, new_by_pointer, new_wait_set)
-                    if wait_set is None:      # nothing to wait on (yet, or any more)
-                        if self._stop.wait(COMMAND_WAIT_S) or not context.ok():
-                            return
-                        continue
-                    # rcl_wait empties the set's slots of entities that are not ready:
-                    # the subscriptions are added again for every wait.
-                    wait_set.clear_entities()
-                    for handle in handles:
-                        wait_set.add_subscription(handle)
-                    wait_set.add_guard_condition(self._guard)
-                    wait_set.wait(timeout_ns)
-                    ready = wait_set.get_ready_entities('subscription')
+                        routes = self._routes
+                        waiter.set_subscriptions([r.subscription for r in routes], wake=False)
+                    ready = waiter.wait(COMMAND_IDLE_WAIT_S if routes else COMMAND_WAIT_S)
                     # The context is asked only after a wake without a message (rclpy
                     # takes a lock for it): a shut-down context ends the thread within
                     # one wait.
                     if not ready and not context.ok():
                         return
-                    for pointer in ready:
+                    for index in ready:
                         # One message per ready route and wake: at 50 Hz there is one,
                         # and a take that finds none costs half a wait; if more are
                         # queued the next wait returns at once.
-                        route = by_pointer[pointer]
+                        route = routes[index]
                         try:
-                            taken = route.rcl.take_message(CableLength, True)
+                            raw = waiter.take(index, CableLength)
                         except Exception as exc:  # noqa: BLE001 - this module only
                             # The other ready modules still get their commands this wake.
                             if self._stop.is_set() or not context.ok():
@@ -284,8 +221,8 @@ class CommandInbox:
                             route.logger.error(f'{route.subscription.topic_name}: take '
                                                f'failed: {exc!r}', throttle_duration_sec=1.0)
                             continue
-                        if taken is not None:
-                            self._deliver(route, taken[0])
+                        if raw is not None:
+                            self._deliver(route, raw)
                 except Exception as exc:  # noqa: BLE001 - report and go on; never die silently
                     if self._stop.is_set() or not context.ok():
                         return  # shutting down: the context or a handle is gone
@@ -293,21 +230,11 @@ class CommandInbox:
                                                   throttle_duration_sec=1.0)
                     time.sleep(COMMAND_WAIT_S)
         finally:
-            for handle in held:
-                handle.__exit__(None, None, None)
-            # Both hold the rcl context: left alive, they would keep it from being finalised.
-            for entity in (wait_set, self._guard):
-                if entity is not None:
-                    entity.destroy_when_not_in_use()
+            waiter.close()
 
     def _deliver(self, route: _Route, raw: bytes) -> None:
         try:
-            try:
-                stamp_ns, length_m = decode_cable_length(raw)
-            except CdrError:  # another encoding: rclpy reads it
-                msg = deserialize_message(raw, CableLength)
-                stamp = msg.header.stamp
-                stamp_ns, length_m = stamp.sec * 1_000_000_000 + stamp.nanosec, msg.cable_length
+            stamp_ns, length_m = read_cable_length(raw)
         except Exception as exc:  # noqa: BLE001 - one unreadable message is skipped
             route.logger.warning(
                 f'{route.subscription.topic_name}: unreadable command skipped '
@@ -484,7 +411,7 @@ class DriverNode(SoftSnapNode):
         # Due again a little before the next poll's report: jitter must not skip a poll.
         self._publish_due = report.stamp + 0.9 * self.link.config.poll_period_s
         self._published_events = events
-        stamp = stamp_sec_nanosec(self.get_clock().now().nanoseconds)
+        stamp = sec_nanosec(self.get_clock().now().nanoseconds)
         if report.fresh and math.isfinite(report.measured_length_m):
             self.measured_publisher.publish(self._measured_out(stamp, report.measured_length_m))
         if math.isfinite(report.last_error_stamp) and report.last_error_stamp != self._error_stamp[0]:
@@ -495,7 +422,7 @@ class DriverNode(SoftSnapNode):
             # here and no state was ever published).
             age_ns = int(max(report.stamp - report.last_error_stamp, 0.0) * 1e9)
             error_ns = max(self.get_clock().now().nanoseconds - age_ns, 0)
-            self._error_stamp = (report.last_error_stamp, stamp_sec_nanosec(error_ns))
+            self._error_stamp = (report.last_error_stamp, sec_nanosec(error_ns))
         # Before the first reply (status None) the module's own fields are zero.
         self.state_publisher.publish(self._state_out(stamp, ModuleStateFields(
             online=report.online,
@@ -511,7 +438,7 @@ class DriverNode(SoftSnapNode):
             request_failures=c.request_failures,
             commands_received=c.commands_received,
             targets_sent=c.targets_sent,
-            last_command_stamp=stamp_sec_nanosec(report.last_command_stamp_ns),
+            last_command_stamp=sec_nanosec(report.last_command_stamp_ns),
             commands_clamped=c.commands_clamped,
             commands_refused=c.commands_refused,
             reboots_detected=c.reboots_detected,
@@ -545,6 +472,7 @@ class DriverNode(SoftSnapNode):
         messages built as objects; else False, with a warning. Run once at start: a
         middleware with another encoding then costs CPU, not correctness."""
         try:
+            written = []
             for error in ('', 'command refused: \u00e9 -1.0 m'):
                 fields = ModuleStateFields(
                     True, False, 0.1875, 0.15, -123456, 7890, 200, 3.875, 1.5, 1, 2, 3, 4,
@@ -552,16 +480,13 @@ class DriverNode(SoftSnapNode):
                 want = ModuleState(module=self.module)
                 want.header.frame_id = self.module
                 want.header.stamp.sec, want.header.stamp.nanosec = 1_800_000_000, 42
-                fill_module_state(want, fields)
-                got = deserialize_message(self._state_wire.serialize((1_800_000_000, 42), fields),
-                                          ModuleState)
-                if got != deserialize_message(serialize_message(want), ModuleState):
-                    raise ValueError(f'ModuleState read back as {got}')
-            got = deserialize_message(self._measured_wire.serialize((17, 42), 0.1234567),
-                                      CableLength)
-            if (got.header.frame_id, got.header.stamp.sec, got.header.stamp.nanosec,
-                    got.cable_length) != (self.module, 17, 42, 0.1234567):
-                raise ValueError(f'CableLength read back as {got}')
+                written.append((self._state_wire.serialize((1_800_000_000, 42), fields),
+                                fill_module_state(want, fields)))
+            length = CableLength(cable_length=0.1234567)
+            length.header.frame_id = self.module
+            length.header.stamp.sec, length.header.stamp.nanosec = 17, 42
+            written.append((self._measured_wire.serialize((17, 42), 0.1234567), length))
+            check_wire(written)
         except Exception as error:  # noqa: BLE001 - fall back, never fail the start
             self.get_logger().warning(
                 'publishing state and measured length as message objects (costs more CPU): '

@@ -19,14 +19,13 @@ import dataclasses
 import math
 import sys
 
-from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
-                                SetParametersResult)
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.parameter import Parameter
 
-from softsnap_driver.ros_parameters import SoftSnapNode
+from softsnap_ros.node import SoftSnapNode, table_descriptor
 from softsnap_driver.sim_module import (MAX_COUNT, OPTIONS, STOP_JOIN_S, build_parser,
                                         start_servers)
-from softsnap_driver.spinning import run_simulator_main
+from softsnap_ros.spinning import run_simulator_main
 
 _NEVER_TO = 1e6  # largest "after" time of a fault, s (-1: never)
 #: Ranges of the options (inclusive); an option missing here is declared without one.
@@ -57,17 +56,7 @@ RUNTIME_FAULTS = ('drop_probability', 'delay_probability', 'delay_s', 'garbage_p
 
 
 def _descriptor(name: str, kind: type, text: str) -> ParameterDescriptor:
-    runtime = name in RUNTIME_FAULTS
-    descriptor = ParameterDescriptor(
-        description=text + ('' if runtime else ' (fixed at start-up)'), read_only=not runtime)
-    if name in RANGES:
-        low, high = RANGES[name]
-        if kind is int:
-            descriptor.integer_range = [IntegerRange(from_value=int(low), to_value=int(high), step=1)]
-        elif kind is float:
-            descriptor.floating_point_range = [
-                FloatingPointRange(from_value=float(low), to_value=float(high), step=0.0)]
-    return descriptor
+    return table_descriptor(kind, text, RANGES.get(name), runtime=name in RUNTIME_FAULTS)
 
 
 class SimModuleNode(SoftSnapNode):

@@ -49,12 +49,12 @@ import sys
 
 from builtin_interfaces.msg import Time
 from geometry_msgs.msg import Point, Pose, PoseStamped
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.clock import Clock, ClockType
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock as ClockMessage
 
-from softsnap_driver.ros_parameters import SoftSnapNode
+from softsnap_ros.node import SoftSnapNode, table_descriptor
 from softsnap_driver.sim_camera_publisher import CAMERA_OPTIONS, CAMERA_RANGES
 from softsnap_driver.sim_observation import (DEFAULT_GROUND_TRUTH_RATE_HZ, GroundTruthSample,
                                              ObservationWorker, TickSchedule,
@@ -62,7 +62,7 @@ from softsnap_driver.sim_observation import (DEFAULT_GROUND_TRUTH_RATE_HZ, Groun
 from softsnap_driver.sim_robot import (OPTIONS, PHYSICS_TIMESTEP_RANGE_S, RobotSnapshot,
                                        SimRobotError, SimRobotRunner, _bool_text, build_parser,
                                        report_stop)
-from softsnap_driver.spinning import run_simulator_main
+from softsnap_ros.spinning import run_simulator_main
 from softsnap_interfaces.msg import MeasuredShape, ModuleShape, RobotShape
 
 WORLD_FRAME = 'world'
@@ -104,15 +104,7 @@ NODE_OPTIONS = {
 
 
 def _descriptor(name: str, kind: type, text: str) -> ParameterDescriptor:
-    descriptor = ParameterDescriptor(description=text + ' (fixed at start-up)', read_only=True)
-    if name in RANGES:
-        low, high = RANGES[name]
-        if kind is int:
-            descriptor.integer_range = [IntegerRange(from_value=int(low), to_value=int(high), step=1)]
-        elif kind is float:
-            descriptor.floating_point_range = [
-                FloatingPointRange(from_value=float(low), to_value=float(high), step=0.0)]
-    return descriptor
+    return table_descriptor(kind, text, RANGES.get(name))
 
 
 def _stamp(time_s: float) -> Time:

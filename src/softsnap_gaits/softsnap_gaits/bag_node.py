@@ -26,7 +26,7 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 
-from softsnap_driver.spinning import init_ros
+from softsnap_ros.spinning import init_ros
 
 from .bag import (BagError, BagWriter, PlaybackClock, TopicFilter, bag_info,
                   playback_qos, read_messages, recording_qos)

@@ -45,7 +45,7 @@ def main(argv=None) -> int:
     from ament_index_python.packages import get_package_prefix
     from rclpy.executors import SingleThreadedExecutor
 
-    from softsnap_driver.dds_profile import use_node_profile
+    from softsnap_ros.dds_profile import use_node_profile
     from softsnap_gaits.closed_loop_run import run_case
     from softsnap_model.scene import load_scene
 

@@ -113,7 +113,7 @@ class Caller:
         import rclpy
         from rclpy.executors import SingleThreadedExecutor
 
-        from softsnap_driver.dds_profile import use_node_profile
+        from softsnap_ros.dds_profile import use_node_profile
         use_node_profile()
         self.rclpy = rclpy
         self.timeout_s = timeout_s

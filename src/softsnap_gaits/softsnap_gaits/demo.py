@@ -59,7 +59,7 @@ from pathlib import Path
 
 import numpy as np
 
-from softsnap_driver.lifeline import Lifeline
+from softsnap_ros.lifeline import Lifeline
 from softsnap_model.geometry import rib_centers
 from softsnap_model.scene import SceneError, load_scene
 
@@ -248,7 +248,7 @@ class Observer:
         Command counts still come from the nodes' own counters either way."""
         import rclpy
         from rclpy.parameter import Parameter
-        from softsnap_driver.spinning import init_ros
+        from softsnap_ros.spinning import init_ros
         from softsnap_interfaces.msg import (CableLength, GaitPhase, ModelDiagnostics, ModuleShape,
                                              ModuleState)
 
@@ -413,13 +413,8 @@ class Observer:
     def _robot_shape(self, data: bytes, info, source: str, take) -> None:
         """Every module shape of a raw RobotShape that is new since the last one taken
         (read from its bytes: rclpy's deserialisation of a 50-module shape took ~9 ms)."""
-        from softsnap_driver import cdr
-        try:
-            robot = cdr.decode_robot_shape(data)
-        except cdr.CdrError:
-            from rclpy.serialization import deserialize_message
-            from softsnap_interfaces.msg import RobotShape
-            robot = cdr.from_message(deserialize_message(data, RobotShape))
+        from softsnap_ros.cdr import read_robot_shape
+        robot = read_robot_shape(data)
         for shape in robot.modules:
             s = self.stats.get(shape.module)
             key = (shape.module, source)
@@ -1007,7 +1002,7 @@ def _run(args: argparse.Namespace, scene, slot: Slot) -> int:
         stop_requested.append(signum)
 
     # SIGHUP (a closed terminal) like SIGTERM; if this process dies, the children see
-    # their lifeline end and stop too (softsnap_driver.lifeline).
+    # their lifeline end and stop too (softsnap_ros.lifeline).
     old_handlers = {sig: signal.signal(sig, request_stop)
                     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
     lifeline = Lifeline()

@@ -32,9 +32,9 @@ import math
 
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParametersResult
 from rclpy.parameter import Parameter
-from softsnap_driver.ros_parameters import SoftSnapNode
-from softsnap_driver.service_queues import create_queued_service
-from softsnap_driver.spinning import run_node_main
+from softsnap_ros.node import SoftSnapNode
+from softsnap_ros.service_queues import create_queued_service
+from softsnap_ros.spinning import run_node_main
 from softsnap_interfaces.msg import CableLength, GaitPhase
 from softsnap_interfaces.srv import ReleaseModules, SetGait
 from std_srvs.srv import Trigger

@@ -15,7 +15,7 @@ messages it took per topic, logged, dropped and could not log.
 
 Everything about rerun (entity paths, colours, blueprint, units) lives in
 softsnap_model.recording; this node only adapts messages and parameters. The shape,
-length and state topics are taken raw (CDR bytes) and read by softsnap_driver.cdr, much
+length and state topics are taken raw (CDR bytes) and read by softsnap_ros.cdr, much
 cheaper than rclpy's deserialisation. See docs/rerun.md.
 
 Parameters (read-only except ``rate``):
@@ -55,23 +55,24 @@ import rclpy
 import rclpy.node
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
-                                 SetParametersResult)
+                                SetParametersResult)
 from rclpy.clock import Clock, ClockType
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.logging import get_logger
 from rclpy.parameter import Parameter
 from geometry_msgs.msg import PoseStamped
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
-from rclpy.serialization import deserialize_message
 
-from softsnap_driver.diagnostics import RECENT_S, key_values
-from softsnap_driver.ros_parameters import SoftSnapNode
-from softsnap_driver.spinning import (exit_without_teardown, hold_signals, init_ros,
-                                      spin_until_shutdown)
+from softsnap_driver.diagnostics import RECENT_S
+from softsnap_ros.diagnostics import key_values
+from softsnap_ros.node import SoftSnapNode
+from softsnap_ros.spinning import (exit_without_teardown, hold_signals, init_ros,
+                                   spin_until_shutdown)
 from softsnap_interfaces.msg import CableLength, ModuleState, RobotShape
 from softsnap_model import recording
 
-from softsnap_driver import cdr
+from softsnap_ros import cdr
+from softsnap_ros.units import stamp_ns
 
 # Reliable, like the default QoS the model node, the drivers and the gait node publish
 # with, so samples sent right after discovery are not lost; a KEEP_LAST reader never
@@ -92,11 +93,6 @@ DRAIN_PERIOD_S = 0.1
 #: reach the recording, which a subscription seen in the ROS graph does not prove (the
 #: publishers may discover it seconds later on a loaded machine).
 DIAGNOSTICS_PERIOD_S = 1.0
-
-
-def stamp_ns(stamp) -> int:
-    """Nanoseconds since the epoch of a builtin_interfaces/Time."""
-    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
 
 
 def recorder_status(name: str, output: Path | None, recorder: recording.RobotRecorder,
@@ -399,20 +395,16 @@ class RerunLoggerNode(SoftSnapNode):
             self.camera.simulated(shape)
 
     def _decode(self, data: bytes) -> cdr.RobotShapeCdr:
-        """A raw RobotShape, read by the cdr module; see `_fallback`."""
-        try:
-            return cdr.decode_robot_shape(data)
-        except cdr.CdrError:
-            return cdr.from_message(self._fallback(data, RobotShape))
+        """A raw RobotShape (rclpy reads what the cdr readers refuse, see `_fallback`)."""
+        return cdr.read_robot_shape(data, self._fallback)
 
-    def _fallback(self, data: bytes, msg_type):
-        """rclpy's deserialisation of bytes the cdr reader refused (another encoding, say
-        big-endian); bytes rclpy refuses too raise, and the drain logs that."""
+    def _fallback(self, msg_type) -> None:
+        """Counts the messages rclpy had to read (another encoding, say big-endian); bytes
+        rclpy refuses too raise, and the drain logs that."""
         self.cdr_fallbacks += 1
         if self.cdr_fallbacks == 1:
             self.get_logger().warning(f'{msg_type.__name__} bytes not plain little-endian '
                                       'CDR: rclpy decodes them (slower)')
-        return deserialize_message(data, msg_type)
 
     def base_pose_callback(self, msg: PoseStamped) -> None:
         if not self._closed:
@@ -471,22 +463,14 @@ class RerunLoggerNode(SoftSnapNode):
     def cable_length_callback(self, data: bytes, module: str, kind: str) -> None:
         if self._closed:
             return
-        try:
-            stamp, length = cdr.decode_cable_length(data)
-        except cdr.CdrError:  # another encoding: rclpy reads it
-            msg = self._fallback(data, CableLength)
-            stamp, length = stamp_ns(msg.header.stamp), msg.cable_length
+        stamp, length = cdr.read_cable_length(data, self._fallback)
         self.recorder.cable_length(stamp or self.get_clock().now().nanoseconds, module, kind,
                                    length)
 
     def state_callback(self, data: bytes, module: str) -> None:
         if self._closed:
             return
-        try:
-            stamp, name, battery_v = cdr.decode_module_state(data)
-        except cdr.CdrError:
-            msg = self._fallback(data, ModuleState)
-            stamp, name, battery_v = stamp_ns(msg.header.stamp), msg.module, msg.battery_voltage
+        stamp, name, battery_v = cdr.read_module_state(data, self._fallback)
         self.recorder.module_state(stamp or self.get_clock().now().nanoseconds,
                                    name or module, battery_v)
 

@@ -43,10 +43,10 @@ from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
-from softsnap_driver.diagnostics import key_values
-from softsnap_driver.ros_parameters import SoftSnapNode
-from softsnap_driver.service_queues import action_qos_kwargs, create_queued_service
-from softsnap_driver.spinning import run_node_main
+from softsnap_ros.diagnostics import key_values
+from softsnap_ros.node import SoftSnapNode
+from softsnap_ros.service_queues import action_qos_kwargs, create_queued_service
+from softsnap_ros.spinning import run_node_main
 from softsnap_interfaces.action import ReachShape
 from softsnap_interfaces.msg import CableLength, MeasuredShape
 from softsnap_interfaces.srv import ReleaseModules, SetShapeTarget
@@ -160,7 +160,7 @@ class ShapeControllerNode(SoftSnapNode):
         self.create_timer(1.0, self.diagnostics_callback, callback_group=self.group)
         # A restarted gait node has forgotten its releases: say them again now and then.
         self.create_timer(REASSERT_PERIOD_S, self.reassert_callback, callback_group=self.group)
-        # Queues sized for bursts, lost requests counted (softsnap_driver.service_queues).
+        # Queues sized for bursts, lost requests counted (softsnap_ros.service_queues).
         create_queued_service(self, SetShapeTarget, '~/set_target', self.set_target_callback,
                               callback_group=self.group)
         self.action_server = ActionServer(

@@ -31,7 +31,6 @@ All science lives in :mod:`softsnap_model.predictor`, :mod:`.forward`, :mod:`.lo
 from __future__ import annotations
 
 import array
-import contextlib
 import dataclasses
 import math
 import queue
@@ -45,21 +44,22 @@ from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescr
                                 SetParametersResult)
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.executors import SingleThreadedExecutor
-from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.qos import QoSProfile
-from rclpy.serialization import deserialize_message, serialize_message
 from rclpy.task import Future
 from rclpy.time import Time
 from diagnostic_msgs.msg import DiagnosticArray
 from sensor_msgs.msg import JointState
 from visualization_msgs.msg import MarkerArray
 
-from softsnap_driver.cdr import CdrError, decode_cable_length
-from softsnap_driver.ros_parameters import SoftSnapNode
-from softsnap_driver.service_queues import action_qos_kwargs, create_queued_service
-from softsnap_driver.spinning import (exit_without_teardown, hold_signals, inbox_node,
-                                      init_ros, spin_until_shutdown)
+from softsnap_ros.cdr import (ModuleShapeWire, RobotShapeWire, check_wire, decode_cable_length,
+                              read_cable_length)
+from softsnap_ros.node import SoftSnapNode
+from softsnap_ros.service_queues import action_qos_kwargs, create_queued_service
+from softsnap_ros.units import MM_PER_M
+from softsnap_ros.wait_loop import SubscriptionWaiter
+from softsnap_ros.spinning import (exit_without_teardown, hold_signals, inbox_node,
+                                   init_ros, spin_until_shutdown)
 from softsnap_interfaces.msg import CableLength, Design, ModelDiagnostics, ModuleShape, RobotShape
 from softsnap_interfaces.action import DesignThreading
 from softsnap_interfaces.srv import ForwardShape, InverseDesign
@@ -70,10 +70,8 @@ from .inverse import DesignCancelled, DesignTimedOut, design_threading
 from .loads import DEFAULT_BENDING_STIFFNESS_NMM, Loads, solve_loaded
 from .predictor import SOURCES, ModulePrediction, RobotPredictor
 from .scene import SceneError, load_scene
-from .shape_wire import ModuleShapeWire, RobotShapeWire
 from . import standard_messages as standard
 
-MM_PER_M = 1000.0
 LENGTH_TOPIC = {'commanded': 'cable_length/command', 'predicted': 'cable_length/measured'}
 #: On shutdown, how long a running design may take to notice the stop before the node
 #: exits without it (s); the design's worker thread is a daemon and dies with the process.
@@ -166,13 +164,11 @@ class PredictionThread:
                  on_length, predict, chores, on_error):
         self._period_s = float(period_s)
         self._context = context
-        self._handles = [subscription.handle for subscription in subscriptions]
-        self._index = {handle.pointer: i for i, handle in enumerate(self._handles)}
+        self._waiter = SubscriptionWaiter(context, subscriptions)
+        self._count = len(subscriptions)
         self._msg_type = msg_type
         self._on_length, self._predict, self._chores = on_length, predict, chores
         self._on_error = on_error
-        self._guard = _rclpy.GuardCondition(context.handle)
-        self._wait_set = _rclpy.WaitSet(len(self._handles), 1, 0, 0, 0, 0, context.handle)
         self._stop = threading.Event()
         self._wake = threading.Event()  # a new period or a stop, for the active state
         self._thread = threading.Thread(target=self._run, name=name, daemon=True)
@@ -190,10 +186,7 @@ class PredictionThread:
     def wake(self) -> None:
         """Wake the thread to look again at the period and at when chores are due."""
         self._wake.set()
-        try:
-            self._guard.trigger_guard_condition()
-        except Exception:  # noqa: BLE001 - the context is gone: the wait ends by itself
-            pass
+        self._waiter.wake()
 
     def start(self) -> None:
         self._thread.start()
@@ -209,7 +202,7 @@ class PredictionThread:
                 due = self._chores()
                 now = time.monotonic()
                 if not active:
-                    ready = self._wait(min(due - now, IDLE_WAIT_MAX_S))
+                    ready = self._waiter.wait(min(due - now, IDLE_WAIT_MAX_S))
                     if not ready:
                         continue  # a chore, the guard, the safety timeout or a shutdown
                     arrived = time.monotonic()
@@ -225,12 +218,12 @@ class PredictionThread:
                 boundary = last + period  # read again after every wake: a new rate applies
                 if now < boundary:
                     if now - drained >= DRAIN_S:
-                        self._take(range(len(self._handles)))
+                        self._take(range(self._count))
                         drained = now
                     if self._wake.wait(min(boundary, due, drained + DRAIN_S) - now):
                         self._wake.clear()
                     continue
-                self._take(range(len(self._handles)))
+                self._take(range(self._count))
                 drained = now
                 if self._predict():
                     # On the grid (in phase with the lengths' arrivals); after a late
@@ -244,35 +237,15 @@ class PredictionThread:
                 self._on_error(error)
                 self._stop.wait(0.01)  # no busy loop if the error repeats
 
-    def _wait(self, timeout_s: float) -> list[int]:
-        """Block until a length subscription is ready, the guard fires or timeout_s
-        passes; the indices of the ready subscriptions."""
-        with contextlib.ExitStack() as held:  # no handle may be destroyed while waited on
-            for handle in self._handles:
-                held.enter_context(handle)
-            held.enter_context(self._guard)
-            held.enter_context(self._wait_set)  # not destroyed while in rcl_wait
-            wait_set = self._wait_set
-            # rcl_wait empties the slots of entities that are not ready: refill every time.
-            wait_set.clear_entities()
-            for handle in self._handles:
-                wait_set.add_subscription(handle)
-            wait_set.add_guard_condition(self._guard)
-            wait_set.wait(max(0, int(timeout_s * 1e9)))
-            return [self._index[p] for p in wait_set.get_ready_entities('subscription')]
-
     def _take(self, indices) -> None:
         """Every waiting message of the given subscriptions, oldest first, to on_length.
 
         Taken as bytes: reading the two fields needed costs a quarter of building the
-        message object (see :func:`softsnap_driver.cdr.decode_cable_length`).
+        message object (see :func:`softsnap_ros.cdr.decode_cable_length`).
         """
-        msg_type, on_length = self._msg_type, self._on_length
+        msg_type, on_length, take_all = self._msg_type, self._on_length, self._waiter.take_all
         for index in indices:
-            handle = self._handles[index]
-            with handle:
-                while (taken := handle.take_message(msg_type, True)) is not None:
-                    on_length(index, taken[0])
+            take_all(index, msg_type, on_length)
 
     def stop(self, timeout: float) -> bool:
         """Stop after the current prediction; True if the thread ended within timeout (s)."""
@@ -282,9 +255,7 @@ class PredictionThread:
             self._thread.join(timeout)
         if self._thread.is_alive():
             return False
-        # Both hold the rcl context: left alive, they would keep it from being finalised.
-        for entity in (self._wait_set, self._guard):
-            entity.destroy_when_not_in_use()
+        self._waiter.close()
         return True
 
 
@@ -456,6 +427,8 @@ class ModelNode(SoftSnapNode):
         # marker_rate applies at once.
         self._marker_period_s = 1.0 / self.get_parameter('marker_rate').value
         self._next_marker_at = time.monotonic()
+        self._next_greeting_at = time.monotonic()  # see _greet_new_listeners
+        self._robot_listeners_seen = dict.fromkeys(SOURCES, 0)
         # Predictions run on their own thread, woken by the lengths (PredictionThread says
         # why); only that thread touches the predictor, the inbox's subscriptions and the
         # shape publishers' caches.
@@ -510,16 +483,11 @@ class ModelNode(SoftSnapNode):
         self.lengths_taken[index] += 1
         module, source = self._length_keys[index]
         try:
-            stamp_ns, length_m = decode_cable_length(data)
-        except CdrError:
-            try:  # another encoding: let rclpy read it
-                msg = deserialize_message(data, CableLength)
-            except Exception as error:  # undecodable bytes must not stop the predictions
-                self.get_logger().warning(f'could not read a {source} length message for '
-                                          f'{module!r}: {error!r}', throttle_duration_sec=1.0)
-                return
-            length_m = msg.cable_length
-            stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+            stamp_ns, length_m = read_cable_length(data)
+        except Exception as error:  # undecodable bytes must not stop the predictions
+            self.get_logger().warning(f'could not read a {source} length message for '
+                                      f'{module!r}: {error!r}', throttle_duration_sec=1.0)
+            return
         try:
             self.predictor.submit(source, module, length_m * MM_PER_M, stamp_ns)
         except ValueError as error:
@@ -596,7 +564,9 @@ class ModelNode(SoftSnapNode):
             following = self._next_marker_at + self._marker_period_s
             self._next_marker_at = following if following > now else now + self._marker_period_s
             self.marker_callback()
-        return self._next_marker_at
+        if self.context.ok():
+            self._greet_new_listeners(now)
+        return min(self._next_marker_at, self._next_greeting_at)
 
     def prediction_error_callback(self, error: Exception) -> None:
         self.get_logger().error(f'prediction thread: {error!r}', throttle_duration_sec=1.0)
@@ -632,12 +602,33 @@ class ModelNode(SoftSnapNode):
                         publisher.publish(
                             self._module_wires[(shape.module, source)].serialize(shape, stamp_ns)
                             if self.wire_format else self._message_for(shape, stamp))
-            if not listeners.robot[source]:
-                continue
-            shapes, poses = self.predictor.shapes(source), self.predictor.base_poses(source)
-            self.robot_publishers[source].publish(
-                self._robot_wires[source].serialize(shapes, poses, stamp_ns)
-                if self.wire_format else self._robot_msg(source, shapes, poses, stamp))
+            if listeners.robot[source]:
+                self._publish_robot(source, stamp_ns, stamp)
+
+    def _publish_robot(self, source: str, stamp_ns: int, stamp=None) -> None:
+        """The RobotShape of one source from the predictor's current shapes."""
+        shapes, poses = self.predictor.shapes(source), self.predictor.base_poses(source)
+        if not self.wire_format and stamp is None:
+            stamp = Time(nanoseconds=stamp_ns).to_msg()
+        self.robot_publishers[source].publish(
+            self._robot_wires[source].serialize(shapes, poses, stamp_ns)
+            if self.wire_format else self._robot_msg(source, shapes, poses, stamp))
+
+    def _greet_new_listeners(self, now: float) -> None:
+        """Send the current RobotShape of a source whose subscribers grew since the last
+        look: a robot_state or RViz that joins after the last change of length would
+        otherwise get no shape until a length changes (unchanged lengths are skipped)."""
+        if now < self._next_greeting_at:
+            return
+        self._next_greeting_at = now + SUBSCRIBERS_REFRESH_S
+        for source in SOURCES:
+            count = self._subscribers(self.robot_publishers[source])
+            seen, self._robot_listeners_seen[source] = self._robot_listeners_seen[source], count
+            if count > seen and any(shape is not None for shape in self.predictor.shapes(source)):
+                clock = self.get_clock().handle
+                with clock:
+                    stamp_ns = clock.get_now().nanoseconds
+                self._publish_robot(source, stamp_ns)
 
     def _robot_msg(self, source: str, shapes, poses, stamp) -> RobotShape:
         """The RobotShape of one source built as a message object (the fallback, and the
@@ -660,6 +651,7 @@ class ModelNode(SoftSnapNode):
         correctness.
         """
         try:
+            written = []
             n = self.skeleton.n_segments
             angles = np.linspace(-0.3, 0.2, n)
             centers = np.cumsum(np.full((n + 1, 2), [self.skeleton.spacing_mm, 0.7]), axis=0)
@@ -679,25 +671,20 @@ class ModelNode(SoftSnapNode):
                 poses = self.predictor.base_poses(source)
                 wire = RobotShapeWire(self.scene.name, source, list(self.scene.module_names),
                                       n, self.skeleton.n_ribs)
-                got = deserialize_message(wire.serialize(shapes, poses, stamp_ns), RobotShape)
-                want = self._robot_msg(source, shapes, poses, stamp)
+                written.append((wire.serialize(shapes, poses, stamp_ns),
+                                self._robot_msg(source, shapes, poses, stamp)))
                 for shape in shapes:
                     if shape is None:
                         continue
                     module_wire = ModuleShapeWire(self.scene.name, source, shape.module, n,
                                                   self.skeleton.n_ribs)
-                    got_module = deserialize_message(module_wire.serialize(shape, stamp_ns),
-                                                     ModuleShape)
-                    if got_module != self._shape_msg(shape, stamp):
-                        raise ValueError(f'ModuleShape of {shape.module!r} differs')
-                if got != want:
-                    raise ValueError('RobotShape differs')
-            self._last_msgs.clear()
+                    written.append((module_wire.serialize(shape, stamp_ns),
+                                    self._shape_msg(shape, stamp)))
             length = CableLength(cable_length=0.1234567)
             length.header.stamp.sec, length.header.stamp.nanosec = 17, 42
             length.header.frame_id = 'abc'
-            if decode_cable_length(serialize_message(length)) != (17_000_000_042, 0.1234567):
-                raise ValueError('CableLength read back differently')
+            check_wire(written, read=[(decode_cable_length, length, (17_000_000_042, 0.1234567))])
+            self._last_msgs.clear()
         except Exception as error:
             self.get_logger().warning(
                 f'publishing shapes as message objects (costs more CPU): the wire format '

@@ -31,8 +31,8 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from tf2_msgs.msg import TFMessage
 
-from softsnap_driver.ros_parameters import SoftSnapNode
-from softsnap_driver.spinning import run_node_main
+from softsnap_ros.node import SoftSnapNode
+from softsnap_ros.spinning import run_node_main
 from softsnap_interfaces.msg import RobotShape
 
 from .robot_description import ROOT_FRAME, describe_robot

@@ -39,7 +39,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker
 
-from softsnap_driver.diagnostics import key_values
+from softsnap_ros.diagnostics import key_values
 
 from . import geometry
 

@@ -35,9 +35,9 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo as CameraInfoMsg
 from sensor_msgs.msg import Image
 
-from softsnap_driver.ros_parameters import SoftSnapNode
-from softsnap_driver.spinning import (exit_without_teardown, hold_signals, init_ros,
-                                      spin_until_shutdown)
+from softsnap_ros.node import SoftSnapNode
+from softsnap_ros.spinning import (exit_without_teardown, hold_signals, init_ros,
+                                   spin_until_shutdown)
 from softsnap_interfaces.msg import CableLength, MeasuredShape
 from softsnap_model import solve_forward
 from softsnap_model.scene import SceneError, load_scene

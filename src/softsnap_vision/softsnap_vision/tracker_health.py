@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 
 from diagnostic_msgs.msg import DiagnosticStatus
 
-from softsnap_driver.diagnostics import key_values
+from softsnap_ros.diagnostics import key_values
 
 __all__ = ['CameraCounters', 'ModuleCounters', 'camera_status', 'module_status',
            'MIN_VISIBLE_RIBS', 'status_name']

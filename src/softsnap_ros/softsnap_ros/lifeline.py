@@ -2,7 +2,7 @@
 
 A SoftSnap module has no watchdog: a driver that keeps running after whoever started it
 died (SIGKILL, an out-of-memory kill, a closed terminal) keeps a robot moving that nobody
-controls. Every node's start-up (:func:`softsnap_driver.spinning.init_ros`) calls
+controls. Every node's start-up (:func:`softsnap_ros.spinning.init_ros`) calls
 :func:`supervise` before ROS starts, which arranges three things, each ending in the
 node's ordinary SIGTERM shutdown (so a driver's last act is still its confirmed stop):
 

@@ -1,26 +1,18 @@
 """Read this project's messages straight from their serialised (CDR) bytes (no rclpy).
 
-The one place for the wire format of ``softsnap_interfaces`` messages taken raw
-(``create_subscription(..., raw=True)`` or ``take_message(..., raw=True)``): rclpy's own
-deserialisation builds a Python object for every field (12 ``geometry_msgs/Point``
-objects per module of a RobotShape, a Header and a Time for every CableLength), and that
-was most of the CPU of the nodes that take them at 50-100 Hz. Readers here:
+rclpy's own deserialisation builds a Python object for every field (12
+``geometry_msgs/Point`` objects per module of a RobotShape, a Header and a Time for every
+CableLength), and that was most of the CPU of the nodes that take them at 50-100 Hz.
+Readers here, for messages taken raw (``take_message(..., raw=True)``):
 
 - :func:`decode_cable_length`: the driver's commands, the model node's lengths and the
   rerun logger's lengths;
-- :func:`decode_robot_shape` and :func:`decode_module_state`: the rerun logger.
+- :func:`decode_robot_shape` and :func:`decode_module_state`: the rerun logger and the
+  demo's observer.
 
-(``softsnap_model.shape_wire`` writes shapes in the same format.)
-
-The wire format is plain CDR (XCDR1, what ROS 2's rmw implementations send for ROS
-types; tested here with the default, rmw_fastrtps_cpp): a 4-byte encapsulation header
-(representation 0x0001 little-endian, 0x0000 big-endian), then the fields in message
-order, each primitive aligned to its own size counted from the end of that header; a
-string is a uint32 length (NUL included), the bytes and the NUL; a sequence is a uint32
-count and its elements, the first element aligned to its type (no padding for an empty
-sequence). Only ``CableLength`` is read in both byte orders; anything else (XCDR2, a
-truncated buffer) raises `CdrError` so the caller can fall back to rclpy's
-``deserialize_message``. ``test/gaits/test_cdr.py`` checks every field against rclpy's
+Only ``CableLength`` is read in both byte orders; anything else (XCDR2, a truncated
+buffer) raises `CdrError`; :mod:`.fallback` then lets rclpy read it. The format is in
+:mod:`.primitives`; ``test/ros_plumbing/test_cdr.py`` checks every field against rclpy's
 deserialisation of the same bytes, over real DDS too.
 """
 from __future__ import annotations
@@ -30,13 +22,11 @@ from typing import NamedTuple
 
 import numpy as np
 
-#: Encapsulation header of little-endian plain CDR (representation id 0x0001, options 0).
-CDR_LE = b'\x00\x01'
-HEADER_SIZE = 4
+from softsnap_ros.units import NS_PER_S, stamp_ns
 
-_U32 = struct.Struct('<I')
-_STAMP = struct.Struct('<iI')  # builtin_interfaces/Time: sec, nanosec
-_F64 = struct.Struct('<d')
+from .primitives import F32 as _F32, F64 as _F64, HEADER_SIZE, STAMP as _STAMP, U32 as _U32
+from .primitives import REPRESENTATION_LE, CdrError
+
 # tension, energy (f64, f64), converged (bool as one byte); residual and solve_time follow.
 _TENSION_ENERGY_CONVERGED = struct.Struct('<ddB')
 _RESIDUAL_SOLVE_TIME = struct.Struct('<dd')
@@ -44,9 +34,6 @@ _F64_DTYPE = np.dtype('<f8')
 _NO_VALUES = np.empty(0)
 _NO_VALUES.flags.writeable = False
 
-
-class CdrError(ValueError):
-    """The bytes are not the message in little-endian plain CDR (the reason says why)."""
 
 
 # Named tuples, not frozen dataclasses: they are made ~600 times a second, and a tuple is
@@ -125,7 +112,7 @@ def _module_shape(buf: bytes, pos: int) -> tuple[ModuleShapeCdr, int]:
     pos += 17
     pos += -(pos - HEADER_SIZE) % 8
     residual, solve_time = _RESIDUAL_SOLVE_TIME.unpack_from(buf, pos)
-    return ModuleShapeCdr(sec * 1_000_000_000 + nanosec, frame_id, module, source,
+    return ModuleShapeCdr(sec * NS_PER_S + nanosec, frame_id, module, source,
                           cable_length, angles, centres.reshape(count, 3), tension, energy,
                           converged == 1, residual, solve_time), pos + 16
 
@@ -165,7 +152,7 @@ def decode_robot_shape(buf: bytes) -> RobotShapeCdr:
     except (struct.error, ValueError) as exc:  # ValueError: numpy's short buffer, bad UTF-8
         raise CdrError(f'{_where(where)}: message truncated or malformed at byte {pos}: '
                        f'{exc}') from None
-    return RobotShapeCdr(sec * 1_000_000_000 + nanosec, frame_id, robot, tuple(modules),
+    return RobotShapeCdr(sec * NS_PER_S + nanosec, frame_id, robot, tuple(modules),
                          poses.reshape(count, 7))
 
 
@@ -173,13 +160,12 @@ def decode_robot_shape(buf: bytes) -> RobotShapeCdr:
 # ModuleState: header, module (string), online, paused (bool), measured_cable_length,
 # target_cable_length (f64), encoder_count, encoder_target (i32), motor_power (u8),
 # battery_voltage (f32, V), then fields the logger does not read.
-_F32 = struct.Struct('<f')
 
 
 def _check_header(buf: bytes) -> None:
     if len(buf) < HEADER_SIZE:
         raise CdrError(f'a CDR message needs a {HEADER_SIZE}-byte header, got {len(buf)} bytes')
-    if buf[:2] != CDR_LE:
+    if buf[:2] != REPRESENTATION_LE:
         raise CdrError('only little-endian plain CDR (representation 0x0001) is read, '
                        f'got representation 0x{buf[:2].hex()}')
 
@@ -210,7 +196,7 @@ def decode_cable_length(buf: bytes) -> tuple[int, float]:
     if text < 1 or at + 8 > len(buf):
         raise CdrError(f'CableLength truncated or malformed: a frame_id of {text} bytes '
                        f'in {len(buf)} bytes')
-    return sec * 1_000_000_000 + nanosec, value.unpack_from(buf, at)[0]
+    return sec * NS_PER_S + nanosec, value.unpack_from(buf, at)[0]
 
 
 def decode_module_state(buf: bytes) -> tuple[int, str, float]:
@@ -227,7 +213,7 @@ def decode_module_state(buf: bytes) -> tuple[int, str, float]:
         (battery,) = _F32.unpack_from(buf, pos + 28)
     except (struct.error, ValueError) as exc:  # ValueError: bad UTF-8
         raise CdrError(f'ModuleState truncated or malformed: {exc}') from None
-    return sec * 1_000_000_000 + nanosec, module, battery
+    return sec * NS_PER_S + nanosec, module, battery
 
 
 def _where(where) -> str:
@@ -237,7 +223,7 @@ def from_message(msg) -> RobotShapeCdr:
     """The same structure from a deserialised RobotShape (the fallback for bytes
     `decode_robot_shape` refuses), so callers handle one kind of shape."""
     def stamp_of(header) -> int:
-        return header.stamp.sec * 1_000_000_000 + header.stamp.nanosec
+        return stamp_ns(header.stamp)
 
     modules = tuple(
         ModuleShapeCdr(stamp_of(s.header), s.header.frame_id, s.module, s.source,

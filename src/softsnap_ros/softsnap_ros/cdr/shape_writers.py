@@ -9,17 +9,13 @@ centres, so it is laid out once (:class:`RobotShapeWire`, :class:`ModuleShapeWir
 and each new shape is written into its place: its scalars with ``struct``, the arrays of
 all new shapes together through one float64 view of the buffer.
 
-Format: the OMG CDR encoding ROS 2 uses on the wire (little-endian, encapsulation
-``00 01 00 00``; each primitive aligned to its size counted from the end of the
-4-byte encapsulation header; strings as a uint32 length including the NUL, the bytes
-and the NUL; sequences as a uint32 count then the elements, an empty one with no
-padding after the count). The node checks at start that rclpy deserialises these
-bytes to the same message as one built field by field (:func:`module_shape_fields`
-gives the fields), and uses message objects instead if it does not.
+Format: plain little-endian CDR (:mod:`.primitives`). The model node checks at start
+(:func:`.fallback.check_wire`) that rclpy deserialises these bytes to the same message as
+one built field by field, and uses message objects instead if it does not.
 
 Units follow the messages (SI): lengths in m, rib centres converted from the core's
 mm here; stamps in ns are split into (sec, nanosec). The readers of the same format are
-in ``softsnap_driver.cdr``.
+in :mod:`.readers`.
 """
 from __future__ import annotations
 
@@ -27,18 +23,16 @@ import struct
 
 import numpy as np
 
-__all__ = ['CDR_LE', 'ModuleShapeWire', 'RobotShapeWire']
+from softsnap_ros.units import MM_PER_M, sec_nanosec as _split_ns
 
-#: Encapsulation header of little-endian plain CDR.
-CDR_LE = b'\x00\x01\x00\x00'
-MM_PER_M = 1000.0
-NS_PER_S = 1_000_000_000
+from .primitives import ENCAPSULATION_LE as CDR_LE, F64 as _F64, STAMP as _STAMP, U32 as _U32
+
+__all__ = ['ModuleShapeWire', 'RobotShapeWire']
+
 #: Sets of changed modules whose array indices are kept per layout (a robot's ticks
 #: repeat a few: usually all modules, or one group of a gait).
 INDEX_SETS_KEPT = 64
 
-_STAMP = struct.Struct('<iI')
-_F64 = struct.Struct('<d')
 #: tension, energy (f64), converged (bool), padding to 8, residual, solve_time (f64).
 _TAIL = struct.Struct('<ddB7xdd')
 
@@ -55,7 +49,7 @@ class _Writer:
 
     def u32(self, value: int) -> int:
         at = self._align(4)
-        self.buf += struct.pack('<I', value)
+        self.buf += _U32.pack(value)
         return at
 
     def stamp(self, stamp_ns: int) -> int:
@@ -83,11 +77,6 @@ class _Writer:
         each; offset of the first value (of the count if empty)."""
         at = self.u32(count)
         return self.f64(count * width) if count else at
-
-
-def _split_ns(stamp_ns: int) -> tuple[int, int]:
-    sec, nanosec = divmod(int(stamp_ns), NS_PER_S)
-    return sec, nanosec
 
 
 class _ModuleFields:

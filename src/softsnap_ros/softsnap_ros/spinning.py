@@ -20,14 +20,14 @@ from typing import Callable, NoReturn
 from rclpy.executors import Executor, ExternalShutdownException
 from rclpy.node import Node
 
-from softsnap_driver.dds_profile import use_node_profile
-from softsnap_driver.lifeline import supervise
+from softsnap_ros.dds_profile import use_node_profile
+from softsnap_ros.lifeline import supervise
 
 
 def init_ros(**init_kwargs) -> None:
     """``rclpy.init(**init_kwargs)`` with the nodes' Fast DDS profile (every node's main).
 
-    First the process is tied to its supervisor (:func:`softsnap_driver.lifeline.supervise`):
+    First the process is tied to its supervisor (:func:`softsnap_ros.lifeline.supervise`):
     it gets SIGTERM, its ordinary shutdown, when its parent dies by any signal, when the
     lifeline pipe of a supervisor that passed one ends, and on SIGHUP.
     """

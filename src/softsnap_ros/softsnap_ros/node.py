@@ -24,20 +24,58 @@ How, in rclpy (Jazzy):
   drops it, integers are refused again rather than anything going wrong silently, and
   ``test/ros/test_parameters.py`` says so.
 
-Why in softsnap_driver: it is the lowest of our ROS packages (it depends on rclpy and
-message packages only), so softsnap_model and softsnap_gaits can depend on it without a
-cycle (the gaits' launch files start driver nodes anyway). Putting it in softsnap_model
-would have made every driver import numpy and scipy with that package (~1 s and ~30 MB
-per driver process, five per robot).
+Also here: the parameter descriptors every node declares (:func:`float_range`,
+:func:`integer_range`, :func:`read_only`, :func:`table_descriptor`).
+
+Why in softsnap_ros: it is the bottom of our ROS packages (rclpy and message packages
+only), so every node package stands on it without a cycle, and a driver process does not
+import numpy and scipy with softsnap_model (~1 s and ~30 MB per driver, five per robot).
 """
 from __future__ import annotations
 
-from rcl_interfaces.msg import ParameterDescriptor, ParameterType
+from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
+                                ParameterType)
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-__all__ = ['StartupParameterError', 'SoftSnapNode', 'integer_as_double']
+__all__ = ['StartupParameterError', 'SoftSnapNode', 'float_range', 'integer_as_double',
+           'integer_range', 'read_only', 'table_descriptor']
+
+
+def float_range(description: str, low: float, high: float, step: float = 0.0,
+                read_only: bool = False) -> ParameterDescriptor:
+    """A double parameter's descriptor with its range [low, high] (step 0: any value)."""
+    return ParameterDescriptor(description=description, read_only=read_only,
+                               floating_point_range=[FloatingPointRange(
+                                   from_value=float(low), to_value=float(high),
+                                   step=float(step))])
+
+
+def integer_range(description: str, low: int, high: int, step: int = 1,
+                  read_only: bool = False) -> ParameterDescriptor:
+    """An integer parameter's descriptor with its range [low, high] in steps of step."""
+    return ParameterDescriptor(description=description, read_only=read_only,
+                               integer_range=[IntegerRange(from_value=int(low),
+                                                           to_value=int(high), step=int(step))])
+
+
+def read_only(description: str) -> ParameterDescriptor:
+    """A parameter fixed at start-up (its description says so)."""
+    return ParameterDescriptor(description=description + ' (fixed at start-up)',
+                               read_only=True)
+
+
+def table_descriptor(kind: type, description: str, bounds: tuple | None = None,
+                     runtime: bool = False) -> ParameterDescriptor:
+    """The descriptor of one row of a simulator's option table: its type, its range
+    (``bounds`` (low, high) or None) and whether it may change while running."""
+    text = description if runtime else description + ' (fixed at start-up)'
+    if bounds is not None and kind is int:
+        return integer_range(text, *bounds, read_only=not runtime)
+    if bounds is not None and kind is float:
+        return float_range(text, *bounds, read_only=not runtime)
+    return ParameterDescriptor(description=text, read_only=not runtime)
 
 
 class StartupParameterError(ValueError):

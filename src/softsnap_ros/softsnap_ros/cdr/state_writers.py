@@ -8,10 +8,7 @@ fourth pass"). rclpy publishes ``bytes`` as they are. The node checks at start t
 rclpy reads these bytes back as the message built field by field
 (:func:`fill_module_state` fills one) and publishes message objects if it does not.
 
-Format: plain little-endian CDR, as ``softsnap_driver.cdr`` reads it: the 4-byte
-encapsulation header ``00 01 00 00``, then the fields in message order, each primitive
-aligned to its size counted from the end of that header; a string is a uint32 length
-(NUL included), the bytes and the NUL. The frame id and module name never change for a
+Format: plain little-endian CDR (:mod:`.primitives`). The frame id and module name never change for a
 driver, so everything up to the first float64 is laid out once.
 """
 from __future__ import annotations
@@ -19,12 +16,11 @@ from __future__ import annotations
 import struct
 from typing import NamedTuple
 
-from softsnap_driver.cdr import _F64, _STAMP, _U32, CDR_LE, HEADER_SIZE as _HEADER
+from .primitives import ENCAPSULATION_LE as _ENCAPSULATION, F64 as _F64, HEADER_SIZE as _HEADER
+from .primitives import STAMP as _STAMP, encode_string as _string
 
 __all__ = ['CableLengthWire', 'ModuleStateFields', 'ModuleStateWire', 'fill_module_state']
 
-#: The whole encapsulation header: little-endian plain CDR, options 0.
-_ENCAPSULATION = CDR_LE + bytes(_HEADER - len(CDR_LE))
 # From measured_cable_length (8-aligned) to stops_unconfirmed: f64 f64 i32 i32 u8, 3 bytes
 # of padding, f32 f32, four u32, a Time, seven u32. Every field sits at its natural
 # alignment once the first float64 does, so the layout is one Struct.
@@ -63,12 +59,6 @@ class ModuleStateFields(NamedTuple):
 
 
 _TIME_FIELDS = ('last_command_stamp', 'last_error_time')
-
-
-def _string(text: str, at: int) -> bytes:
-    """A CDR string starting at absolute offset ``at`` (4-aligned), padding included."""
-    data = text.encode('utf-8')
-    return bytes(-at % 4) + _U32.pack(len(data) + 1) + data + b'\x00'
 
 
 class _Prefix:

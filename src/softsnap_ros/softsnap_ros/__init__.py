@@ -1,0 +1,1 @@
+"""softsnap_ros: the ROS plumbing at the bottom of the SoftSnap stack (docs/architecture.md)."""
