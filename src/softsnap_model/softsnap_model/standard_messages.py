@@ -42,12 +42,12 @@ from visualization_msgs.msg import Marker
 from softsnap_ros.diagnostics import key_values
 
 from . import geometry
+from softsnap_ros.units import MM_PER_M
 
 __all__ = ['SOURCE_COLORS', 'PARTS', 'LINE_WIDTH_M', 'ModuleParts', 'ModelHealth',
            'module_parts_m', 'module_markers', 'prediction_markers', 'robot_shape_markers', 'marker_id', 'joint_names', 'joint_states',
            'model_status', 'pose_msg', 'stamp_msg', 'MODEL_SLOW_SOLVE_FRACTION']
 
-MM_PER_M = 1000.0
 
 #: Colour (r, g, b, a in 0-1) of each source's spine and ribs; the cable is a darker shade.
 SOURCE_COLORS: Mapping[str, tuple[float, float, float, float]] = {

@@ -237,32 +237,42 @@ def run_simulator_main(argv: list[str] | None, name: str, build_parser: Callable
 
 
 def run_node_main(args: list[str] | None, name: str, make_node: Callable[[], Node],
-                  make_executor: Callable[[], Executor] | None = None) -> int:
+                  make_executor: Callable[[], Executor] | None = None,
+                  fast_exit: bool = False) -> int:
     """``main()`` of a process serving one node: build it, spin until shutdown, stop.
 
     A ``ValueError`` while building (a bad scene or parameter) is logged as fatal and ends
     with exit status 2; a Ctrl-C while building (rclpy shut the context down under the
     constructor) is a clean stop, exit 0. A second Ctrl-C while stopping prints no
     traceback (hold_signals). `make_executor` defaults to a single-threaded executor.
+    `fast_exit`: once the node is destroyed, end the process without the interpreter's
+    teardown (:func:`exit_without_teardown`; for nodes with daemon worker threads or heavy
+    imports that must stop within 2 s of SIGINT).
     """
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
 
     init_ros(args=args)
     node = None
+    status = 0
+    stopped = time.monotonic()
     try:
         try:
             node = make_node()
         except ValueError as exc:
             rclpy.logging.get_logger(name).fatal(f'cannot start: {exc}')
-            return 2
+            status = 2
         except Exception:   # noqa: BLE001 - rclpy's RCLError once the context is gone
-            if not rclpy.ok():   # Ctrl-C while starting
-                return 0
-            raise
-        executor = (make_executor or SingleThreadedExecutor)()
-        executor.add_node(node)
-        spin_until_shutdown(executor)
+            if rclpy.ok():   # not a Ctrl-C while starting
+                raise
+        if node is not None:
+            executor = (make_executor or SingleThreadedExecutor)()
+            executor.add_node(node)
+            try:
+                spin_until_shutdown(executor)
+            finally:
+                stopped = time.monotonic()
+                executor.shutdown()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
@@ -271,7 +281,9 @@ def run_node_main(args: list[str] | None, name: str, make_node: Callable[[], Nod
             node.destroy_node()
         rclpy.try_shutdown()
         hold_signals(final=True)   # ignored from here to the exit
-    return 0
+    if fast_exit and node is not None:
+        exit_without_teardown(status, node.context, stopped)
+    return status
 
 
 def run_nodes_main(args: list[str] | None, program: str, build: Callable) -> int:

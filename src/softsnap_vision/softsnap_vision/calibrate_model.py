@@ -36,11 +36,11 @@ from .camera_info import CameraInfoError, load_camera_info
 from .marker_config import MarkerConfigError, load_marker_config
 from .measure import measure_files
 from .validation import ManifestError, load_manifest
+from softsnap_ros.units import MM_PER_M
 
 __all__ = ['observation_from_measurement', 'observation_from_shape_message',
            'observations_from_manifest', 'observations_from_bag', 'main']
 
-MM_PER_M = 1000.0
 
 
 def observation_from_measurement(holes, ribs_mm, cable_length_mm: float,

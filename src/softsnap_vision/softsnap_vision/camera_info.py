@@ -25,13 +25,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 import yaml
+from softsnap_ros.units import MM_PER_M
 
 __all__ = ['CameraInfo', 'CameraInfoError', 'load_camera_info', 'save_camera_info',
            'pixels_to_plane_mm', 'DISTORTION_COEFFICIENTS']
 
 #: Distortion models we undistort, and how many coefficients each has.
 DISTORTION_COEFFICIENTS = {'plumb_bob': 5, 'rational_polynomial': 8}
-MM_PER_M = 1000.0
 
 
 class CameraInfoError(ValueError):

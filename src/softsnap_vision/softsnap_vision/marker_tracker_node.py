@@ -26,30 +26,27 @@ import math
 import time
 
 import numpy as np
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Point
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo as CameraInfoMsg
 from sensor_msgs.msg import Image
 
 from softsnap_ros.node import SoftSnapNode
-from softsnap_ros.spinning import (exit_without_teardown, hold_signals, init_ros,
-                                   spin_until_shutdown)
+from softsnap_ros.spinning import run_node_main
 from softsnap_interfaces.msg import CableLength, MeasuredShape
 from softsnap_model import solve_forward
-from softsnap_model.scene import SceneError, load_scene
+from softsnap_model.scene import load_scene
 
 from .camera_info import CameraInfo, CameraInfoError
 from .image_message import ImageMessageError, image_to_bgr
-from .marker_config import MarkerConfigError, load_marker_config
+from .marker_config import load_marker_config
 from .measurement import rmse_to_model_mm
 from .tracker import MarkerTracker, TagTarget
 from .tracker_health import CameraCounters, ModuleCounters, camera_status, module_status, status_name
+from softsnap_ros.units import MM_PER_M
 
-MM_PER_M = 1000.0
 #: Cable lengths closer than this (mm) share one model prediction.
 PREDICTION_LENGTH_TOL_MM = 1e-3
 
@@ -248,31 +245,11 @@ class MarkerTrackerNode(SoftSnapNode):
         self._reported_at = now
 
 
-def main(args=None):
-    init_ros(args=args)
-    try:
-        node = MarkerTrackerNode()
-    except (SceneError, MarkerConfigError, ValueError) as error:
-        rclpy.logging.get_logger('marker_tracker').fatal(f'cannot start: {error}')
-        rclpy.try_shutdown()
-        raise SystemExit(2)
+def main(args=None) -> int:
     # One thread: a frame is tracked in a few ms; the sensor-data QoS keeps only the
     # newest frame, so a slow frame drops the ones behind it instead of queueing them.
-    executor = SingleThreadedExecutor()
-    executor.add_node(node)
-    try:
-        spin_until_shutdown(executor)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        stopped = time.monotonic()
-        hold_signals()   # a second Ctrl-C while stopping: no traceback
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown()
-        hold_signals(final=True)   # ignored from here to the exit
-    exit_without_teardown(0, node.context, stopped)
+    return run_node_main(args, 'marker_tracker', MarkerTrackerNode, fast_exit=True)
 
 
 if __name__ == '__main__':
-    main()
+    raise SystemExit(main())
