@@ -1,16 +1,14 @@
 """The accuracy regression check of `make bench` (benchmarks/accuracy_check.py) is honest:
 it passes for the solver and fails, with a non-zero exit status, for wrong ones."""
 import io
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2] / 'benchmarks'))
-import accuracy_check  # noqa: E402
+from benchmark_scripts import load
+from softsnap_model import Skeleton, solve_forward
 
-from softsnap_model import Skeleton, solve_forward  # noqa: E402
+accuracy_check = load('accuracy_check')
 
 
 def test_reference_solver_agrees_with_the_solver_on_a_paper_threading():

@@ -79,8 +79,8 @@ def test_quintic_path_start_is_the_answer_for_most_cold_solves():
     # no tables, no Newton: benchmarks/accuracy_check.py) to rounding.
     import sys
     from pathlib import Path
-    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / 'benchmarks'))
-    from accuracy_check import reference_solve
+    from benchmark_scripts import load
+    reference_solve = load('accuracy_check').reference_solve
     n_solves = zero_steps = 0
     for name in ('yellow', 'blue', 'red', 'snake', 'w'):
         t = list(PAPER_THREADINGS[name])

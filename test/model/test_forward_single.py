@@ -3,8 +3,6 @@ engine and against residuals recomputed by the geometry module: random threading
 lengths, slack cables, full contraction, segments at contact, mirror segments held
 straight or just past buckling, warm starts, mirror flips, a 6-rib and a 192-rib
 skeleton."""
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -80,8 +78,8 @@ def test_single_solve_matches_the_batch_engine(thickness):
 def test_single_solve_agrees_with_the_bracketing_reference():
     # Independent of tables and Newton: benchmarks/accuracy_check.py brackets the tension
     # and every segment's angle.
-    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / 'benchmarks'))
-    from accuracy_check import reference_solve
+    from benchmark_scripts import load
+    reference_solve = load('accuracy_check').reference_solve
     sk = Skeleton()
     for name in ('blue', 'gripper', 's'):
         t = list(PAPER_THREADINGS[name])
