@@ -34,7 +34,7 @@ os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from benchlib import load_line, start_node  # noqa: E402
-from process_group import stop_process_group  # noqa: E402
+from softsnap_ros.processes import stop_process_group  # noqa: E402
 
 MODULE = 'front_left'
 CASES = {

@@ -37,7 +37,7 @@ from softsnap_driver.sim_module import SimServer  # noqa: E402
 from softsnap_interfaces.msg import CableLength, ModuleState  # noqa: E402
 
 from benchlib import start_node  # noqa: E402
-from process_group import stop_process_group  # noqa: E402
+from softsnap_ros.processes import stop_process_group  # noqa: E402
 
 NS = '/bench'
 MODULE = 'm1'

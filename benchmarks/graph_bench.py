@@ -24,7 +24,7 @@ import tempfile
 
 import numpy as np
 
-from process_group import stop_process_tree, tagged_env
+from softsnap_ros.processes import stop_process_tree, tagged_env
 
 
 def run_demo(rate_hz: float, seconds: float, scene: str, drivers: str = 'container') -> dict:

@@ -29,7 +29,7 @@ from softsnap_interfaces.srv import ForwardShape
 from softsnap_model.scene import load_scene
 
 from benchlib import start_node  # noqa: E402
-from process_group import stop_process_group  # noqa: E402
+from softsnap_ros.processes import stop_process_group  # noqa: E402
 
 NS = '/bench'
 

@@ -119,8 +119,8 @@ def start_ros_node(node: str, ros_args: list[str], code_dir: Path | None, log: P
 
 
 def stop(proc: subprocess.Popen) -> None:
-    """SIGINT the child's process group, SIGKILL after 15 s (process_group says how)."""
-    from process_group import stop_process_group  # here: children import this file from elsewhere
+    """SIGINT the child's process group, SIGKILL after 15 s (softsnap_ros.processes says how)."""
+    from softsnap_ros.processes import stop_process_group  # here: children import this file from elsewhere
     stop_process_group(proc, 15.0)
 
 

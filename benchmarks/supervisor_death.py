@@ -6,7 +6,7 @@ Each run starts ``python -m softsnap_gaits.demo --scene brittle_star`` (10 proce
 five sim_module, driver_container, model_node, gait_node, rerun_logger, the bag
 recorder), waits until the robot runs (the bag has taken its first 50 kB), signals the
 runner, then counts the robot's processes (found by a tag in their environment,
-benchmarks/process_group.py) every 0.1 s: the time until none is left, and how many were
+softsnap_ros.processes) every 0.1 s: the time until none is left, and how many were
 alive 5 s after the signal (the issue's "Done when"). From the drivers' log: each
 driver's last stop (the shutdown's, or the watchdog's), confirmed or not.
 
@@ -24,7 +24,7 @@ import time
 from pathlib import Path
 
 from benchlib import fmt_spread, load_line
-from process_group import is_alive, stop_process_tree, tagged_env, tagged_processes
+from softsnap_ros.processes import is_alive, stop_process_tree, tagged_env, tagged_processes
 from softsnap_gaits.supervision import last_stop_outcomes
 
 ALIVE_AT_S = 5.0

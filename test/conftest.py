@@ -23,10 +23,7 @@ VENV = Path(sys.prefix)
 # Set before rclpy is imported anywhere in this process or its children.
 from softsnap_gaits.isolation import claim_slot  # noqa: E402  (no ROS imports)
 
-# benchmarks/ holds the helpers the benchmark scripts share with the tests (process_group);
-# appended, so a test's own modules come first.
-sys.path.append(str(REPO / 'benchmarks'))
-from process_group import stop_process_tree, tagged_env  # noqa: E402  (no ROS imports)
+from softsnap_ros.processes import ChildProcess  # noqa: E402  (no ROS imports)
 
 SLOT, _slot_warning = claim_slot()
 if _slot_warning:
@@ -53,34 +50,9 @@ def executable(package: str, name: str) -> Path:
     return path
 
 
-class NodeProcess:
-    """A node started as its own OS process, stopped with SIGINT like Ctrl-C.
-
-    stop() also stops whatever it started, in its process group or not, and whether the
-    node is still running or not (process_group.stop_process_tree: by a tag in the
-    environment every descendant inherits).
-    """
-
-    def __init__(self, argv: list[str], log_path: Path, env: dict[str, str]):
-        self.argv = argv
-        self.log_path = log_path
-        self._log = open(log_path, 'wb')
-        env, self.tag = tagged_env(env)
-        self.proc = subprocess.Popen(argv, stdout=self._log, stderr=subprocess.STDOUT,
-                                     stdin=subprocess.DEVNULL, env=env, start_new_session=True)
-
-    def alive(self) -> bool:
-        return self.proc.poll() is None
-
-    def output(self) -> str:
-        if not self._log.closed:   # stop() closes it; the file stays readable
-            self._log.flush()
-        return self.log_path.read_text(errors='replace')
-
-    def stop(self, timeout: float = 10.0) -> int:
-        returncode = stop_process_tree(self.proc, self.tag, timeout)
-        self._log.close()
-        return returncode
+#: A node started as its own OS process, stopped with SIGINT like Ctrl-C; stop() also stops
+#: whatever it started, in its process group or not (by a tag every descendant inherits).
+NodeProcess = ChildProcess
 
 
 _ROOT_CONFTEST = sys.modules[__name__]   # later conftest files take the module name

@@ -10,7 +10,7 @@ import time
 
 import pytest
 
-from process_group import is_alive, stop_process_tree, tagged_env, tagged_processes
+from softsnap_ros.processes import is_alive, stop_process_tree, tagged_env, tagged_processes
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -33,7 +33,7 @@ class Demo:
     The runner puts each node in a session of its own (softsnap_gaits.demo.Process), so
     its process group does not hold them, and a runner that died (killed, or never
     reaching its own cleanup) leaves them reparented, out of its process tree. So the
-    runner is started with a tag in its environment (process_group.tagged_env), which
+    runner is started with a tag in its environment (softsnap_ros.processes.tagged_env), which
     every node inherits: stop() stops the runner, then every process still carrying the
     tag, whether the test passed or failed early.
     """

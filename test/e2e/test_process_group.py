@@ -1,4 +1,4 @@
-"""Stopping a process stops everything it started (benchmarks/process_group.py), also
+"""Stopping a process stops everything it started (softsnap_ros.processes), also
 children in sessions of their own and children of a process that crashed.
 
 What the demo runner and test/conftest.py's NodeProcess rely on, checked with plain
@@ -13,7 +13,7 @@ import subprocess
 import sys
 import time
 
-from process_group import is_alive, stop_process_group, stop_process_tree, tagged_env, \
+from softsnap_ros.processes import is_alive, stop_process_group, stop_process_tree, tagged_env, \
     tagged_processes
 
 #: The parent: starts its two children, writes their pids, then waits.

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pytest
 
-from process_group import is_alive, stop_process_tree, tagged_env, tagged_processes
+from softsnap_ros.processes import is_alive, stop_process_tree, tagged_env, tagged_processes
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 

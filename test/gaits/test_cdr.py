@@ -21,7 +21,7 @@ from softsnap_ros.cdr import (CdrError, decode_cable_length, decode_module_state
                               decode_robot_shape)
 
 sys.path.insert(0, str(Path(__file__).parent))
-from process_group import stop_process_group  # noqa: E402  (benchmarks/, put on sys.path by conftest)
+from softsnap_ros.processes import stop_process_group
 from shape_peer import sample_lengths, sample_shapes, sample_states  # noqa: E402
 
 

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pytest
 
-from process_group import stop_process_tree, tagged_env
+from softsnap_ros.processes import stop_process_tree, tagged_env
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from process_group import stop_process_group  # benchmarks/, put on sys.path by conftest
+from softsnap_ros.processes import stop_process_group
 from softsnap_model import recording as rec_mod
 
 pytestmark = pytest.mark.slow

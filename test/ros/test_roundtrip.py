@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from process_group import stop_process_group  # benchmarks/, put on sys.path by conftest
+from softsnap_ros.processes import stop_process_group
 
 pytestmark = pytest.mark.ros
 

@@ -60,6 +60,7 @@ from pathlib import Path
 import numpy as np
 
 from softsnap_ros.lifeline import Lifeline
+from softsnap_ros.processes import ChildProcess
 from softsnap_model.geometry import rib_centers
 from softsnap_model.scene import SceneError, load_scene
 
@@ -153,47 +154,20 @@ class ModuleStats:
     simulated_shapes: list = dataclasses.field(default_factory=list)
 
 
-class Process:
-    """A node in its own process group, with its output in a log file."""
+class Process(ChildProcess):
+    """A node of the demo in its own process group, its output in ``<log_dir>/<name>.log``."""
 
     def __init__(self, spec: NodeSpec, log_dir: Path, env: dict[str, str], pass_fds=()):
         from ament_index_python.packages import get_package_prefix
         self.spec = spec
         exe = Path(get_package_prefix(spec.package)) / 'lib' / spec.package / spec.executable
-        self.log_path = log_dir / f'{spec.name}.log'
-        self._log = open(self.log_path, 'wb')
         # pass_fds: the slot's lock (isolation.py) stays held while any child lives.
         # A driver_container's drivers get their parameters from a file beside the log.
         ros_args = spec.ros_args(spec.write_node_params(log_dir))
-        self.popen = subprocess.Popen([str(exe), *spec.arguments, *ros_args], stdout=self._log,
-                                      stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                                      env=env, start_new_session=True, pass_fds=pass_fds)
-
-    def usage(self):
-        """(cpu seconds, rss bytes) of the process now; None once it has exited."""
-        import psutil
-        try:
-            proc = psutil.Process(self.popen.pid)
-            times = proc.cpu_times()
-            return times.user + times.system, proc.memory_info().rss
-        except psutil.Error:
-            return None
-
-    def signal(self, sig: int) -> None:
-        if self.popen.poll() is None:
-            try:
-                os.killpg(self.popen.pid, sig)
-            except ProcessLookupError:
-                pass
-
-    def tail(self, lines: int = 15) -> str:
-        if not self._log.closed:
-            self._log.flush()
-        text = self.log_path.read_text(errors='replace').splitlines()
-        return '\n'.join(text[-lines:])
-
-    def close(self) -> None:
-        self._log.close()
+        # Untagged: each node stops with its own lifeline and the ordered shutdown
+        # (supervision.py); the demo's own runner is what tests tag.
+        super().__init__([str(exe), *spec.arguments, *ros_args], log_dir / f'{spec.name}.log',
+                         env, tagged=False, pass_fds=pass_fds)
 
 
 def recorder_topics(scene, physics: bool) -> list[str]:

@@ -1,9 +1,8 @@
-"""Stopping a child process and everything it started, like Ctrl-C in a terminal.
+"""The one process supervisor: child processes with their logs, stopped like Ctrl-C.
 
-Shared by the benchmark scripts (nodes started by benchlib.start_node) and the tests
-(test/conftest.py's NodeProcess, the demo runner of test/e2e and the tests that start a
-helper process of their own; conftest puts benchmarks/ on sys.path). No ROS imports. The
-process must have been started with ``start_new_session=True``: the signals go to its
+Shared by the demo (each node a :class:`ChildProcess`), the benchmark scripts and the
+tests (test/conftest.py's ``start_node``, the demo runner of test/e2e). No ROS imports.
+A child runs in a session of its own (``start_new_session=True``): the signals go to its
 whole process group, so grandchildren (a launched node, rerun's server) stop with it.
 
 A process that puts its own children in sessions of their own (the demo runner does, one
@@ -19,6 +18,8 @@ import signal
 import subprocess
 import time
 import uuid
+from pathlib import Path
+from typing import Sequence
 
 #: Environment variable whose value names one process tree (see tagged_env).
 TAG_VARIABLE = 'SOFTSNAP_PROCESS_TAG'
@@ -125,3 +126,83 @@ def stop_process_tree(proc: subprocess.Popen, tag: str, timeout: float = 10.0) -
     returncode = stop_process_group(proc, timeout)
     stop_tagged(tag, timeout)
     return returncode
+
+
+class ChildProcess:
+    """A program started in its own session, its output (stdout and stderr) in a log file.
+
+    Parameters
+    ----------
+    argv : sequence of str
+        The program and its arguments.
+    log_path : Path
+        Where its output goes (kept after :meth:`stop`).
+    env : dict
+        Its environment.
+    tagged : bool
+        Give it a tag of its own (:func:`tagged_env`) so that :meth:`stop` also stops every
+        process that inherited it, in whatever session (a demo's nodes, say).
+    pass_fds : sequence of int
+        File descriptors it inherits (a slot's lock, a lifeline).
+    """
+
+    def __init__(self, argv: Sequence[str], log_path: Path, env: dict[str, str], *,
+                 tagged: bool = True, pass_fds: Sequence[int] = ()):
+        self.argv = [str(a) for a in argv]
+        self.log_path = Path(log_path)
+        self._log = open(self.log_path, 'wb')
+        self.tag = None
+        if tagged:
+            env, self.tag = tagged_env(env)
+        self.popen = subprocess.Popen(self.argv, stdout=self._log, stderr=subprocess.STDOUT,
+                                      stdin=subprocess.DEVNULL, env=env,
+                                      start_new_session=True, pass_fds=tuple(pass_fds))
+
+    @property
+    def proc(self) -> subprocess.Popen:
+        return self.popen
+
+    def alive(self) -> bool:
+        return self.popen.poll() is None
+
+    def signal(self, sig: int) -> None:
+        """Send ``sig`` to its process group (nothing if it has exited)."""
+        if self.popen.poll() is None:
+            try:
+                os.killpg(self.popen.pid, sig)
+            except ProcessLookupError:
+                pass
+
+    def usage(self):
+        """(cpu seconds, rss bytes) of the process now; None once it has exited."""
+        import psutil
+        try:
+            proc = psutil.Process(self.popen.pid)
+            times = proc.cpu_times()
+            return times.user + times.system, proc.memory_info().rss
+        except psutil.Error:
+            return None
+
+    def output(self) -> str:
+        """Everything it wrote so far."""
+        if not self._log.closed:   # stop() closes it; the file stays readable
+            self._log.flush()
+        return self.log_path.read_text(errors='replace')
+
+    def tail(self, lines: int = 15) -> str:
+        """Its last ``lines`` lines of output."""
+        return '\n'.join(self.output().splitlines()[-lines:])
+
+    def stop(self, timeout: float = 10.0) -> int:
+        """SIGINT its group, SIGKILL after ``timeout`` s, then whatever carries its tag;
+        its exit code (``-SIGKILL``: SIGINT was not enough in time)."""
+        if self.tag is not None:
+            returncode = stop_process_tree(self.popen, self.tag, timeout)
+        else:
+            returncode = stop_process_group(self.popen, timeout)
+        self.close()
+        return returncode
+
+    def close(self) -> None:
+        """Close the log file (the process is not touched)."""
+        self._log.close()
