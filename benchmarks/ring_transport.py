@@ -24,7 +24,8 @@ import argparse
 import numpy as np
 
 from softsnap_driver.sim_robot import (DEFAULT_PAYLOAD_HEIGHT_M, ScriptedCommands, SimRobot,
-                                       build_payload, build_simulation)
+                                       build_simulation)
+from softsnap_driver.sim_robot_runner import build_payload
 from softsnap_gaits.gaits import make_gait
 from softsnap_model.physics.mjcf import Payload
 from softsnap_model.scene import load_scene

@@ -55,8 +55,9 @@ from pathlib import Path
 import numpy as np
 
 from softsnap_driver import sim_robot as _sim_robot
-from softsnap_driver.sim_robot import (DEFAULT_LINKS_PER_SEGMENT, OPTIONS, ScriptedCommands,
-                                       SimRobot, build_payload, build_simulation)
+from softsnap_driver.sim_robot import (DEFAULT_LINKS_PER_SEGMENT, ScriptedCommands, SimRobot,
+                                       build_simulation)
+from softsnap_driver.sim_robot_runner import OPTIONS, build_payload
 from softsnap_gaits.demo import PHYSICS_PAYLOADS
 from softsnap_gaits.gaits import make_gait
 from softsnap_model.scene import load_scene

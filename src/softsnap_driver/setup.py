@@ -21,7 +21,7 @@ setup(
             'driver_node = softsnap_driver.driver_node:main',
             'driver_container = softsnap_driver.driver_container:main',
             'sim_module = softsnap_driver.sim_module:main',
-            'sim_robot = softsnap_driver.sim_robot:main',
+            'sim_robot = softsnap_driver.sim_robot_runner:main',
         ],
     },
 )

@@ -9,13 +9,15 @@ import math
 
 import numpy as np
 import pytest
+from benchmark_scripts import load as load_benchmark
 
 from softsnap_driver.firmware import DEADBAND_COUNTS, MotorModel
 from softsnap_driver.protocol import encode_set_request
 from softsnap_driver.sim_robot import (DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_TIMESTEP_S,
-                                       OPTIONS, ScriptedCommands, SimRobot, SimRobotError,
-                                       WinchMotor, build_payload, build_robot, build_simulation,
-                                       check_options, module_ports)
+                                       ScriptedCommands, SimRobot, SimRobotError, WinchMotor,
+                                       build_simulation)
+from softsnap_driver.sim_robot_runner import (OPTIONS, build_payload, build_robot, check_options,
+                                              module_ports)
 
 BOOST_V = 6.0
 
@@ -125,7 +127,7 @@ def test_ring_transport_carries_its_demo_payload_with_it():
 def test_ring_transport_payload_items_are_sim_robots_payloads():
     """benchmarks/ring_transport.py's ``cylinder:R:H`` takes the half height (mm), sim_robot's
     payload_height_m the full height (m): both give the demo's puck, through one mapping."""
-    from ring_transport import parse_payload   # benchmarks/, put on sys.path by conftest
+    parse_payload = load_benchmark('ring_transport').parse_payload
     from softsnap_gaits.demo import PHYSICS_PAYLOADS
     from softsnap_model.physics.mjcf import Payload
     demo_puck = build_payload(options(**PHYSICS_PAYLOADS['ring']))

@@ -8,8 +8,8 @@ import threading
 import numpy as np
 import pytest
 
-from softsnap_driver.sim_robot import (OPTIONS, SimRobot, SimRobotError, build_simulation,
-                                       check_options)
+from softsnap_driver.sim_robot import SimRobot, SimRobotError, build_simulation
+from softsnap_driver.sim_robot_runner import OPTIONS, check_options
 from softsnap_model.scene import load_scene
 
 

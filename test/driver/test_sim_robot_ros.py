@@ -178,7 +178,7 @@ def test_bad_scene_or_payload_parameters_end_the_node_with_the_reason(start_node
 def test_plain_command_line_refuses_a_bad_payload_without_ros():
     import subprocess
     import sys
-    out = subprocess.run([sys.executable, '-m', 'softsnap_driver.sim_robot', '--scene', 'ring',
+    out = subprocess.run([sys.executable, '-m', 'softsnap_driver.sim_robot_runner', '--scene', 'ring',
                           '--payload', 'ball', '--payload-mass-kg', '3'],
                          capture_output=True, text=True, timeout=120)
     assert out.returncode == 2

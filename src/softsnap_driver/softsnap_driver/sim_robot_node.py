@@ -1,11 +1,11 @@
 """sim_robot as an rclpy node: what ``sim_robot --ros-args ...`` runs.
 
-Every option of :data:`softsnap_driver.sim_robot.OPTIONS` is a read-only parameter with a
+Every option of :data:`softsnap_driver.sim_robot_runner.OPTIONS` is a read-only parameter with a
 descriptor and a range (plain options before ``--ros-args`` give the defaults), so
 ``ros2 run softsnap_driver sim_robot --ros-args -r __ns:=/snake -p scene:=snake`` and
 launch files work as for ``sim_module``.
 
-The simulation (:class:`~softsnap_driver.sim_robot.SimRobotRunner`: its own thread and
+The simulation (:class:`~softsnap_driver.sim_robot_runner.SimRobotRunner`: its own thread and
 the module servers' threads) shares no state with ROS. A timer here takes the latest
 :class:`~softsnap_driver.sim_robot.RobotSnapshot` (a frozen copy, handed over under a
 lock) and publishes, in the node's namespace:
@@ -59,9 +59,9 @@ from softsnap_driver.sim_camera_publisher import CAMERA_OPTIONS, CAMERA_RANGES
 from softsnap_driver.sim_observation import (DEFAULT_GROUND_TRUTH_RATE_HZ, GroundTruthSample,
                                              ObservationWorker, TickSchedule,
                                              sample_ground_truth)
-from softsnap_driver.sim_robot import (OPTIONS, PHYSICS_TIMESTEP_RANGE_S, RobotSnapshot,
-                                       SimRobotError, SimRobotRunner, _bool_text, build_parser,
-                                       report_stop)
+from softsnap_driver.sim_robot import PHYSICS_TIMESTEP_RANGE_S, RobotSnapshot, SimRobotError
+from softsnap_driver.sim_robot_runner import (OPTIONS, SimRobotRunner, _bool_text, build_parser,
+                                              report_stop)
 from softsnap_ros.spinning import run_simulator_main
 from softsnap_interfaces.msg import MeasuredShape, ModuleShape, RobotShape
 

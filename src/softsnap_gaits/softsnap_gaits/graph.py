@@ -38,7 +38,7 @@ import dataclasses
 from pathlib import Path
 from typing import Any, Mapping
 
-from softsnap_model.forward import reachable_range
+from softsnap_driver.scene_calibration import module_calibration
 from softsnap_model.scene import Scene
 
 __all__ = ['DRIVER_MODES', 'ROBOT_ABSOLUTE_TOPICS', 'SIM_MODULE_MODES', 'NodeSpec',
@@ -208,14 +208,12 @@ def robot_graph(scene: Scene, *, simulate: bool = True, gait: str | None = None,
         if simulate and not physics and not shared_sims:
             nodes.append(NodeSpec('softsnap_driver', 'sim_module', f'sim_{module.name}', ns,
                                   {'host': host, 'port': port}))
-        low_mm, straight_mm = reachable_range(scene.skeleton, module.threading_mm)
-        # The driver never commands beyond what the model can reach or the scene allows.
-        max_contraction_mm = min(module.max_contraction_mm, straight_mm - low_mm)
+        calibration = module_calibration(scene, module)
         driver_params[f'{module.name}_driver'] = {
             'module': module.name, 'host': host, 'port': port,
-            'counts_per_mm': float(module.counts_per_mm),
-            'straight_length_m': straight_mm / 1000.0,
-            'max_contraction_m': max_contraction_mm / 1000.0,
+            'counts_per_mm': calibration.counts_per_mm,
+            'straight_length_m': calibration.straight_length_m,
+            'max_contraction_m': calibration.max_contraction_m,
             'poll_rate_hz': float(poll_rate_hz)}
         if physics:
             driver_params[f'{module.name}_driver']['use_sim_time'] = True
