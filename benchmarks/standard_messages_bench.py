@@ -19,7 +19,7 @@ from rclpy.serialization import serialize_message
 from visualization_msgs.msg import MarkerArray
 
 from softsnap_driver.diagnostics import DriverHealth, battery_state
-from softsnap_driver.link import Counters, LinkReport
+from softsnap_driver.link_report import Counters, LinkReport
 from softsnap_driver.protocol import ModuleStatus
 from softsnap_model import standard_messages as standard
 from softsnap_model.predictor import SOURCES, RobotPredictor

@@ -8,7 +8,7 @@ from sensor_msgs.msg import BatteryState
 
 from softsnap_driver import diagnostics
 from softsnap_driver.diagnostics import DriverHealth, battery_state, diagnostic_name
-from softsnap_driver.link import Counters, LinkReport
+from softsnap_driver.link_report import Counters, LinkReport
 from softsnap_driver.protocol import ModuleStatus
 
 

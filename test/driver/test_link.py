@@ -6,7 +6,9 @@ import pytest
 
 from softsnap_driver.core import CableCalibration
 from softsnap_driver.firmware import DEADBAND_COUNTS, Faults
-from softsnap_driver.link import LinkConfig, ModuleLink, NeedsCalibration
+from softsnap_driver.link import ModuleLink
+from softsnap_driver.link_config import LinkConfig
+from softsnap_driver.link_report import NeedsCalibration
 from softsnap_driver.protocol import ModuleClient
 
 CAL = CableCalibration(counts_per_mm=89.13, straight_length_m=0.198, max_contraction_m=0.080)

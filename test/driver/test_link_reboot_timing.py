@@ -16,7 +16,8 @@ import time
 
 from softsnap_driver.core import CableCalibration
 from softsnap_driver.firmware import Faults
-from softsnap_driver.link import LinkConfig, ModuleLink
+from softsnap_driver.link import ModuleLink
+from softsnap_driver.link_config import LinkConfig
 
 CAL = CableCalibration(counts_per_mm=89.13, straight_length_m=0.198, max_contraction_m=0.080)
 HOLD_S = 0.35

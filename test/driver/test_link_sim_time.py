@@ -11,7 +11,8 @@ import threading
 import time
 
 from softsnap_driver.firmware import Faults, SimModule
-from softsnap_driver.link import LinkConfig, ModuleLink
+from softsnap_driver.link import ModuleLink
+from softsnap_driver.link_config import LinkConfig
 from softsnap_driver.sim_module import SimServer
 
 from test_link import CAL, Log, last, wait_for

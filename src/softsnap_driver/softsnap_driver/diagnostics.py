@@ -1,7 +1,7 @@
 """Standard health messages of one driven module: DiagnosticStatus and BatteryState.
 
 No rclpy: the driver node calls these from its diagnostics timer with the link's latest
-:class:`~softsnap_driver.link.LinkReport`. Levels follow the thresholds below, documented
+:class:`~softsnap_driver.link_report.LinkReport`. Levels follow the thresholds below, documented
 in docs/diagnostics.md (keep both in step).
 
 Examples
@@ -23,7 +23,7 @@ from softsnap_ros.diagnostics import key_values
 
 if TYPE_CHECKING:  # annotations only: rerun_logger uses RECENT_S without loading the
     # link and the HTTP protocol client (~30 ms at start)
-    from .link import Counters, LinkReport
+    from .link_report import Counters, LinkReport
 
 __all__ = ['BATTERY_WARN_V', 'BATTERY_ERROR_V', 'RECENT_S', 'STALE_AFTER_S',
            'BATTERY_DESIGN_CAPACITY_AH', 'DriverHealth', 'battery_state', 'diagnostic_name']

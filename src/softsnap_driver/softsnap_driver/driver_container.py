@@ -42,7 +42,7 @@ from rclpy.parameter import Parameter
 
 from softsnap_driver.driver_node import (_NAME, COMMAND_WAIT_S, STOP_UNCONFIRMED_EXIT,
                                          CommandInbox, DriverNode, steady_timer)
-from softsnap_driver.link import SHUTDOWN_BUDGET_S
+from softsnap_driver.link_config import SHUTDOWN_BUDGET_S
 from softsnap_ros.spinning import inbox_node, run_nodes_main
 
 

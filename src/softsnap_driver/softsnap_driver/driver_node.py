@@ -45,7 +45,9 @@ from std_srvs.srv import Trigger
 from softsnap_ros.cdr import check_wire, read_cable_length
 from softsnap_driver.core import DEFAULT_CLAMP_MARGIN_M, STOP_UNCONFIRMED_EXIT, CableCalibration
 from softsnap_driver.diagnostics import DriverHealth, battery_state, diagnostic_name
-from softsnap_driver.link import LinkConfig, LinkReport, ModuleLink
+from softsnap_driver.link import ModuleLink
+from softsnap_driver.link_config import LinkConfig
+from softsnap_driver.link_report import LinkReport
 from softsnap_driver.protocol import FIRMWARE_DEADBAND_COUNTS
 from softsnap_ros.node import SoftSnapNode, float_range, integer_range
 from softsnap_ros.service_queues import create_queued_service

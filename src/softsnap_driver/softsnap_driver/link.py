@@ -107,98 +107,17 @@ import traceback
 from collections import deque
 from dataclasses import dataclass, field
 
-from softsnap_driver.core import CableCalibration, TargetCommand, reboot_suspected
+from softsnap_driver.core import TargetCommand, reboot_suspected
 from softsnap_driver.protocol import (FIRMWARE_DEADBAND_COUNTS, ModuleClient, ModuleError,
                                       ModuleStatus)
+from softsnap_driver.link_config import (INTERNAL_ERROR_LOG_PERIOD_S, SHUTDOWN_BUDGET_S,
+                                         STALL_PROGRESS_COUNTS, STOP_RETRY_FIRST_S,
+                                         STOP_RETRY_MAX_S, STOP_STILL_COUNTS, LinkConfig,
+                                         action_timeout_s, failure_backoff_s)
+from softsnap_driver.link_report import Counters, LinkReport, NeedsCalibration, StopOutcome
 
-#: Movement smaller than this (counts) over ``stall_timeout_s`` is no progress.
-STALL_PROGRESS_COUNTS = 10
-#: A stop is confirmed when the status after an answered ``reach`` is within this many
-#: counts of the count the ``reach`` reply showed (the firmware's deadband).
-STOP_STILL_COUNTS = FIRMWARE_DEADBAND_COUNTS
-#: Pause before the first repeated ``reach`` of a stop, doubling up to the maximum (s).
-STOP_RETRY_FIRST_S = 0.02
-STOP_RETRY_MAX_S = 0.2
-#: Time :meth:`ModuleLink.stop` gives the worker (its last stop included), in seconds:
-#: leaves room within the node's 2 s SIGINT budget for rclpy's own shutdown.
-SHUTDOWN_BUDGET_S = 1.2
-#: A traceback of an unexpected error is logged at most once per this period (s); every
-#: error is counted.
-INTERNAL_ERROR_LOG_PERIOD_S = 5.0
 #: Order of the active problems in ``last_error``.
 _ERROR_KEYS = ('internal', 'link', 'reboot', 'stop', 'stale', 'stall', 'command')
-
-
-class NeedsCalibration(ValueError):
-    """A command was refused because the module rebooted and must be recalibrated."""
-
-
-@dataclass(frozen=True)
-class LinkConfig:
-    """Everything the link needs; replaced as a whole (a consistent snapshot)."""
-
-    host: str
-    port: int
-    calibration: CableCalibration
-    pwm_power: int = 200
-    poll_period_s: float = 0.1
-    command_timeout_s: float = 1.0      # 0 disables the stale-stream stop
-    request_timeout_s: float = 0.5
-    offline_after_failures: int = 3
-    max_backoff_s: float = 5.0
-    reboot_zero_band_counts: int = 60
-    reboot_min_jump_counts: int = 300
-    max_speed_counts_per_s: float = 20000.0
-    stop_on_shutdown: bool = True
-    stall_timeout_s: float = 1.0        # 0 disables stall detection
-    stop_deadline_s: float = 1.0        # confirm a stop within this (s), else report and retry
-    target_deadband_counts: int = FIRMWARE_DEADBAND_COUNTS   # see "Target deadband"; 0: off
-
-
-@dataclass(frozen=True)
-class Counters:
-    """Event counts since the link started."""
-
-    request_failures: int = 0
-    commands_received: int = 0       # every command() call, refused or not
-    targets_sent: int = 0            # set requests the module acknowledged
-    commands_clamped: int = 0
-    commands_refused: int = 0
-    reboots_detected: int = 0
-    stale_stops: int = 0
-    stalls_detected: int = 0
-    internal_errors: int = 0         # unexpected exceptions caught in the worker loop
-    stops_unconfirmed: int = 0       # stops not confirmed within stop_deadline_s
-
-
-@dataclass(frozen=True)
-class LinkReport:
-    """What the link knows after a request (or a heartbeat while offline)."""
-
-    stamp: float                     # clock time of the report (s)
-    fresh: bool                      # True if `status` is a reply received just now
-    online: bool
-    calibrated: bool
-    status: ModuleStatus | None      # last good reply, None before the first
-    measured_length_m: float         # NaN when unknown or uncalibrated
-    target_length_m: float           # NaN before any target was sent
-    encoder_target: int
-    pwm_power: int
-    counters: Counters
-    last_error: str                  # active problems, '' when none
-    last_error_stamp: float = math.nan   # clock time (s) of the most recent error; NaN: none
-    last_command_stamp_ns: int = 0   # the sender's stamp of the latest command (ns); 0: none
-
-
-@dataclass(frozen=True)
-class StopOutcome:
-    """Result of one bounded attempt to stop the module (see "Confirmed stops")."""
-
-    confirmed: bool
-    count: int | None                # count the module holds at, when confirmed
-    attempts: int                    # reach requests sent
-    elapsed_s: float
-    message: str
 
 
 @dataclass
@@ -828,14 +747,3 @@ class ModuleLink:
             self._report(report)
         except Exception as exc:  # noqa: BLE001 - a broken consumer must not stop the link
             self._warn_throttled('report', f'publishing the module state failed: {exc!r}')
-
-
-def failure_backoff_s(config: LinkConfig, failures: int) -> float:
-    """Pause after the ``failures``-th consecutive failed request (s): doubles from the
-    poll period, at most ``max_backoff_s``."""
-    return min(config.poll_period_s * 2.0 ** min(max(failures - 1, 0), 30), config.max_backoff_s)
-
-
-def action_timeout_s(config: LinkConfig) -> float:
-    """How long a service caller waits for its action (s): a stop in progress, then its own."""
-    return config.stop_deadline_s + 2 * config.request_timeout_s + 1.0
