@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 from scipy import optimize
 
-from softsnap_model import forward, geometry, inverse, reference
+from softsnap_model import forward, geometry, reference
 from softsnap_model.inverse import design_threading, fit_angles_to_points
+from softsnap_model.inverse.search import _Problem
 from softsnap_model.skeleton import Skeleton
 
 AUTHORS = Skeleton(rib_thickness_mm=0.0)   # the paper's idealised model (Figure S4)
@@ -29,7 +30,7 @@ def forward_target(skeleton, threading, fraction):
 
 def test_branch_angles_come_from_the_public_forward_function():
     # The design's tension tables are the forward model's own branch angles.
-    prob = inverse._Problem(AUTHORS, np.zeros(11), np.ones((12, 8), bool), None, 1)
+    prob = _Problem(AUTHORS, np.zeros(11), np.ones((12, 8), bool), None, 1)
     lam = np.array([0.0, 1e-3, 0.05, 0.4, 1.2, 5.0, np.inf])
     pairs = np.arange(64)
     table = prob.angles(lam[:, None], pairs[None, :], 1.0)
@@ -57,7 +58,7 @@ def test_importing_the_package_does_not_load_scipy_optimize():
 
 def test_branch_angle_magnitude_is_monotone_in_tension():
     # The interval bound rests on |a| rising with tension on a side that never changes.
-    prob = inverse._Problem(AUTHORS, np.zeros(11), np.ones((12, 8), bool), None, 1)
+    prob = _Problem(AUTHORS, np.zeros(11), np.ones((12, 8), bool), None, 1)
     lam = np.concatenate(([0.0], np.geomspace(1e-5, 10.0, 400)))
     a = prob.angles(lam[:, None], np.arange(64)[None, :], 1.0)
     assert np.all(np.diff(np.abs(a), axis=0) >= -1e-12)

@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 
 from softsnap_model import forward, reference
-from softsnap_model.inverse import (DesignSensitivity, _perturbed_angles, design_sensitivity,
+from softsnap_model.inverse import (DesignSensitivity, design_sensitivity,
                                     design_threading, result_to_dict)
+from softsnap_model.inverse.robustness import _perturbed_angles
 from softsnap_model.skeleton import Skeleton
 
 # Paper Figure S4 (c)/(d) targets (FACTS.md), 8 holes per rib; degrees, segment 0 first.

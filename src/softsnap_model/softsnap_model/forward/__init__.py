@@ -68,8 +68,8 @@ like a full one.
 """
 from __future__ import annotations
 
-# The private names imported here are the package's internal face: inverse.py, the tests
-# and the benchmarks reach them as ``forward._name``.
+# The private names imported here are the package's internal face: the inverse design,
+# the tests and the benchmarks reach them as ``forward._name``.
 from .api import reachable_range, solve_forward
 from .batch import PreparedBatch, solve_forward_batch, sweep
 from .branch import (_PROFILE_CACHE, SegmentBranch, _branch_derivs, _branch_solve,
