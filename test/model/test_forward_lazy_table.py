@@ -10,6 +10,8 @@ import pytest
 import softsnap_model.forward as fwd
 from softsnap_model import Skeleton
 from softsnap_model.forward import path as fpath
+from softsnap_model.forward import path_table as ptable
+from softsnap_model.forward import start_polynomials
 from softsnap_model.reference import PAPER_THREADINGS
 
 SKELETONS = (Skeleton(), Skeleton(rib_thickness_mm=0.0))
@@ -96,7 +98,7 @@ def test_first_solve_builds_only_a_small_part_of_the_table():
         n = table.lam.size
         assert n > 200, name                           # a table worth building lazily
         assert table._sample_built.sum() <= 0.1 * n, (name, table._sample_built.sum(), n)
-        assert sum(table._cell_built) <= 2 * fpath._BLOCK
+        assert sum(table._cell_built) <= 2 * ptable._BLOCK
         # The searchable lengths stay non-increasing, built or not.
         assert np.all(table.len[1:] <= table.len[:-1])
         assert table.len_list == table.len.tolist()
@@ -149,8 +151,8 @@ def test_loop_over_every_7_rib_threading_builds_each_table_once_and_stays_small(
 
 def test_a_cells_float_polynomial_is_the_numpy_tables_bit_for_bit():
     # A single solve builds its cell's start polynomial in plain floats
-    # (path._cell_polynomial), a batch the whole table's in numpy: every cell of whole
-    # tables, built both ways, over random 12-rib threadings and the paper's.
+    # (start_polynomials._cell_polynomial), a batch the whole table's in numpy: every cell
+    # of whole tables, built both ways, over random 12-rib threadings and the paper's.
     rng = np.random.default_rng(17)
     holes = list(SKELETONS[0].holes_mm)
     threadings = THREADINGS[:9] + [list(rng.choice(holes, 12)) for _ in range(12)]
@@ -162,7 +164,7 @@ def test_a_cells_float_polynomial_is_the_numpy_tables_bit_for_bit():
         for j in range(table.n_cells):
             at = slice(j, j + 2)
             try:
-                rows = fpath._cell_polynomial(
+                rows = start_polynomials._cell_polynomial(
                     table.lam[at].tolist(), table._exact[at].tolist(), table.b[at].tolist(),
                     table._derivs[:, at].tolist(), *table._seg_lists)
             except ArithmeticError:     # built by numpy then (a zero denominator)
@@ -177,8 +179,8 @@ def test_a_cells_float_polynomial_is_the_numpy_tables_bit_for_bit():
 
 def test_a_single_solves_float_samples_are_the_numpy_tables_bit_for_bit():
     # A single first solve builds its cell's two or three samples in plain floats
-    # (path._path_samples_float), a block or a whole table builds them in numpy
-    # (path._path_samples): every sample of whole tables, built both ways. The cases:
+    # (path_table._path_samples_float), a block or a whole table builds them in numpy
+    # (path_table._path_samples): every sample of whole tables, built both ways. The cases:
     # the paper's threadings, every segment a mirror one (straight before buckling),
     # random 12-rib threadings on thick and thin ribs, uneven stiffness, and holes at
     # the rib's ends (coinciding holes: branches ending at their shortest length).
@@ -199,13 +201,13 @@ def test_a_single_solves_float_samples_are_the_numpy_tables_bit_for_bit():
             prob = fwd._problem(sk, key(sk, t))
         kinds.update(prob.kind)
         table = prob.path.complete()
-        rows = fpath._float_rows(table.seg)
+        rows = ptable._float_rows(table.seg)
         k, count = table._seg_lists[0], table._seg_lists[3]
         for j, lam in enumerate(table.lam.tolist()):
             try:
-                (total, b, lp, lpp, l3), = fpath._path_samples_float(
+                (total, b, lp, lpp, l3), = ptable._path_samples_float(
                     [lam], rows, k, count, table.s, table.straight)
-            except (fpath._HardEntry, ArithmeticError):   # built by numpy then (rare)
+            except (ptable._HardEntry, ArithmeticError):   # built by numpy then (rare)
                 n_numpy += 1
                 continue
             got = np.array([b, lp, lpp, l3])
@@ -235,7 +237,7 @@ def test_a_float_built_cell_is_the_full_tables_cell():
         res = fwd.solve_forward(sk, t, length)
         table = fwd._problem(sk, key(sk, t)).path
         built = table._sample_built.copy()
-        n_float += bool(table._run_lists) and built.sum() <= 2 * fpath._GUESS_CELLS
+        n_float += bool(table._run_lists) and built.sum() <= 2 * ptable._GUESS_CELLS
         exact, b, derivs = table._exact.copy(), table.b.copy(), table._derivs.copy()
         cells = np.array(table._cell_built)
         poly = table.poly[cells].copy()

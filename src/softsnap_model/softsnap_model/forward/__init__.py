@@ -44,7 +44,9 @@ Layout of this subpackage
 -------------------------
 * :mod:`.results`: contracts (tolerances), errors and frozen result types;
 * :mod:`.branch`: per-segment branches, their profile tables and the profile cache;
-* :mod:`.path`: per-threading problem data, the path tables and their caches;
+* :mod:`.path`: per-threading problem data, its caches and its batch layout;
+* :mod:`.path_table`: the path table of a threading, built lazily;
+* :mod:`.start_polynomials`: the path's derivatives and each cell's start polynomial;
 * :mod:`.newton`: the batch Newton solve, certification and robust fallback;
 * :mod:`.single`: one solve in plain Python floats (start, evaluation, second-order
   check, Newton), the engine of :func:`solve_forward`;

@@ -15,7 +15,8 @@ import numpy as np
 
 from ..geometry import _g_series, segment_length_derivatives
 from .branch import _branch_solve
-from .path import _PER_ITEM, _START_DEGREE
+from .path import _PER_ITEM
+from .start_polynomials import _START_DEGREE
 from .results import CONSTRAINT_TOL_MM, MAX_ITER, STATIONARITY_TOL_RAD
 
 
