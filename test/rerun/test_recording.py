@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from softsnap_model import recording as rec_mod
+from softsnap_ros.units import MM_PER_M
 
 STAMP0 = 1_795_000_000_123_456_789  # ns since the epoch, a realistic ROS stamp
 PERIOD = 20_000_000                 # 50 Hz in ns
@@ -50,7 +51,7 @@ def test_cable_chords_match_the_length_formula_of_facts():
     # L(a; d1, d2)^2 = (d1 - d2)^2 + (2 sin(a/2)/a)^2 (s + d1 a)(s + d2 a), in mm.
     angles = np.array([0.3, -0.2, 0.25, 0.1, -0.4, 0.05, 0.2, 0.3, -0.1, 0.15, 0.2])
     threading = np.array([3, 6.5, 6.5, -6.5, -10, -10, -10, -10, -10, -10, -6.5, 6.5])
-    holes_mm = rec_mod.cable_points_m(rec_mod.rib_frames(angles), threading) / rec_mod.MM
+    holes_mm = rec_mod.cable_points_m(rec_mod.rib_frames(angles), threading) * MM_PER_M
     chords = np.linalg.norm(np.diff(holes_mm, axis=0), axis=1)
     d1, d2, s = threading[:-1], threading[1:], 18.0
     expected = np.sqrt((d1 - d2) ** 2

@@ -72,7 +72,7 @@ from softsnap_interfaces.msg import CableLength, ModuleState, RobotShape
 from softsnap_model import recording
 
 from softsnap_ros import cdr
-from softsnap_ros.units import stamp_ns
+from softsnap_ros.units import MM_PER_M, stamp_ns
 
 # Reliable, like the default QoS the model node, the drivers and the gait node publish
 # with, so samples sent right after discovery are not lost; a KEEP_LAST reader never
@@ -166,7 +166,7 @@ class RerunLoggerNode(SoftSnapNode):
         self.declare_parameter('robot', '', ParameterDescriptor(
             description="Robot name for the default file name; '' = the node namespace",
             read_only=True))
-        self.declare_parameter('rib_spacing', recording.RIB_SPACING_MM * recording.MM,
+        self.declare_parameter('rib_spacing', recording.RIB_SPACING_MM / MM_PER_M,
                                ParameterDescriptor(
             description='Spine arc length between adjacent ribs, in metres (m), for shapes '
                         'that carry no rib centres',
@@ -220,7 +220,7 @@ class RerunLoggerNode(SoftSnapNode):
             threadings_mm={m.name: m.threading_mm for m in getattr(scene, 'modules', [])},
             rate_hz=self.get_parameter('rate').value,
             spacing_mm=(scene.skeleton.spacing_mm if scene is not None
-                        else self.get_parameter('rib_spacing').value / recording.MM),
+                        else self.get_parameter('rib_spacing').value * MM_PER_M),
             colors=colors, flush_period_s=self.get_parameter('flush_period').value,
             skip_unchanged=self.get_parameter('skip_unchanged').value,
             sim_time=self.get_parameter('use_sim_time').value)

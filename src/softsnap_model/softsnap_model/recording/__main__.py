@@ -1,0 +1,6 @@
+"""``python -m softsnap_model.recording``: see :func:`.cli.main`."""
+import sys
+
+from .cli import main
+
+sys.exit(main())
