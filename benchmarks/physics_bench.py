@@ -31,7 +31,7 @@ import numpy as np
 from softsnap_model import Skeleton, solve_forward
 from softsnap_model.loads import Loads, solve_loaded
 from softsnap_model.physics.compare import PAPER_THREADINGS, load_case, static_fidelity
-from softsnap_model.physics.mjcf import DEFAULT_LINKS_PER_SEGMENT, PhysicsParameters
+from softsnap_model.physics.parameters import DEFAULT_LINKS_PER_SEGMENT, PhysicsParameters
 from softsnap_model.physics.simulation import RobotSimulation
 
 SCENES = ('brittle_star', 'starfish', 'snake', 'ring', 'gripper')

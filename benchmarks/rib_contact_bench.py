@@ -24,7 +24,7 @@ import time
 from softsnap_model import Skeleton
 from softsnap_model.forward import reachable_range
 from softsnap_model.physics.compare import QUASI_STATIC_DAMPING_TIME_S, static_fidelity
-from softsnap_model.physics.mjcf import PhysicsParameters
+from softsnap_model.physics.parameters import PhysicsParameters
 from softsnap_model.physics.rib_contact import hard_contact_parameters, legacy_parameters
 from softsnap_model.physics.simulation import RobotSimulation
 from softsnap_model.reference import PAPER_THREADINGS

@@ -27,7 +27,7 @@ from softsnap_driver.sim_robot import (DEFAULT_PAYLOAD_HEIGHT_M, ScriptedCommand
                                        build_simulation)
 from softsnap_driver.sim_robot_runner import build_payload
 from softsnap_gaits.gaits import make_gait
-from softsnap_model.physics.mjcf import Payload
+from softsnap_model.physics.parameters import Payload
 from softsnap_model.scene import load_scene
 
 SETTLE_S = 0.3

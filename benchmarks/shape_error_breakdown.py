@@ -47,7 +47,8 @@ from softsnap_driver.sim_robot import ScriptedCommands, SimRobot
 from softsnap_gaits.gaits import make_gait
 from softsnap_model.forward import solve_forward
 from softsnap_model.physics.compare import static_fidelity
-from softsnap_model.physics.mjcf import PhysicsParameters, robot_mjcf_layout
+from softsnap_model.physics.parameters import PhysicsParameters
+from softsnap_model.physics.robot_mjcf import robot_mjcf_layout
 from softsnap_model.physics.simulation import RobotSimulation
 from softsnap_model.scene import load_scene
 

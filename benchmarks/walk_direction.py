@@ -28,7 +28,7 @@ import numpy as np
 
 from softsnap_driver.sim_robot import ScriptedCommands, SimRobot, build_simulation
 from softsnap_gaits.gaits import make_gait
-from softsnap_model.physics.mjcf import DEFAULT_LINKS_PER_SEGMENT
+from softsnap_model.physics.parameters import DEFAULT_LINKS_PER_SEGMENT
 from softsnap_model.scene import load_scene
 
 SETTLE_S = 0.3

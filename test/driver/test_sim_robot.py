@@ -129,7 +129,7 @@ def test_ring_transport_payload_items_are_sim_robots_payloads():
     payload_height_m the full height (m): both give the demo's puck, through one mapping."""
     parse_payload = load_benchmark('ring_transport').parse_payload
     from softsnap_gaits.demo import PHYSICS_PAYLOADS
-    from softsnap_model.physics.mjcf import Payload
+    from softsnap_model.physics.parameters import Payload
     demo_puck = build_payload(options(**PHYSICS_PAYLOADS['ring']))
     assert parse_payload('cylinder:85:15', 0.02) == demo_puck
     assert parse_payload('ball:40', 0.01) == Payload('ball', 0.01, 0.04)
@@ -261,7 +261,7 @@ def _grasp_payload_heights_m(mass_kg: float, radius_m: float) -> tuple:
     """The gripper's first grasp (scene's default gait, sim_robot's default model) on a
     ball: (release time s, payload height at the start and the end of the hold, m)."""
     from softsnap_gaits.gaits import make_gait
-    from softsnap_model.physics.mjcf import Payload
+    from softsnap_model.physics.parameters import Payload
     from softsnap_model.scene import load_scene
     scene = load_scene('gripper')
     robot = SimRobot(scene, build_simulation(scene, payload=Payload('ball', mass_kg, radius_m),

@@ -67,7 +67,7 @@ MARKER_DIAMETER_M = 0.006
 _DISC_THICKNESS_M = 0.0002
 _DISC_GAP_M = 0.0001
 #: The skeleton's half thickness, m (the top faces of ribs and motor case):
-#: softsnap_model.physics.mjcf.SKELETON_THICKNESS_MM / 2.
+#: softsnap_model.physics.parameters.SKELETON_THICKNESS_MM / 2.
 _TOP_FACE_M = 0.0045
 #: Backends MuJoCo renders with offscreen on Linux without a display.
 OFFSCREEN_BACKENDS = ('egl', 'osmesa')

@@ -593,7 +593,7 @@ def build_simulation(scene, *, gravity: bool = True, payload=None,
     :data:`DEFAULT_PHYSICS_TIMESTEP_S`. A scene the physics cannot model (or a payload it
     has no place for) raises SimRobotError with the physics' reason.
     """
-    from softsnap_model.physics.mjcf import PhysicsParameters
+    from softsnap_model.physics.parameters import PhysicsParameters
     from softsnap_model.physics.simulation import RobotSimulation
     kwargs = {'links_per_segment': links_per_segment} if links_per_segment else {}
     try:

@@ -151,7 +151,7 @@ def build_payload(opts: argparse.Namespace):
                             f'got {opts.payload!r}')
     if opts.payload == 'none':
         return None
-    from softsnap_model.physics.mjcf import Payload
+    from softsnap_model.physics.parameters import Payload
     size = opts.payload_size_m
     height = opts.payload_height_m
     if opts.payload == 'cylinder' and not (isinstance(height, (int, float))

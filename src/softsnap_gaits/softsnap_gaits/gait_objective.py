@@ -167,7 +167,7 @@ def rollout(scene_ref: str, spec: dict, setting: SimSetting, *, seconds: float,
     direction. Deterministic: the same arguments give the same result in any process.
     """
     from softsnap_driver.sim_robot import SimRobot
-    from softsnap_model.physics.mjcf import PhysicsParameters
+    from softsnap_model.physics.parameters import PhysicsParameters
     from softsnap_model.physics.simulation import RobotSimulation
     from .gaits import make_gait
 

@@ -38,7 +38,8 @@ def _wxyz(xyzw):
 def build_module_simulation(scene, module_name: str, *, bending_stiffness_nmm=None,
                             tip_mass_kg: float = 0.0):
     """The clamped module under gravity, posed as in the scene (gravity along world -z)."""
-    from softsnap_model.physics.mjcf import DEFAULT_END_RIB_MASS_KG, PhysicsParameters
+    from softsnap_model.loads import DEFAULT_END_RIB_MASS_KG
+    from softsnap_model.physics.parameters import PhysicsParameters
     from softsnap_model.physics.simulation import RobotSimulation
     module = scene.module(module_name)
     params = PhysicsParameters(end_rib_mass_kg=DEFAULT_END_RIB_MASS_KG + tip_mass_kg) \

@@ -74,7 +74,7 @@ def run_physics(scene_name: str, *, links_per_segment: int | None = None,
                          '(pip install mujoco)') from None
     from ..scene import load_scene
     from .compare import load_case, payload_case, static_fidelity, LOAD_CASES
-    from .mjcf import DEFAULT_LINKS_PER_SEGMENT, Payload
+    from .parameters import DEFAULT_LINKS_PER_SEGMENT, Payload
     n = DEFAULT_LINKS_PER_SEGMENT if links_per_segment is None else links_per_segment
     c = float(contraction_mm)
     if not math.isfinite(c) or c <= 0.0:
@@ -111,7 +111,7 @@ def run_physics(scene_name: str, *, links_per_segment: int | None = None,
                            r.reference_rib_centers_mm * 1e-3))
         out['gravity'] = rows
     if 'payload' in cases:
-        from .mjcf import _hanging
+        from .robot_mjcf import _hanging
         if _hanging(scene):
             pl = Payload('ball', payload_mass_kg, payload_radius_m)
             start = time.perf_counter()

@@ -22,7 +22,7 @@ from ..forward import solve_forward
 from ..loads import Loads, solve_loaded
 from ..reference import PAPER_THREADINGS as _PAPER
 from ..skeleton import Skeleton
-from .mjcf import DEFAULT_LINKS_PER_SEGMENT, PhysicsParameters
+from .parameters import DEFAULT_LINKS_PER_SEGMENT, PhysicsParameters
 from .simulation import RobotSimulation
 
 __all__ = ['PAPER_THREADINGS', 'QUASI_STATIC_DAMPING_TIME_S', 'WINCH_TEST_SPEED_M_S',
@@ -311,7 +311,7 @@ def payload_case(scene='gripper', payload=None, contraction_mm: float | None = N
     dropped, as that model does).
     """
     import mujoco
-    from .mjcf import Payload
+    from .parameters import Payload
     payload = Payload() if payload is None else payload
     sim = RobotSimulation(scene, links_per_segment=links_per_segment, parameters=parameters,
                           payload=payload)

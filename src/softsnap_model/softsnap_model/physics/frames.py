@@ -66,3 +66,8 @@ rotation_from_xyzw = _rot
 wxyz_from_matrix = _mat_to_wxyz
 finite_vector = _vector
 unit_quaternion = _unit_quaternion
+
+
+def _flat(rot: np.ndarray) -> bool:
+    """Ribs (module y) within 30 deg of horizontal for this orientation."""
+    return abs(rot[2, 1]) < 0.5

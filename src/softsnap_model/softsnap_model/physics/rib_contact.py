@@ -84,7 +84,7 @@ def hard_contact_parameters(params=None, **overrides):
     cable and couplings (``k dt^2 = 0.25``, ``b dt = 1``), hinge armature 1e-5 kg m^2
     scaled with the step and N. A single module then settles within 0.5 mm of
     ``solve_forward`` up to 95 % of its reach (docs/physics.md, "Rib contact")."""
-    from .mjcf import PhysicsParameters
+    from .parameters import PhysicsParameters
     base = PhysicsParameters() if params is None else params
     return replace(base, rib_contact='hard', hinge_armature_kgm2=1e-5, scale_armature=True,
                    constraint_stiffness_dt2=0.25, constraint_damping_dt=1.0, **overrides)
@@ -93,7 +93,7 @@ def hard_contact_parameters(params=None, **overrides):
 def legacy_parameters(params=None, **overrides):
     """The default (soft) set, explicitly: soft limits on every hinge, 3e-8 kg m^2
     armature, the cable's overdamped ``k dt^2 = 1``, ``b dt = 10``; for comparisons."""
-    from .mjcf import PhysicsParameters
+    from .parameters import PhysicsParameters
     base = PhysicsParameters() if params is None else params
     return replace(base, rib_contact='soft', hinge_armature_kgm2=3e-8, scale_armature=False,
                    constraint_stiffness_dt2=1.0, constraint_damping_dt=10.0, **overrides)
@@ -103,7 +103,7 @@ def quasi_static_parameters(params=None, **overrides):
     """Parameters of the static comparisons: the defaults with a heavier hinge damping
     (the settled shape does not depend on damping; the first bending mode settles
     sooner)."""
-    from .mjcf import PhysicsParameters
+    from .parameters import PhysicsParameters
     from .compare import QUASI_STATIC_DAMPING_TIME_S
     base = PhysicsParameters() if params is None else params
     return replace(base, damping_time_s=QUASI_STATIC_DAMPING_TIME_S, **overrides)

@@ -29,8 +29,9 @@ import mujoco
 import numpy as np
 
 from ..skeleton import Skeleton
-from .mjcf import (DEFAULT_LINKS_PER_SEGMENT, PhysicsParameters, Payload, RobotLayout,
-                   module_mjcf_layout, robot_mjcf_layout)
+from .mjcf import RobotLayout, module_mjcf_layout
+from .parameters import DEFAULT_LINKS_PER_SEGMENT, Payload, PhysicsParameters
+from .robot_mjcf import robot_mjcf_layout
 
 __all__ = ['RobotSimulation', 'SettleResult', 'GROUND_CLEARANCE_M', 'SETTLE_SPEED_TOL',
            'SETTLE_HOLD_S']
