@@ -97,8 +97,10 @@ def marker_layout(opts, scene) -> MarkerLayout:
 
 def _stamp(time_s: float):
     from builtin_interfaces.msg import Time
-    sec, nanosec = divmod(round(time_s * 1e9), 1_000_000_000)
-    return Time(sec=int(sec), nanosec=int(nanosec))
+
+    from softsnap_ros.units import NS_PER_S, sec_nanosec
+    sec, nanosec = sec_nanosec(round(time_s * NS_PER_S))
+    return Time(sec=sec, nanosec=nanosec)
 
 
 class CameraPublisher:

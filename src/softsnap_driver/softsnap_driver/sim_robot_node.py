@@ -63,6 +63,7 @@ from softsnap_driver.sim_robot import PHYSICS_TIMESTEP_RANGE_S, RobotSnapshot, S
 from softsnap_driver.sim_robot_runner import (OPTIONS, SimRobotRunner, _bool_text, build_parser,
                                               report_stop)
 from softsnap_ros.spinning import run_simulator_main
+from softsnap_ros.units import NS_PER_S, sec_nanosec
 from softsnap_interfaces.msg import MeasuredShape, ModuleShape, RobotShape
 
 WORLD_FRAME = 'world'
@@ -109,8 +110,8 @@ def _descriptor(name: str, kind: type, text: str) -> ParameterDescriptor:
 
 def _stamp(time_s: float) -> Time:
     """A simulation time (s, >= 0) as a message stamp, to the nanosecond."""
-    sec, nanosec = divmod(round(time_s * 1e9), 1_000_000_000)
-    return Time(sec=int(sec), nanosec=int(nanosec))
+    sec, nanosec = sec_nanosec(round(time_s * NS_PER_S))
+    return Time(sec=sec, nanosec=nanosec)
 
 
 def _pose(position, orientation_wxyz) -> Pose:

@@ -26,6 +26,8 @@ import time
 
 import numpy as np
 
+from softsnap_ros.units import stamp_ns
+
 #: Camera rate of the demo, Hz of simulated time (issue 33's default).
 DEMO_CAMERA_RATE_HZ = 15.0
 #: The ground truth every camera frame: the same ticks (softsnap_driver.sim_observation).
@@ -82,7 +84,7 @@ def with_camera(specs: list, scene, camera_rate_hz: float = DEMO_CAMERA_RATE_HZ)
 
 
 def _stamp_ns(msg) -> int:
-    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+    return stamp_ns(msg.header.stamp)
 
 
 def _points_mm(msg) -> np.ndarray:

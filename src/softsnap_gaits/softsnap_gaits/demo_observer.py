@@ -9,6 +9,7 @@ import time
 import numpy as np
 
 from softsnap_model.geometry import rib_centers
+from softsnap_ros.units import stamp_ns
 
 from .demo_config import DRAIN_IDLE_S, DRAIN_TIMEOUT_S, STREAM_DEPTH
 
@@ -197,7 +198,7 @@ class Observer:
     @staticmethod
     def _state(s: ModuleStats, msg) -> None:
         s.state = msg
-        last = msg.last_command_stamp.sec * 1_000_000_000 + msg.last_command_stamp.nanosec
+        last = stamp_ns(msg.last_command_stamp)
         s.driver_counts.append((_stamp_ns(msg), int(msg.commands_received), last))
 
     def _command(self, s: ModuleStats, msg) -> None:
@@ -351,7 +352,7 @@ class Observer:
 
 
 def _stamp_ns(msg) -> int:
-    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+    return stamp_ns(msg.header.stamp)
 
 
 def _pose_sample(msg) -> tuple:

@@ -26,6 +26,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from softsnap_model import recording
+from softsnap_ros.units import stamp_ns
 
 IMAGE_PATH = 'camera/image'
 #: Default largest rate of logged frames, per second of stamps.
@@ -118,7 +119,7 @@ class CameraRecorder:
 
     def image(self, msg) -> bool:
         """Log a frame (rgb8 or bgr8) and the shapes over it; False when rate-limited."""
-        stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        stamp = stamp_ns(msg.header.stamp)
         if msg.encoding not in ('rgb8', 'bgr8') or not self.limiter.allow(IMAGE_PATH, stamp):
             return False
         import cv2

@@ -47,6 +47,7 @@ from softsnap_ros.diagnostics import key_values
 from softsnap_ros.node import SoftSnapNode
 from softsnap_ros.service_queues import action_qos_kwargs, create_queued_service
 from softsnap_ros.spinning import run_node_main
+from softsnap_ros.units import NS_PER_S, stamp_ns
 from softsnap_interfaces.action import ReachShape
 from softsnap_interfaces.msg import CableLength, MeasuredShape
 from softsnap_interfaces.srv import ReleaseModules, SetShapeTarget
@@ -69,7 +70,7 @@ def _points(msg_points) -> np.ndarray:
 
 
 def _stamp_s(stamp) -> float:
-    return stamp.sec + stamp.nanosec * 1e-9
+    return stamp_ns(stamp) / NS_PER_S
 
 
 class ShapeControllerNode(SoftSnapNode):

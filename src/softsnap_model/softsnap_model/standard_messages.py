@@ -42,7 +42,7 @@ from visualization_msgs.msg import Marker
 from softsnap_ros.diagnostics import key_values
 
 from . import geometry
-from softsnap_ros.units import MM_PER_M
+from softsnap_ros.units import MM_PER_M, sec_nanosec
 
 __all__ = ['SOURCE_COLORS', 'PARTS', 'LINE_WIDTH_M', 'ModuleParts', 'ModelHealth',
            'module_parts_m', 'module_markers', 'prediction_markers', 'robot_shape_markers', 'marker_id', 'joint_names', 'joint_states',
@@ -137,7 +137,7 @@ def marker_id(module_index: int, source: str, part: str) -> int:
 
 def stamp_msg(stamp_ns: int) -> Time:
     """builtin_interfaces/Time of a stamp in ns."""
-    sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
+    sec, nanosec = sec_nanosec(stamp_ns)
     return Time(sec=sec, nanosec=nanosec)
 
 
