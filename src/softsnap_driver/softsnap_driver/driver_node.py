@@ -303,8 +303,9 @@ class DriverNode(SoftSnapNode):
         self.diagnostics_timer = (steady_timer(self, self.diagnostics_period_s,
                                                self.diagnostics_callback)
                                   if diagnostics_timer else None)
-        # State and measured length go out as ready CDR bytes (state_wire says why) if
-        # rclpy reads them back as the messages; else as message objects, filled in place.
+        # State and measured length go out as ready CDR bytes (softsnap_ros.cdr.state_writers
+        # says why) if rclpy reads them back as the messages; else as message objects, filled
+        # in place.
         self._state_wire = ModuleStateWire(m, m)
         self._measured_wire = CableLengthWire(m)
         self._measured_msg = CableLength()

@@ -141,8 +141,8 @@ class ModelNode(ShapeStream, StandardOutputs, DesignServices, SoftSnapNode):
         self._subscribers_at = -math.inf    # monotonic s of the last refresh
         self._pose_msgs: dict[tuple, Pose] = {}
         # Shape messages are published as CDR bytes kept ready and updated in place
-        # (shape_wire says why), if rclpy reads those bytes back as the messages the
-        # node would build field by field; else as message objects.
+        # (softsnap_ros.cdr.shape_writers says why), if rclpy reads those bytes back as the
+        # messages the node would build field by field; else as message objects.
         n_segments, n_ribs = self.skeleton.n_segments, self.skeleton.n_ribs
         names = list(self.scene.module_names)
         self._robot_wires = {s: RobotShapeWire(self.scene.name, s, names, n_segments, n_ribs)
