@@ -106,3 +106,26 @@ def test_the_tests_import_no_benchmark_through_sys_path():
                  if 'test' in path.parts[len(REPO.parts):][:1]
                  and re.search(r"sys\.path\.(append|insert)\(.*benchmarks", text)]
     assert not offenders, offenders
+
+
+#: Test folders that are not one package's: the whole graph end to end, the repo's tools.
+CROSS_CUTTING_TESTS = {'e2e', 'tools'}
+
+
+def test_the_tests_mirror_the_packages():
+    """test/<package>/ per package of src (plus e2e/ and tools/), and a test in a
+    package's folder exercises that package: imports it or starts one of its executables."""
+    folders = {p.name for p in (REPO / 'test').iterdir()
+               if p.is_dir() and p.name != '__pycache__'}
+    assert folders - CROSS_CUTTING_TESTS <= set(LEVEL), folders - set(LEVEL)
+    assert set(LEVEL) <= folders, set(LEVEL) - folders
+    strays = []
+    for package in LEVEL:
+        setup = SRC / package / 'setup.py'
+        executables = re.findall(r"'(\w+) = ", setup.read_text()) if setup.exists() else []
+        for path in sorted((REPO / 'test' / package).glob('test_*.py')):
+            text = path.read_text()
+            if not re.search(rf'\b{package}\b', text) and not any(
+                    re.search(rf"'{name}'", text) for name in executables):
+                strays.append(str(path.relative_to(REPO)))
+    assert not strays, f'tests that do not touch their folder\'s package: {strays}'

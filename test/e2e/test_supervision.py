@@ -3,7 +3,7 @@
 Real demos and real signals: a running demo (10 processes: five simulated modules, the
 drivers' container, model, gait, rerun logger, bag recorder) gets SIGKILL, SIGHUP or
 SIGTERM; then no process of the robot may be alive, and every driver's last act must
-have been a confirmed stop. The launch-file graph's Ctrl-C: test/gaits/test_launch_ctrl_c.py. The measured times are printed
+have been a confirmed stop. The launch-file graph's Ctrl-C: test/softsnap_gaits/test_launch_ctrl_c.py. The measured times are printed
 (``pytest -s``); the deadlines asserted are generous (loaded 2-core machine):
 benchmarks/supervisor_death.py measures the "alive 5 s later" figure.
 """

@@ -221,7 +221,7 @@ def test_serves_one_client_at_a_time_and_closes(sim_server):
 
 
 def test_sim_module_command_line(tmp_path):
-    # (With --ros-args the options are ROS parameters: test/driver/test_sim_module_node.py.)
+    # (With --ros-args the options are ROS parameters: test/softsnap_driver/test_sim_module_node.py.)
     from softsnap_driver.sim_module import build_parser, module_from_options
     opts = build_parser().parse_args(['--port', '8102', '--drop-probability', '0.5'])
     assert opts.port == 8102 and opts.drop_probability == 0.5

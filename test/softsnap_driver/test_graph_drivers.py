@@ -14,7 +14,7 @@ import dataclasses
 
 import pytest
 
-from test_parameters import ParameterClient
+from parameter_client import ParameterClient
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
