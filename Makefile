@@ -23,7 +23,7 @@ bench: bootstrap
 	@for script in benchmarks/*_bench.py; do echo "== $$script"; $(PY) $$script || exit 1; done
 
 # Seeded mutation testing of chosen files against chosen tests (not part of `make test`):
-#   make mutation FILES=src/softsnap_driver/softsnap_driver/core.py TESTS=test/driver/test_core.py
+#   make mutation FILES=src/softsnap_driver/softsnap_driver/core.py TESTS=test/softsnap_driver/test_core.py
 # Prints the score and every surviving mutant (file:line, the change); docs/testing.md.
 MUTANTS ?= 120
 SEED ?= 38

@@ -14,7 +14,7 @@ a 192-rib module), every answer of ``solve_forward`` and ``solve_forward_batch``
 
 The solver agrees with that reference to about 1e-15 rad (a few ulp), so
 ``ANGLE_TOL_RAD`` flags a loss of four orders of magnitude while leaving room for
-rounding. test/model/test_accuracy_check.py shows the check failing on wrong solvers.
+rounding. test/softsnap_model/test_accuracy_check.py shows the check failing on wrong solvers.
 
 Usage: .venv/bin/python benchmarks/accuracy_check.py [--quick]   (about 5-20 s)
 """

@@ -8,10 +8,10 @@ Levels (docs/model.md, "Physics levels"):
                  base frame), default K and rib masses, solve_loaded
   + tip load     as + gravity, and 0.1 N on the tip along -y, solve_loaded
 References: the unloaded levels against the 40-digit mpmath KKT Newton of
-test/model/mp_reference.py (refined from our answer, contact segments held); the
+test/softsnap_model/mp_reference.py (refined from our answer, contact segments held); the
 loaded levels against scipy SLSQP (ftol 1e-15, central-difference gradients) on the
 energy written from geometry.rib_centers and segment_length, started from the unloaded
-answer (the same reference as test/model/test_loads.py; itself good to ~1e-6 mm).
+answer (the same reference as test/softsnap_model/test_loads.py; itself good to ~1e-6 mm).
 Error = largest rib-centre distance (mm) to the reference.
 
 Times: median per problem of repeated solves (caches warm), then median and range over

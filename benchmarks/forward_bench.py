@@ -24,7 +24,7 @@ Compares, on the same problems and in the same run:
       each (the issue-17 target, <= 100 us per solve), and with --before the same loop
       on the old solver, interleaved round by round.
 Error = largest rib-centre distance (mm) to an mpmath reference (40 digits, KKT Newton
-refined from our answer; see test/model/mp_reference.py).
+refined from our answer; see test/softsnap_model/mp_reference.py).
 
 Prints a table, writes docs/forward_work_precision.png. Runtime about 1-3 minutes.
 Usage: .venv/bin/python benchmarks/forward_bench.py [--quick]

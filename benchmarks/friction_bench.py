@@ -6,7 +6,7 @@ red, orange) at 20, 40 and 60 mm contraction (clamped to 90% of the reachable ra
     both measured in this run on the same problems: median and range over problems
     (each problem's time is the median of its repeats), and their ratio;
   - error: largest rib-centre distance (mm) to the independent slow reference
-    (test/model/friction_reference.py: own geometry, brentq per segment and on the
+    (test/softsnap_model/friction_reference.py: own geometry, brentq per segment and on the
     winch tension);
   - effect: largest rib-centre distance (mm) between the friction shape and the
     frictionless one, and between the pull and release branches at the same length

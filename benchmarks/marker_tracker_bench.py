@@ -2,7 +2,7 @@
 
     .venv/bin/python benchmarks/marker_tracker_bench.py [--frames 40] [--repeat 3]
 
-Frames are rendered once by the tests' independent renderer (test/vision/render.py: one
+Frames are rendered once by the tests' independent renderer (test/softsnap_vision/render.py: one
 module, 0.5 mm/px, lens distortion, uneven light, textured table, noise), then measured
 with OpenCV limited to one thread. Rows: the paper's orange-marker measurement
 (measure_image) and the marker_tracker's core (MarkerTracker, one ArUco-tagged module) at

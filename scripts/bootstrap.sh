@@ -73,7 +73,7 @@ fi
 fix_wheel_cmake_paths() {
   # The message wheels' exported CMake targets name the wheel builder's Python and numpy
   # include directories (/opt/python/cpXY-cpXY/...), which do not exist here; see
-  # scripts/fix_wheel_cmake_paths.sh (tested for cp311 and cp312 in test/ros/test_bootstrap.py).
+  # scripts/fix_wheel_cmake_paths.sh (tested for cp311 and cp312 in test/tools/test_bootstrap.py).
   local py_inc np_inc
   py_inc="$("$venv/bin/python" -c 'import sysconfig; print(sysconfig.get_paths()["include"])')"
   np_inc="$("$venv/bin/python" -c 'import numpy; print(numpy.get_include())')"

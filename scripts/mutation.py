@@ -5,7 +5,7 @@ Usage (from the repository root; `make mutation FILES=... TESTS=...` calls this)
 
     nice .venv/bin/python scripts/mutation.py \
         --files src/softsnap_driver/softsnap_driver/core.py \
-        --tests test/driver/test_core.py --mutants 120 --seed 38
+        --tests test/softsnap_driver/test_core.py --mutants 120 --seed 38
 
 Each file is parsed with `ast`; every place an operator below applies is a candidate
 mutant. With more candidates than `--mutants`, the candidates (in source order) are cut

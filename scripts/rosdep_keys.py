@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Regenerate requirements/rosdep/*.txt, the rosdep keys test/ros/test_rosdep_keys.py
+"""Regenerate requirements/rosdep/*.txt, the rosdep keys test/tools/test_rosdep_keys.py
 checks every package.xml against, from a checkout of the ros/rosdistro repository.
 
 Usage: python3 scripts/rosdep_keys.py /path/to/rosdistro

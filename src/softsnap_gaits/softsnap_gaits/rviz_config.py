@@ -7,7 +7,7 @@ predicted shapes, cables). ``ros2 launch softsnap_gaits <scene>.launch.py rviz:=
 opens it; by hand: ``rviz2 -d $(ros2 pkg prefix softsnap_gaits)/share/softsnap_gaits/rviz/<scene>.rviz``.
 
 Regenerate after changing this module: ``python -m softsnap_gaits.rviz_config``
-(test/gaits/test_rviz_config.py checks that the shipped files are this module's output).
+(test/softsnap_gaits/test_rviz_config.py checks that the shipped files are this module's output).
 """
 from __future__ import annotations
 

@@ -60,7 +60,7 @@ DEFAULT_COUNTS_PER_MM = 2800.0 / (math.pi * 10.0)
 #: of the stall torque (speed x 0.75); the driver sends PWM 200 of 255; the 10 mm drum
 #: winds pi * 10 mm per turn: 300 / 60 * 0.75 * 200 / 255 * pi * 10 = 92.4 mm/s.
 #: Not imported from the driver (softsnap_model does not depend on it);
-#: test/gaits/test_scenes.py checks it against the motor model.
+#: test/softsnap_model/test_scenes.py checks it against the motor model.
 DEFAULT_WINCH_SPEED_MM_S = 300.0 / 60.0 * (1.0 - 0.25) * (200.0 / 255.0) * math.pi * 10.0
 #: Largest cable contraction shown in the paper (mm); the default per-module limit.
 PAPER_MAX_CONTRACTION_MM = 80.0

@@ -15,7 +15,7 @@ GitHub for rerun's latest release. Offline (our default):
   asked ``tel.rerun.io`` and ``api.github.com`` otherwise) by a refused loopback address.
 
 ``python -m softsnap_model.recording view FILE --online`` keeps rerun's defaults.
-``test/rerun/test_web_viewer.py`` records every request the page makes in Chromium.
+``test/softsnap_model/test_web_viewer.py`` records every request the page makes in Chromium.
 """
 from __future__ import annotations
 

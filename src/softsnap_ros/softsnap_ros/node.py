@@ -22,7 +22,7 @@ How, in rclpy (Jazzy):
   double parameter before declaring it. rclpy keeps those overrides only in the
   ``_parameter_overrides`` dict (Humble to Rolling; no public accessor); if a future rclpy
   drops it, integers are refused again rather than anything going wrong silently, and
-  ``test/ros/test_parameters.py`` says so.
+  ``test/softsnap_ros/test_parameters.py`` says so.
 
 Also here: the parameter descriptors every node declares (:func:`float_range`,
 :func:`integer_range`, :func:`read_only`, :func:`table_descriptor`).
