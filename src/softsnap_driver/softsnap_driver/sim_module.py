@@ -30,6 +30,7 @@ import threading
 import time
 
 from softsnap_driver.firmware import MAX_HEAD_BYTES, BatteryModel, Faults, MotorModel, SimModule
+from softsnap_ros.ros_args import run_node_if_ros_args
 
 #: How long the server waits for a client's request head before giving up, in seconds.
 HEAD_TIMEOUT_S = 2.0
@@ -253,11 +254,11 @@ def start_servers(opts: argparse.Namespace) -> list[SimServer]:
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
-    if '--ros-args' in argv:
-        # Started by ros2 run or launch_ros: parameters, remaps and params files go
-        # through rclpy (imported only here, so the plain simulator needs no ROS).
-        from softsnap_driver.sim_module_node import main as node_main
-        return node_main([sys.argv[0], *argv])
+    # Started by ros2 run or launch_ros: parameters, remaps and params files go through
+    # rclpy (imported only then, so the plain simulator needs no ROS).
+    status = run_node_if_ros_args(argv, 'softsnap_driver.sim_module_node')
+    if status is not None:
+        return status
     parser = build_parser()
     opts = parser.parse_args(argv)
     try:

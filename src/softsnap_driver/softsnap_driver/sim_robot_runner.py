@@ -26,6 +26,7 @@ from softsnap_driver.sim_robot import (DEFAULT_CLOCK_RATE_HZ, DEFAULT_LINKS_PER_
                                       DEFAULT_STALL_TORQUE_NM, PAYLOAD_SHAPES,
                                       PHYSICS_TIMESTEP_RANGE_S, SimRobot, SimRobotError,
                                       build_simulation)
+from softsnap_ros.ros_args import run_node_if_ros_args
 
 
 class RobotServers:
@@ -245,9 +246,9 @@ class _SimTimeStop:
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
-    if '--ros-args' in argv:
-        from softsnap_driver.sim_robot_node import main as node_main
-        return node_main([sys.argv[0], *argv])
+    status = run_node_if_ros_args(argv, 'softsnap_driver.sim_robot_node')
+    if status is not None:
+        return status
     parser = build_parser()
     opts = parser.parse_args(argv)
     try:
