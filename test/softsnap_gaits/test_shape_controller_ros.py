@@ -315,7 +315,7 @@ def test_reaches_a_pose_through_the_drivers_on_sim_robot(ros_node, start_node, s
 
 
 def test_the_docs_client_snippet_reaches_its_target(ros_node, start_node, tmp_path):
-    """docs/control.md's ReachShape snippet, run as it is in its own process, against a
+    """The README's ReachShape snippet, run as it is in its own process, against a
     shape_controller and the MuJoCo finger (default physics)."""
     import re
     import subprocess
@@ -324,8 +324,9 @@ def test_the_docs_client_snippet_reaches_its_target(ros_node, start_node, tmp_pa
     import rclpy
     from softsnap_gaits.physics_plant import MujocoModulePlant
     from softsnap_model.scene import load_scene
-    text = (Path(__file__).resolve().parents[2] / 'docs' / 'control.md').read_text()
-    snippet = re.search(r'### ReachShape from Python\n\n```python\n(.*?)```', text, re.S).group(1)
+    text = (Path(__file__).resolve().parents[2] / 'README.md').read_text()
+    snippet = re.search(r'#### ReachShape from Python\n\n.*?```python\n(.*?)```', text,
+                        re.S).group(1)
     start_node('softsnap_gaits', 'shape_controller', *controller_args('-p', "gait_node:=''"))
     node = rclpy.create_node('snippet_plant', namespace=NS, context=ros_node.context)
     ros_node.executor_.add_node(node)
