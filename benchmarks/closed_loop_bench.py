@@ -10,9 +10,10 @@ feedforward length for it, the closed loop sends a ReachShape goal (closed_loop_
 
 Cases: stiffness_minus_20pct (K 20 % below the model's 17.6 N mm/rad^2), payload_20g_tip
 (20 g on the tip rib), latency_100ms_noise_0.5mm (the payload case with every
-measurement 100 ms late and 0.5 mm of noise per coordinate). The simulated camera
-(sim_robot camera:=true) renders images, but the marker tracker that turns them into
-MeasuredShape is not on this branch: that case is not run (said on stderr).
+measurement 100 ms late and 0.5 mm of noise per coordinate), simulated_camera (the
+payload case measured by a camera: MuJoCo renders the finger from its marked side at
+640x480 and 15 Hz with an ArUco tag on its case, and a marker_tracker process, real
+images over DDS and real OpenCV, publishes the measured shape the controller follows).
 
 --json prints exactly {"cases": [{"name", "open_loop_tip_error_mm",
 "closed_loop_tip_error_mm", "settle_time_s", "stable"}]} on stdout.
@@ -23,6 +24,7 @@ import argparse
 import json
 import os
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -31,6 +33,8 @@ from softsnap_gaits.isolation import claim_slot
 SLOT, _warning = claim_slot()
 os.environ.setdefault('ROS_DOMAIN_ID', str(SLOT.domain_id))
 os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+# The camera case renders offscreen: MuJoCo reads MUJOCO_GL once, at its first import.
+os.environ.setdefault('MUJOCO_GL', 'egl')
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from benchlib import load_line, start_node  # noqa: E402
@@ -42,7 +46,14 @@ CASES = {
     'payload_20g_tip': dict(physics={'tip_mass_kg': 0.020}),
     'latency_100ms_noise_0.5mm': dict(physics={'tip_mass_kg': 0.020}, latency_s=0.1,
                                       noise_m=0.0005),
+    'simulated_camera': dict(physics={'tip_mass_kg': 0.020}, camera_rate_hz=15.0),
 }
+#: The shape topic the controller follows per case: the plant's ground truth, or the
+#: tracker's measurement of the camera's images.
+MEASURED_TOPIC = {name: 'shape/measured' if case.get('camera_rate_hz') else 'shape/ground_truth'
+                  for name, case in CASES.items()}
+#: The camera's tag on the finger's case (the tracker's scene gets the same id).
+CAMERA_TAG_ID = 0
 
 
 def main(argv=None) -> int:
@@ -57,33 +68,57 @@ def main(argv=None) -> int:
     if unknown:
         parser.error(f'unknown case(s) {unknown}; cases are {", ".join(CASES)}')
     log(load_line('start'))
-    log('simulated_camera: not run (the marker tracker that measures its images is not on '
-        'this branch)')
 
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
 
     from softsnap_ros.dds_profile import use_node_profile
-    from softsnap_gaits.closed_loop_run import run_case
+    from softsnap_gaits.closed_loop_run import run_case, tagged_scene_file
     from softsnap_model.scene import load_scene
 
     use_node_profile()
-    controller = start_node('softsnap_gaits', 'shape_controller', [
-        '-r', '__ns:=/bench', '-p', 'scene:=gripper', '-p', f'modules:=[{MODULE}]',
-        '-p', 'measured_topic:=shape/ground_truth', '-p', "gait_node:=''"],
-        log_path=os.environ.get('CLOSED_LOOP_BENCH_LOG'))
+    log_path = os.environ.get('CLOSED_LOOP_BENCH_LOG')
+    work = Path(tempfile.mkdtemp(prefix='closed_loop_bench_'))
+    processes = {}
+
+    def start_controller(topic):
+        return start_node('softsnap_gaits', 'shape_controller', [
+            '-r', '__ns:=/bench', '-p', 'scene:=gripper', '-p', f'modules:=[{MODULE}]',
+            '-p', f'measured_topic:={topic}', '-p', "gait_node:=''"],
+            log_path=log_path and f'{log_path}.controller-{topic.replace("/", "_")}')
+
+    def start_tracker(plant):
+        distance = plant.camera_plane_distance_m()
+        log(f'simulated_camera: {plant.camera.describe()}; marker_tracker with '
+            f'plane_distance {distance:.4f} m')
+        processes['tracker'] = start_node('softsnap_vision', 'marker_tracker', [
+            '-r', '__ns:=/bench', '-p', f'scene:={tagged_scene_file("gripper", MODULE, CAMERA_TAG_ID, work)}',
+            '-p', f'plane_distance:={distance:.6f}', '-p', 'reliable_images:=true',
+            '-r', 'image_raw:=camera/image_raw', '-r', 'camera_info:=camera/camera_info'],
+            log_path=log_path and f'{log_path}.tracker')
     rclpy.init()
     node = rclpy.create_node('closed_loop_bench', namespace='/bench')
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     scene = load_scene('gripper')
     results = []
+    controller_topic = None
     try:
         for name in names:
             case = CASES[name]
-            results.append(run_case(node, executor, scene, MODULE, name,
-                                    contraction_m=opts.contraction_mm * 1e-3, log=log,
-                                    **case))
+            if MEASURED_TOPIC[name] != controller_topic:   # one controller per input
+                if 'controller' in processes:
+                    stop_process_group(processes.pop('controller'))
+                controller_topic = MEASURED_TOPIC[name]
+                processes['controller'] = start_controller(controller_topic)
+            on_plant = start_tracker if case.get('camera_rate_hz') else None
+            try:
+                results.append(run_case(node, executor, scene, MODULE, name,
+                                        contraction_m=opts.contraction_mm * 1e-3, log=log,
+                                        on_plant=on_plant, **case))
+            finally:
+                if 'tracker' in processes:
+                    stop_process_group(processes.pop('tracker'))
             # Clear the target before the next case's open loop.
             from softsnap_interfaces.srv import SetShapeTarget
             client = node.create_client(SetShapeTarget, 'shape_controller/set_target')
@@ -98,7 +133,8 @@ def main(argv=None) -> int:
         executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown()
-        stop_process_group(controller)
+        for proc in processes.values():
+            stop_process_group(proc)
     log(load_line('end'))
     summary = {'cases': [r.as_json() for r in results]}
     if opts.json:

@@ -157,3 +157,68 @@ def test_tagged_modules_carry_their_aruco_tag_instead_of_the_orange_marker(bent_
                               - _project(centre, camera.view.position_m, k)) < 0.5
     assert len(_blobs(image, ORANGE_RGB)) == 1
     assert len(_blobs(image, PINK_RGB)) == 60
+
+
+@pytest.fixture(scope='module')
+def hanging_finger():
+    """The gripper's front_left module clamped as it hangs in the scene, under gravity,
+    20 mm of cable hauled in: it bends in a vertical plane."""
+    from softsnap_model.physics.simulation import RobotSimulation
+    from softsnap_model.scene import load_scene
+    module = load_scene('gripper').module('front_left')
+    x, y, z, w = module.base_orientation_xyzw
+    sim = RobotSimulation.single_module(module.holes, gravity=True,
+                                        base_orientation_wxyz=(w, x, y, z))
+    sim.set_cable_length('module', sim.straight_cable_length('module') - 0.020)
+    sim.step(1.5)
+    import mujoco
+    mujoco.mj_kinematics(sim.model, sim.data)
+    return sim
+
+
+def test_the_module_view_faces_the_bending_plane_and_projects_as_published(hanging_finger):
+    """view='module': MuJoCo's image of a hanging finger from its marked side against the
+    published pose and intrinsics (camera/pose and camera_info carry the same numbers)."""
+    sim = hanging_finger
+    camera = SimCamera(sim, CameraSettings(width_px=640, height_px=480, view='module',
+                                           margin_m=0.03))
+    try:
+        image = camera.render(capture_frame_state(sim))
+    finally:
+        camera.close()
+    base = np.asarray(sim.data.xmat[sim._base_id['module']]).reshape(3, 3)
+    bending_axis = base[:, 2]
+    # The finger hangs: its bending axis is horizontal, so the camera looks sideways.
+    assert abs(bending_axis[2]) < 0.1
+    view = camera.view
+    r = np.array(view.optical_in_world)
+    assert np.allclose(r.T @ r, np.eye(3), atol=1e-9) and np.linalg.det(r) == pytest.approx(1.0)
+    assert r[:, 2] @ bending_axis == pytest.approx(-1.0)      # looking at the marked face
+    assert r[:, 1] @ np.array([0.0, 0.0, 1.0]) < -0.99         # image up = world up
+    # The published quaternion is the same rotation (w, x, y, z).
+    w, x, y, z = view.orientation_wxyz()
+    q = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                  [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                  [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+    assert np.allclose(q, r, atol=1e-9)
+    k = view.intrinsics.matrix
+    ribs = np.asarray(sim.rib_centers_world('module')) + TOP_FACE_M * bending_axis
+    optical = (ribs - np.asarray(view.position_m)) @ r
+    expected = np.stack([k[0, 0] * optical[:, 0] / optical[:, 2] + k[0, 2],
+                         k[1, 1] * optical[:, 1] / optical[:, 2] + k[1, 2]], axis=1)
+    pink = _blobs(image, PINK_RGB)
+    assert len(pink) == 12 and len(_blobs(image, ORANGE_RGB)) == 1, len(pink)
+    errors = np.array([np.min(np.linalg.norm(pink - uv, axis=1)) for uv in expected])
+    assert errors.max() < 0.5, errors
+    # Every marker in the image with room to bend further, the plane at one distance.
+    assert np.all((expected > 20) & (expected < [620, 460]))
+    assert np.ptp(optical[:, 2]) < 1e-4
+    # (the discs sit 0.1 mm above the face)
+    assert camera.marker_distance_m() == pytest.approx(float(optical[:, 2].mean()), abs=2e-4)
+    # The finger really bent sideways in the image (not a straight line of dots).
+    assert np.ptp(expected[:, 0]) > 40 and np.ptp(expected[:, 1]) > 40
+
+
+def test_an_unknown_view_is_refused():
+    with pytest.raises(ValueError, match='camera view'):
+        CameraSettings(view='sideways')

@@ -1,4 +1,4 @@
-"""A top-down camera of sim_robot's MuJoCo scene with the paper's markers: the core.
+"""A camera of sim_robot's MuJoCo scene with the paper's markers: the core.
 
 No rclpy here (:mod:`softsnap_driver.sim_camera_publisher` publishes the frames).
 
@@ -6,7 +6,11 @@ What the camera sees
 --------------------
 MuJoCo's own OpenGL renderer (offscreen: ``MUJOCO_GL=egl``, or ``osmesa``) draws the
 robot from a free camera straight above it, looking down (``-z``), with image right along
-world ``+x`` and image up along world ``+y``. The markers are drawn as thin discs on the
+world ``+x`` and image up along world ``+y`` (``CameraSettings.view = 'down'``, the
+default); or, with ``view = 'module'``, from the marked side of the first module (its
+``+z``, the bending axis: the paper's camera, perpendicular to the bending plane, which
+for a hanging gripper finger looks sideways), image up as close to world ``+z`` as the
+view allows. The markers are drawn as thin discs on the
 top faces (``+z`` of the module frame) of the skeleton, as stickers glued on a printed
 skeleton would be:
 
@@ -21,8 +25,9 @@ The skeleton itself is drawn in a neutral grey (:attr:`MarkerLayout.skeleton_rgb
 the paper's validation skeleton: the scenes colour modules yellow, blue, green, red and
 orange, and an orange module beside an orange marker is no measurement. Tendons and
 hole sites are hidden (a real cable is a 0.23 mm line). The lights are set so that a
-face looking at the camera shows its colour unchanged (ambient 0.4 + a sun straight down
-at 0.6, no specular highlights, no shadows): the markers have their nominal sRGB in the
+face looking at the camera shows its colour unchanged (ambient 0.4 + 0.6 of diffuse light
+along the view: a sun straight down from above, the headlight for a face view; no
+specular highlights, no shadows): the markers have their nominal sRGB in the
 image, and the colour thresholds of :mod:`softsnap_vision` see what they would see
 under even lighting.
 
@@ -32,7 +37,8 @@ principal point is the image centre. In OpenCV's (and ROS's) pixel convention, w
 pixel ``(0, 0)`` is centred on coordinate 0, that is
 ``fy = fx = (height / 2) / tan(fovy / 2)``, ``cx = (width - 1) / 2``,
 ``cy = (height - 1) / 2``, no distortion. The camera's optical frame (REP 103: x right,
-y down, z forward) is world ``(+x, -y, -z)``; its origin is at
+y down, z forward) is world ``(+x, -y, -z)`` for the top-down view
+(:attr:`SimCameraView.optical_in_world` in general); its origin is at
 :attr:`SimCameraView.position_m`.
 
 Threads: :class:`SimCamera` owns its own copy of the model and its own ``MjData`` (the
@@ -69,6 +75,9 @@ _DISC_GAP_M = 0.0001
 #: The skeleton's half thickness, m (the top faces of ribs and motor case):
 #: softsnap_model.physics.parameters.SKELETON_THICKNESS_MM / 2.
 _TOP_FACE_M = 0.0045
+#: Where the camera looks from (CameraSettings.view): above the robot, or the first
+#: module's marked side.
+VIEWS = ('down', 'module')
 #: Backends MuJoCo renders with offscreen on Linux without a display.
 OFFSCREEN_BACKENDS = ('egl', 'osmesa')
 
@@ -125,22 +134,48 @@ class PinholeCamera:
 
 #: Rotation of the optical frame in the world (columns: its x, y, z axes).
 OPTICAL_IN_WORLD = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]])
-#: The same as a quaternion w, x, y, z (180 degrees about world x).
-OPTICAL_IN_WORLD_WXYZ = (0.0, 1.0, 0.0, 0.0)
 
 
 @dataclass(frozen=True)
 class SimCameraView:
-    """Where the camera is: its optical centre in the world (m) and its intrinsics."""
+    """Where the camera is: its optical centre in the world (m), its orientation (the
+    optical frame's axes in the world, as the columns of a rotation) and its intrinsics.
+    ``azimuth_deg``/``elevation_deg`` are MuJoCo's free-camera angles of that
+    orientation."""
 
     position_m: tuple[float, float, float]
     intrinsics: PinholeCamera
     fovy_deg: float
+    optical_in_world: tuple = tuple(map(tuple, OPTICAL_IN_WORLD))
+    azimuth_deg: float = 90.0
+    elevation_deg: float = -90.0
+
+    @property
+    def rotation(self) -> np.ndarray:
+        """The optical frame's axes in the world (3x3, columns x, y, z)."""
+        return np.array(self.optical_in_world, dtype=float)
+
+    @property
+    def forward(self) -> np.ndarray:
+        """The viewing direction (optical z) in the world, unit."""
+        return self.rotation[:, 2]
 
     def world_to_optical(self, points_world_m: np.ndarray) -> np.ndarray:
         """Points (n, 3) in the world, m, to the optical frame, m."""
         p = np.asarray(points_world_m, dtype=float).reshape(-1, 3) - np.asarray(self.position_m)
-        return p @ OPTICAL_IN_WORLD
+        return p @ self.rotation
+
+    def orientation_wxyz(self) -> tuple[float, float, float, float]:
+        """The optical frame's orientation in the world as a unit quaternion (w, x, y, z)."""
+        r = self.rotation
+        w = math.sqrt(max(0.0, 1.0 + r[0, 0] + r[1, 1] + r[2, 2])) / 2.0
+        x = math.copysign(math.sqrt(max(0.0, 1.0 + r[0, 0] - r[1, 1] - r[2, 2])) / 2.0,
+                          r[2, 1] - r[1, 2])
+        y = math.copysign(math.sqrt(max(0.0, 1.0 - r[0, 0] + r[1, 1] - r[2, 2])) / 2.0,
+                          r[0, 2] - r[2, 0])
+        z = math.copysign(math.sqrt(max(0.0, 1.0 - r[0, 0] - r[1, 1] + r[2, 2])) / 2.0,
+                          r[1, 0] - r[0, 1])
+        return (w, x, y, z)
 
     def project_world(self, points_world_m: np.ndarray) -> np.ndarray:
         """Pixel coordinates (n, 2) of world points (n, 3), m."""
@@ -205,6 +240,8 @@ class CameraSettings:
 
     ``height_m`` 0 fits the robot's start footprint (plus ``margin_m``) in the image;
     ``center_x_m``/``center_y_m`` NaN put the camera over the footprint's centre.
+    ``view`` is where it looks from (:data:`VIEWS`); ``'module'`` fits the first module's
+    start shape plus ``margin_m`` (``height_m`` and the centre do not apply).
     """
 
     width_px: int = DEFAULT_WIDTH_PX
@@ -214,8 +251,11 @@ class CameraSettings:
     center_x_m: float = math.nan
     center_y_m: float = math.nan
     margin_m: float = DEFAULT_VIEW_MARGIN_M
+    view: str = 'down'
 
     def __post_init__(self):
+        if self.view not in VIEWS:
+            raise ValueError(f'camera view must be one of {VIEWS}, got {self.view!r}')
         if not (16 <= self.width_px <= 4096 and 16 <= self.height_px <= 4096):
             raise ValueError(f'camera image size must be 16-4096 px each way, got '
                              f'{self.width_px}x{self.height_px}')
@@ -252,6 +292,46 @@ def fit_view(settings: CameraSettings, footprint_xy_m: np.ndarray,
         height = marker_plane_z_m + max(half_x / tan_x, half_y / tan_y)
     return SimCameraView(position_m=(x, y, float(height)), intrinsics=intrinsics,
                          fovy_deg=settings.fovy_deg)
+
+
+#: Below this |cos| between the viewing direction and the vertical, a face view is taken
+#: as a top-down one (MuJoCo's free camera rolls with its azimuth when looking straight
+#: down or up).
+_VERTICAL_COS = 0.999
+
+
+def fit_face_view(settings: CameraSettings, points_world_m: np.ndarray,
+                  face_normal_world: np.ndarray) -> SimCameraView:
+    """The camera looking at a face (unit normal `face_normal_world`, towards the camera)
+    on which `points_world_m` (n, 3) lie: its optical axis along the normal's opposite,
+    image up as close to world +z as that allows, at the distance at which the points
+    plus ``settings.margin_m`` fill the image without being cut."""
+    points = np.asarray(points_world_m, dtype=float).reshape(-1, 3)
+    normal = np.asarray(face_normal_world, dtype=float)
+    forward = -normal / np.linalg.norm(normal)
+    if abs(forward[2]) > _VERTICAL_COS:
+        raise ValueError('the face looks straight up or down: use the top-down view')
+    elevation = math.asin(float(forward[2]))
+    azimuth = math.atan2(float(forward[1]), float(forward[0]))
+    # MuJoCo's free camera: up is the forward direction tilted by +90 degrees of elevation.
+    up = np.array([-math.sin(elevation) * math.cos(azimuth),
+                   -math.sin(elevation) * math.sin(azimuth), math.cos(elevation)])
+    right = np.cross(forward, up)
+    rotation = np.column_stack([right, -up, forward])
+    centre_plane = points @ rotation
+    low, high = centre_plane.min(axis=0), centre_plane.max(axis=0)
+    mid = 0.5 * (low + high)
+    centre = rotation @ np.array([mid[0], mid[1], float(centre_plane[:, 2].mean())])
+    half_x = 0.5 * (high[0] - low[0]) + settings.margin_m
+    half_y = 0.5 * (high[1] - low[1]) + settings.margin_m
+    tan_y = math.tan(math.radians(settings.fovy_deg) / 2.0)
+    tan_x = tan_y * settings.width_px / settings.height_px
+    distance = max(half_x / tan_x, half_y / tan_y)
+    intrinsics = PinholeCamera.from_fovy(settings.width_px, settings.height_px, settings.fovy_deg)
+    return SimCameraView(position_m=tuple(float(v) for v in centre - distance * forward),
+                         intrinsics=intrinsics, fovy_deg=settings.fovy_deg,
+                         optical_in_world=tuple(map(tuple, rotation)),
+                         azimuth_deg=math.degrees(azimuth), elevation_deg=math.degrees(elevation))
 
 
 @dataclass(frozen=True)
@@ -323,20 +403,31 @@ class SimCamera:
         self._style(model)
         self.data.qpos[:] = simulation.data.qpos
         self._kinematics()
-        footprint = np.concatenate([self.data.xpos[ids][:, :2] for ids in self._bodies.values()])
-        # Include the cases behind rib 0 (the orange markers) in the fitted view.
-        footprint = np.concatenate([footprint, self._base_points_world()[:, :2]])
-        self.view = fit_view(settings, footprint, self.marker_plane_z_m())
+        if settings.view == 'module':
+            first = self._bodies[self.module_names[0]]
+            points = np.concatenate([self.marker_positions_world()[self.module_names[0]]['ribs'],
+                                     self._base_points_world()[:1]])
+            normal = self.data.xmat[first[0]].reshape(3, 3)[:, 2]
+            self.view = fit_face_view(settings, points, normal)
+        else:
+            footprint = np.concatenate([self.data.xpos[ids][:, :2]
+                                        for ids in self._bodies.values()])
+            # Include the cases behind rib 0 (the orange markers) in the fitted view.
+            footprint = np.concatenate([footprint, self._base_points_world()[:, :2]])
+            self.view = fit_view(settings, footprint, self.marker_plane_z_m())
         model.vis.global_.fovy = settings.fovy_deg
         model.vis.global_.offwidth = max(int(model.vis.global_.offwidth), settings.width_px)
         model.vis.global_.offheight = max(int(model.vis.global_.offheight), settings.height_px)
         self.camera = mujoco.MjvCamera()
         self.camera.type = mujoco.mjtCamera.mjCAMERA_FREE
-        x, y, z = self.view.position_m
-        self.camera.lookat[:] = (x, y, 0.0)
-        self.camera.distance = z
-        self.camera.elevation = -90.0   # looking straight down
-        self.camera.azimuth = 90.0      # image up = world +y, image right = world +x
+        # The free camera sits at lookat - distance * forward: look at the ground (top
+        # down) or the face centre (a face view) along the view's forward direction.
+        position = np.asarray(self.view.position_m)
+        distance = position[2] if settings.view == 'down' else 1.0
+        self.camera.lookat[:] = position + distance * self.view.forward
+        self.camera.distance = distance
+        self.camera.elevation = self.view.elevation_deg
+        self.camera.azimuth = self.view.azimuth_deg
         self.option = mujoco.MjvOption()
         self.option.flags[mujoco.mjtVisFlag.mjVIS_TENDON] = 0
         self.option.sitegroup[:] = 0
@@ -360,11 +451,14 @@ class SimCamera:
         model.vis.quality.numslices = 16
         model.vis.quality.numstacks = 2
         model.vis.quality.numquads = 1
+        # The diffuse light comes from the camera's direction: the scene's sun (straight
+        # down) for the top-down view, the headlight (along the view) for a face view.
+        face_view = self.settings.view != 'down'
         model.vis.headlight.ambient[:] = 0.4
-        model.vis.headlight.diffuse[:] = 0.0
+        model.vis.headlight.diffuse[:] = 0.6 if face_view else 0.0
         model.vis.headlight.specular[:] = 0.0
         model.light_ambient[:] = 0.0
-        model.light_diffuse[:] = 0.6
+        model.light_diffuse[:] = 0.0 if face_view else 0.6
         model.light_specular[:] = 0.0
         model.light_castshadow[:] = 0
         model.geom_matid[:] = -1
@@ -388,6 +482,12 @@ class SimCamera:
                 return True
             body = int(model.body_parentid[body])
         return False
+
+    def marker_distance_m(self) -> float:
+        """Distance of the marker discs' faces from the camera along its axis now, m (mean
+        over the ribs): the marker tracker's ``plane_distance``."""
+        ribs = np.concatenate([m['ribs'] for m in self.marker_positions_world().values()])
+        return float(np.mean(self.view.world_to_optical(ribs)[:, 2]))
 
     def marker_plane_z_m(self) -> float:
         """World z of the marker discs' faces now, m (mean over the ribs)."""

@@ -26,16 +26,17 @@ import math
 import queue
 import threading
 
+from builtin_interfaces.msg import Time
 from geometry_msgs.msg import PoseStamped
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image
 
 from softsnap_driver.sim_camera import (DEFAULT_CAMERA_RATE_HZ, DEFAULT_FOVY_DEG,
-                                        DEFAULT_HEIGHT_PX, DEFAULT_WIDTH_PX,
-                                        OPTICAL_IN_WORLD_WXYZ, CameraError, CameraSettings,
-                                        MarkerLayout, SimCamera, capture_frame_state,
-                                        lower_thread_priority)
+                                        DEFAULT_HEIGHT_PX, DEFAULT_WIDTH_PX, CameraError,
+                                        CameraSettings, MarkerLayout, SimCamera,
+                                        capture_frame_state, lower_thread_priority)
 from softsnap_driver.sim_observation import TickSchedule
+from softsnap_ros.units import NS_PER_S, sec_nanosec
 
 #: The node's camera options: name: (type, default, help), as sim_robot.OPTIONS.
 CAMERA_OPTIONS = {
@@ -96,9 +97,6 @@ def marker_layout(opts, scene) -> MarkerLayout:
 
 
 def _stamp(time_s: float):
-    from builtin_interfaces.msg import Time
-
-    from softsnap_ros.units import NS_PER_S, sec_nanosec
     sec, nanosec = sec_nanosec(round(time_s * NS_PER_S))
     return Time(sec=sec, nanosec=nanosec)
 
@@ -108,7 +106,10 @@ class CameraPublisher:
     cannot render: the first frame is rendered before this returns)."""
 
     def __init__(self, node, simulation, settings: CameraSettings, markers: MarkerLayout,
-                 rate_hz: float, frame_id: str):
+                 rate_hz: float, frame_id: str, stamp_ns_of=None):
+        # stamp_ns_of(simulation time s) -> the stamp of a frame, ns; default: the
+        # simulation time itself (sim_robot's /clock).
+        self._stamp_ns_of = stamp_ns_of
         self.node = node
         self.simulation = simulation
         self.frame_id = frame_id
@@ -155,6 +156,8 @@ class CameraPublisher:
         try:
             self.camera = SimCamera(self.simulation, self._settings, self._markers)
             self._first_image = self.camera.render(capture_frame_state(self.simulation))
+            #: The marker plane's distance from the camera at the start, m.
+            self.marker_distance_m = self.camera.marker_distance_m()
         except Exception as exc:  # noqa: BLE001 - the refusal says why, in one line
             self._error = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
             self._ready.set()
@@ -193,11 +196,15 @@ class CameraPublisher:
         x, y, z = self.camera.view.position_m
         pose.pose.position.x, pose.pose.position.y, pose.pose.position.z = x, y, z
         o = pose.pose.orientation
-        o.w, o.x, o.y, o.z = OPTICAL_IN_WORLD_WXYZ
+        o.w, o.x, o.y, o.z = self.camera.view.orientation_wxyz()
         self.pose_publisher.publish(pose)
 
     def _publish(self, image, time_s: float) -> None:
-        stamp = _stamp(time_s)
+        if self._stamp_ns_of is None:
+            stamp = _stamp(time_s)
+        else:
+            sec, nanosec = sec_nanosec(int(self._stamp_ns_of(time_s)))
+            stamp = Time(sec=sec, nanosec=nanosec)
         msg = Image()
         msg.header.stamp = stamp
         msg.header.frame_id = self.frame_id
@@ -216,11 +223,14 @@ class CameraPublisher:
     def describe(self) -> str:
         """One line: size, rate, where the camera is and the scale at the marker plane."""
         view = self.camera.view
-        distance = view.position_m[2] - self.camera.marker_plane_z_m()
+        distance = self.marker_distance_m
         k = view.intrinsics
+        x, y, z = view.position_m
+        where = (f'{z:.3f} m above the ground over ({x:.3f}, {y:.3f}) m'
+                 if self._settings.view == 'down' else
+                 f"at ({x:.3f}, {y:.3f}, {z:.3f}) m facing the first module's markers")
         return (f'camera: {k.width_px}x{k.height_px} px at {self.schedule.rate_hz:g} Hz, '
-                f'{view.position_m[2]:.3f} m above the ground over ({view.position_m[0]:.3f}, '
-                f'{view.position_m[1]:.3f}) m; marker plane {distance:.4f} m from the camera '
+                f'{where}; marker plane {distance:.4f} m from the camera '
                 f'({1000.0 * distance / k.fx_px:.3f} mm/px)')
 
     def stop(self) -> None:

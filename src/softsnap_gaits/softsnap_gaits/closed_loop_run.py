@@ -25,6 +25,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -95,8 +96,13 @@ def settle_time_s(history, start_s: float, target, tolerance_m: float) -> float:
 def run_case(node, executor, scene, module: str, name: str, *, contraction_m: float,
              physics: dict, latency_s: float = 0.0, noise_m: float = 0.0,
              open_loop_s: float = 3.0, observe_s: float = 6.0, timeout_s: float = 10.0,
-             seed: int = 0, log=print) -> CaseResult:
-    """Run one case against a shape_controller serving `module` of `scene`."""
+             seed: int = 0, camera_rate_hz: float = 0.0, on_plant=None,
+             log=print) -> CaseResult:
+    """Run one case against a shape_controller serving `module` of `scene`.
+
+    With `camera_rate_hz` the plant also publishes camera images (the marker tracker's
+    input); ``on_plant(plant)`` runs once the plant is up, before the open loop (the
+    benchmark starts the tracker and the controller there)."""
     from rclpy.action import ActionClient
     from softsnap_interfaces.action import ReachShape
     from softsnap_interfaces.msg import CableLength
@@ -110,8 +116,11 @@ def run_case(node, executor, scene, module: str, name: str, *, contraction_m: fl
     target = settled_tip_m(scene, module, length_true, **physics)
     feedforward, _ = model.closest_length(make_target('tip', target, model.n_ribs))
     plant = MujocoModulePlant(node, scene, module, latency_s=latency_s, noise_m=noise_m,
-                              seed=seed, initial_length_m=model.range_m[1], **physics)
+                              seed=seed, initial_length_m=model.range_m[1],
+                              camera_rate_hz=camera_rate_hz, **physics)
     try:
+        if on_plant is not None:
+            on_plant(plant)
         command = node.create_publisher(CableLength, f'{module}/cable_length/command', 10)
         # Open loop: the feedforward commanded directly (the controller has no target).
         t_open = time.monotonic()
@@ -165,3 +174,21 @@ def run_case(node, executor, scene, module: str, name: str, *, contraction_m: fl
         return out
     finally:
         plant.close()
+
+
+def tagged_scene_file(scene: str, module: str, tag_id: int, directory) -> Path:
+    """A copy of `scene` (name or path) in `directory` with ArUco tag `tag_id` on
+    `module`'s case, for the marker tracker of a camera filming that module (the
+    shipped gripper has no tags: a top-down camera sees no hanging finger's face)."""
+    import yaml
+    from softsnap_model.scene import find_scene
+    data = yaml.safe_load(Path(find_scene(scene)).read_text())
+    names = [m['name'] for m in data['modules']]
+    if module not in names:
+        raise ValueError(f'no module {module!r} in scene {scene!r} (modules: {names})')
+    for entry in data['modules']:
+        if entry['name'] == module:
+            entry['markers'] = {'tag_id': int(tag_id)}
+    path = Path(directory) / f'{Path(find_scene(scene)).stem}_tag{int(tag_id)}_{module}.yaml'
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return path

@@ -10,6 +10,12 @@ real time. It takes cable-length commands on ``<module>/cable_length/command``
 noise of ``noise_m`` per coordinate. The noise-free tip is kept for the benchmark's
 error (:attr:`tip_history`).
 
+With ``camera_rate_hz`` > 0 it also films the module from its marked side
+(softsnap_driver's simulated camera, ``view='module'``: the paper's camera, perpendicular
+to the bending plane) and publishes ``camera/image_raw`` and ``camera/camera_info`` at
+that rate, stamped with the ROS time of the instant shown, for the marker tracker: the
+measurement then comes through real images and real OpenCV.
+
 It stands in for sim_robot's ground-truth publisher (softsnap_driver.sim_robot): it
 skips the drivers, the firmware's 30-count deadband and the HTTP link, so it measures
 the control law on the physics, not the whole driver chain.
@@ -70,7 +76,8 @@ class MujocoModulePlant:
     def __init__(self, node, scene, module_name: str, *, bending_stiffness_nmm=None,
                  tip_mass_kg: float = 0.0, latency_s: float = 0.0, noise_m: float = 0.0,
                  period_s: float = 0.05, winch_speed_m_s: float = 0.069, seed: int = 0,
-                 initial_length_m: float | None = None):
+                 initial_length_m: float | None = None, camera_rate_hz: float = 0.0,
+                 camera_size_px: tuple[int, int] = (640, 480), camera_tag_id: int = 0):
         from softsnap_interfaces.msg import CableLength, MeasuredShape
         self._MeasuredShape = MeasuredShape
         self.node = node
@@ -94,6 +101,19 @@ class MujocoModulePlant:
                                  self._command, 50)
         self.publisher = node.create_publisher(MeasuredShape,
                                                f'{module_name}/shape/ground_truth', 20)
+        self.camera = None
+        if camera_rate_hz > 0.0:
+            from softsnap_driver.sim_camera import CameraSettings, MarkerLayout
+            from softsnap_driver.sim_camera_publisher import CameraPublisher
+            # Frames are stamped in ROS time: the simulation runs at the wall clock's pace
+            # from its own zero, so the offset is taken when the frame is captured.
+            self._clock_offset_ns = 0
+            self.camera = CameraPublisher(
+                node, self.sim, CameraSettings(width_px=camera_size_px[0],
+                                               height_px=camera_size_px[1], view='module'),
+                MarkerLayout(tags={'module': int(camera_tag_id)}), camera_rate_hz,
+                frame_id=f'{module_name}_camera',
+                stamp_ns_of=lambda time_s: round(time_s * 1e9) + self._clock_offset_ns)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()
@@ -119,6 +139,10 @@ class MujocoModulePlant:
             self.length_m = min(max(wanted, self.length_m - step), self.length_m + step)
             self.sim.set_cable_length('module', self.length_m)
             self.sim.step(dt)
+            if self.camera is not None:
+                self._clock_offset_ns = (self.node.get_clock().now().nanoseconds
+                                         - round(self.sim.time_s * 1e9))
+                self.camera.on_tick(self.sim.time_s)
             if now >= next_sample:
                 next_sample = now + self.period_s
                 ribs = self.sim.rib_centers('module')[:, :2].copy()
@@ -149,6 +173,13 @@ class MujocoModulePlant:
         with self.lock:
             return list(self.tip_history)
 
+    def camera_plane_distance_m(self) -> float:
+        """The camera's distance to the marker plane, m (the tracker's ``plane_distance``;
+        the module bends in that plane)."""
+        return self.camera.marker_distance_m
+
     def close(self) -> None:
         self._stop.set()
         self._thread.join(timeout=5.0)
+        if self.camera is not None:
+            self.camera.stop()
