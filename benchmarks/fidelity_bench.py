@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / 'test' / 'model'))
+sys.path.insert(0, str(REPO / 'test' / 'softsnap_model'))
 from mp_reference import kkt_reference, rib_centers_mp  # noqa: E402
 from test_loads import reference_solve  # noqa: E402
 

@@ -44,7 +44,7 @@ import numpy as np
 from scipy.optimize import LinearConstraint, brentq, minimize
 
 REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / 'test' / 'model'))
+sys.path.insert(0, str(REPO / 'test' / 'softsnap_model'))
 from mp_reference import kkt_reference, rib_centers_mp  # noqa: E402
 
 import softsnap_model.forward as fwd  # noqa: E402

@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / 'test' / 'model'))
+sys.path.insert(0, str(REPO / 'test' / 'softsnap_model'))
 import friction_reference as ref  # noqa: E402
 
 from softsnap_model import Skeleton, reachable_range, solve_forward, sweep  # noqa: E402

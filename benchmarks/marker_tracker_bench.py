@@ -23,7 +23,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / 'test' / 'vision'))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'test' / 'softsnap_vision'))
 from benchlib import fmt_spread, load_line  # noqa: E402
 from render import Camera, ModuleDrawing, centred_origin, render  # noqa: E402
 

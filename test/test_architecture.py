@@ -129,3 +129,16 @@ def test_the_tests_mirror_the_packages():
                     re.search(rf"'{name}'", text) for name in executables):
                 strays.append(str(path.relative_to(REPO)))
     assert not strays, f'tests that do not touch their folder\'s package: {strays}'
+
+
+def test_the_test_folders_benchmarks_reach_exist():
+    """A benchmark that borrows a test helper (the mpmath reference, the renderer) names
+    its folder; a folder moved without its benchmarks fails here, not in a later run."""
+    named = []
+    for path in sorted((REPO / 'benchmarks').glob('*.py')):
+        for folder in re.findall(r"'test' / '(\w+)'", path.read_text()):
+            named.append((path.name, folder))
+    assert named, 'no benchmark names a test folder: the pattern is stale'
+    missing = [(name, folder) for name, folder in named
+               if not (REPO / 'test' / folder).is_dir()]
+    assert not missing, missing
