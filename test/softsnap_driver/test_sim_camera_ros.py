@@ -79,3 +79,43 @@ def test_a_camera_that_cannot_render_ends_the_node_with_one_clear_line(start_nod
     out = proc.output()
     assert 'cannot start: camera: the camera renders offscreen with MUJOCO_GL=egl or osmesa' \
         in out and 'Traceback' not in out, out
+
+
+def test_the_module_view_films_a_hanging_finger_from_its_side(start_node, ros_node, slot_port):
+    """camera_view:=module on the gripper: the camera looks sideways at front_left's
+    marked face (its pose says so), and the picture holds that finger's 12 rib markers."""
+    from geometry_msgs.msg import PoseStamped
+    from rclpy.qos import DurabilityPolicy, QoSProfile
+    from sensor_msgs.msg import Image
+
+    proc = start_node('softsnap_driver', 'sim_robot', '--ros-args', '-r', f'__ns:={NS}',
+                      '-p', 'scene:=gripper', '-p', f'port_base:={slot_port(4)}',
+                      '-p', 'camera:=true', '-p', 'camera_view:=module',
+                      '-p', 'camera_width_px:=640', '-p', 'camera_height_px:=480')
+    images, poses = [], []
+    ros_node.create_subscription(Image, f'{NS}/camera/image_raw', images.append, 5)
+    ros_node.create_subscription(PoseStamped, f'{NS}/camera/pose', poses.append,
+                                 QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL))
+    assert ros_node.spin_until(lambda: images and poses, TIMEOUT_S), proc.output()[-3000:]
+    q = poses[-1].pose.orientation
+    w, x, y, z = q.w, q.x, q.y, q.z
+    forward = np.array([2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)])
+    down = np.array([2 * (x * y - w * z), 1 - 2 * (x * x + z * z), 2 * (y * z + w * x)])
+    assert abs(forward[2]) < 0.1 and down[2] < -0.99    # sideways, image up = world up
+    import cv2
+    image = images[-1]
+    pixels = np.frombuffer(bytes(image.data), np.uint8).reshape(480, 640, 3).astype(int)
+    mask = np.all(np.abs(pixels - PINK_RGB) <= 40, axis=2).astype(np.uint8)
+    _count, _labels, stats, _c = cv2.connectedComponentsWithStats(mask)
+    assert int(np.sum(stats[1:, cv2.CC_STAT_AREA] >= 4)) >= 12
+    assert "facing the first module's markers" in proc.output()
+    assert proc.stop() == 0, proc.output()[-3000:]
+
+
+def test_an_unknown_camera_view_ends_the_node_with_one_clear_line(start_node):
+    proc = start_node('softsnap_driver', 'sim_robot', '--ros-args', '-p', 'scene:=gripper',
+                      '-p', 'camera:=true', '-p', 'camera_view:=sideways')
+    assert proc.proc.wait(120) == 2, proc.output()
+    out = proc.output()
+    assert "camera view must be one of ('down', 'module'), got 'sideways'" in out \
+        and 'Traceback' not in out, out

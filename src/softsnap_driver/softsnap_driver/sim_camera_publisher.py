@@ -53,6 +53,9 @@ CAMERA_OPTIONS = {
                                  "tag_id of the module, else its index in the scene) on the "
                                  'case instead of the orange marker: the marker tracker tells '
                                  'modules apart by it'),
+    'camera_view': (str, 'down', "where the camera looks from: 'down' (above the robot) or "
+                                 "'module' (the first module's marked side, perpendicular to "
+                                 "its bending plane: a hanging finger's face)"),
     'camera_x_m': (float, math.nan, 'camera x in the world, m (NaN: over the robot)'),
     'camera_y_m': (float, math.nan, 'camera y in the world, m (NaN: over the robot)'),
 }
@@ -82,7 +85,8 @@ def camera_settings(opts) -> CameraSettings:
                           height_px=int(opts.camera_height_px),
                           fovy_deg=float(opts.camera_fovy_deg),
                           height_m=float(opts.camera_height_m),
-                          center_x_m=float(opts.camera_x_m), center_y_m=float(opts.camera_y_m))
+                          center_x_m=float(opts.camera_x_m), center_y_m=float(opts.camera_y_m),
+                          view=str(getattr(opts, 'camera_view', 'down')))
 
 
 def marker_layout(opts, scene) -> MarkerLayout:
