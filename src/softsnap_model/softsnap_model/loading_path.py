@@ -83,7 +83,7 @@ class PathLoadedResult:
 def _result(prob, skeleton, d, a, lam, active, taut, K, forces, converged, iters, steps,
             message) -> LoadedResult:
     from .loads import _reduced_hessian_min_eig
-    _, grad, H, L, Lp, Lpp = prob.evaluate(a, 1.0)
+    grad, H, L, Lp, Lpp = prob.evaluate(a, 1.0)
     free = active == 0
     lam_eff = lam if taut else 0.0
     r = grad + lam_eff * Lp

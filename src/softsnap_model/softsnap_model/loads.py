@@ -259,7 +259,8 @@ class _Problem:
         self.beta = np.tril(np.ones((n, n)), -1) + 0.5 * np.eye(n)
 
     def evaluate(self, a, tau):
-        """Energy, gradient, Hessian of E at load fraction tau; cable L, L', L''."""
+        """Gradient and Hessian of E at load fraction tau; cable L, L', L''. (E itself is
+        reported from the geometry, :func:`loaded_energy`: Newton needs only these.)"""
         s, beta = self.s, self.beta
         W = tau * self.W_full
         f, fp, fpp = _chord_factor(a)
@@ -267,13 +268,12 @@ class _Problem:
         u = np.stack([np.cos(phi), np.sin(phi)], axis=-1)
         c = np.einsum('ij,ij->i', W, u)                         # W_k . u(phi_k)
         dd = W[:, 1] * u[:, 0] - W[:, 0] * u[:, 1]              # W_k . J u(phi_k)
-        energy = 0.5 * float(self.k2 @ (a * a)) - s * float(f @ c)
         grad = self.k2 * a - s * fp * c - beta.T @ (s * f * dd)
         cross = (s * fp * dd)[:, None] * beta                   # [i, l] = s f'_i d_i beta_il
         hess = (np.diag(self.k2 - s * fpp * c) - cross - cross.T
                 + beta.T @ ((s * f * c)[:, None] * beta))
         L, Lp, Lpp = segment_length_derivatives(a, self.d[:-1], self.d[1:], s)
-        return energy, grad, hess, float(np.sum(L)), Lp, Lpp
+        return grad, hess, float(np.sum(L)), Lp, Lpp
 
 
 def loaded_energy(skeleton: Skeleton, angles_rad, loads: Loads) -> float:
@@ -321,7 +321,7 @@ def _newton(prob: _Problem, a, lam, active, taut, tau, max_iter):
     it = 0
     for _ in range(4 * n + 8):           # active-set changes
         for _ in range(max_iter):
-            _, grad, H, L, Lp, Lpp = prob.evaluate(a, tau)
+            grad, H, L, Lp, Lpp = prob.evaluate(a, tau)
             free = active == 0
             lam_eff = lam if taut else 0.0
             r = grad + lam_eff * Lp
@@ -373,7 +373,7 @@ def _newton(prob: _Problem, a, lam, active, taut, tau, max_iter):
         else:
             return a, lam, active, taut, it, f'no convergence in {max_iter} Newton steps', None
         # Converged on this working set: check the multipliers' signs.
-        _, grad, H, L, Lp, Lpp = prob.evaluate(a, tau)
+        grad, H, L, Lp, Lpp = prob.evaluate(a, tau)
         lam_eff = lam if taut else 0.0
         r = grad + lam_eff * Lp
         changed = False
@@ -477,7 +477,7 @@ def solve_loaded(skeleton: Skeleton, threading, length_mm: float, loads: Loads,
                 break
     converged = tau >= 1.0 and info is not None
     if info is None:
-        _, grad, H, L, Lp, Lpp = prob.evaluate(a, tau)
+        grad, H, L, Lp, Lpp = prob.evaluate(a, tau)
         free = active == 0
         r = grad + (lam if taut else 0.0) * Lp
         info = (L - prob.target, float(np.max(np.abs(r[free]) / prob.k2[free], initial=0.0)),
@@ -501,7 +501,7 @@ def _from_forward(skeleton, d, base, K) -> LoadedResult:
     """The unloaded answer, unchanged, in the loaded result's units."""
     a = np.array(base.angles, dtype=float)
     prob = _Problem(skeleton, d, np.zeros((skeleton.n_ribs, 2)), K, base.cable_length_mm)
-    _, _, H, L, Lp, Lpp = prob.evaluate(a, 0.0)
+    _, H, L, Lp, Lpp = prob.evaluate(a, 0.0)
     lam = float(base.tension) * K
     at_contact = np.array(base.at_contact, dtype=bool)
     mc = _reduced_hessian_min_eig(H + lam * np.diag(Lpp), ~at_contact, Lp, not base.slack)
