@@ -149,3 +149,57 @@ def test_constraint_sum_is_numpys_summation_order():
     for n in list(range(0, 40)) + [127, 128, 129, 191, 300, 1000]:
         values = rng.uniform(1.0, 20.0, n) * np.exp(rng.uniform(-20.0, 0.0, n))
         assert _sum(values.tolist()) == np.add.reduce(values), n
+    # Signed values over 26 decades make every change of order show in the last bits:
+    # long lists (numpy's blocks of 128 and its halving at multiples of 8), and slices
+    # that start inside a list, as the batch layout hands them.
+    for start in range(4):              # every short count, from inside a list too
+        for count in range(0, 300):
+            values = rng.normal(size=start + count) * np.exp(rng.uniform(-30.0, 30.0,
+                                                                        start + count))
+            assert _sum(values.tolist(), start, count) == np.add.reduce(values[start:]), \
+                (start, count)
+    for _ in range(200):
+        n = int(rng.integers(1, 3000))
+        values = rng.normal(size=n) * np.exp(rng.uniform(-30.0, 30.0, n))
+        assert _sum(values.tolist()) == np.add.reduce(values), n
+        start = int(rng.integers(0, n))
+        count = int(rng.integers(0, n - start + 1))
+        part = values[start:start + count]
+        assert _sum(values.tolist(), start, count) == np.add.reduce(part), (n, start, count)
+
+
+@pytest.mark.parametrize('thickness', [3.0, 0.0])
+def test_the_plain_float_path_stands_on_its_own(thickness):
+    """The single solve without its fallback to the batch engine: over the same edges of
+    the range (contact, buckling, mirror segments held straight, near straight) it must
+    certify by itself and give the batch engine's answer, cold and from a warm start.
+    (With the fallback a broken fast path would still answer right, only slower.)"""
+    sk = Skeleton(rib_thickness_mm=thickness)
+    rng = np.random.default_rng(23)
+    n_solves = n_steps = 0
+    for t in _threadings(rng, 12):
+        lo, hi = fwd.reachable_range(sk, t)
+        lengths = _lengths(rng, lo, hi, 8)
+        batch = fwd.solve_forward_batch(sk, t, lengths)
+        _, S = fwd._single(sk, tuple(sk.threading_mm(t).tolist()))
+        for i, length in enumerate(lengths):
+            if batch.slack[i]:
+                continue        # slack lengths are answered before the single solve
+            out = fwd._solve_single(S, float(length), fallback=False)
+            n_solves += 1
+            n_steps += out['iterations'] > 0
+            assert out['converged'], (t, length)
+            curv = min(float(batch.min_curvature[i]), 1.0)
+            assert np.max(np.abs(out['angles'] - batch.angles[i])) <= 2e-14 / curv + 2e-15
+            tol = 1e-12 * max(out['tension'], 1.0) / curv
+            assert abs(out['tension'] - batch.tension[i]) <= tol
+            assert np.array_equal(out['at_contact'], batch.at_contact[i]), (t, length)
+            assert out['residual'] == max(out['constraint_residual'],
+                                          out['stationarity_residual'])
+            assert out['min_curvature'] == pytest.approx(float(batch.min_curvature[i]), rel=1e-6)
+            # A warm start at the answer costs no more Newton steps and changes nothing.
+            warm = fwd._solve_single(S, float(length), out['tension'], out['angles'],
+                                     fallback=False)
+            assert warm['converged'] and warm['iterations'] <= out['iterations']
+            assert np.max(np.abs(warm['angles'] - out['angles'])) <= 2e-14 / curv + 2e-15
+    assert n_solves > 150 and n_steps > 10, (n_solves, n_steps)
