@@ -143,3 +143,47 @@ def test_sighup_is_taken_like_sigterm(tmp_path):
     finally:
         if child.poll() is None:
             child.kill()
+
+
+#: A child whose orderly shutdown never ends (a teardown stuck on a thread that never
+#: finishes): its SIGTERM handler starts the shutdown and the process hangs on.
+STUCK_CHILD = r'''
+import os, signal, sys, threading, time
+from softsnap_ros.lifeline import supervise
+def on_term(signum, frame):
+    print('child: SIGTERM, stopping (and stuck)', flush=True)
+signal.signal(signal.SIGTERM, on_term)
+supervise()
+print('child: ready', os.getpid(), flush=True)
+while True:
+    time.sleep(0.5)
+'''
+
+
+def test_an_orphan_whose_shutdown_hangs_ends_by_the_deadline(tmp_path):
+    """The lifeline's last resort: a child that takes its SIGTERM but never exits is
+    ended ORPHAN_EXIT_DEADLINE_S after its supervisor died, saying so."""
+    from softsnap_ros.lifeline import ORPHAN_EXIT_DEADLINE_S, ORPHAN_EXIT_STATUS
+    log = tmp_path / 'child.log'
+    log.write_text('')
+    sup = subprocess.Popen([sys.executable, '-c', SUPERVISOR, 'shell', 'lifeline',
+                            STUCK_CHILD, str(log)],
+                           stdout=subprocess.PIPE, text=True, start_new_session=True)
+    sup.stdout.readline()
+    pid = _child_pid(log)
+    try:
+        os.kill(sup.pid, signal.SIGKILL)
+        killed_at = time.monotonic()
+        sup.wait(30)
+        assert _wait_for(lambda: 'SIGTERM, stopping (and stuck)' in log.read_text(), 30.0)
+        early = ORPHAN_EXIT_DEADLINE_S - 1.0 - (time.monotonic() - killed_at)
+        if early > 0:   # (on a starved machine this point may come late: then skip it)
+            time.sleep(early)
+            assert _alive(pid), 'ended before its deadline: no time for an orderly stop'
+        assert _wait_for(lambda: not _alive(pid), 30.0), log.read_text()
+        text = log.read_text()
+        assert f'exiting now (status {ORPHAN_EXIT_STATUS})' in text, text
+    finally:
+        if _alive(pid):
+            os.kill(pid, signal.SIGKILL)
+        sup.stdout.close()

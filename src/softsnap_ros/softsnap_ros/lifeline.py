@@ -21,6 +21,13 @@ node's ordinary SIGTERM shutdown (so a driver's last act is still its confirmed 
   thread waits in C (an executor with nothing to do) where a Python handler would not
   run.
 
+A deadline behind all three: once the supervisor is gone (the lifeline ended), the
+process has :data:`ORPHAN_EXIT_DEADLINE_S` for its orderly shutdown; if it still runs
+then (a shutdown stuck in a teardown, a signal handler that never returns) it ends at
+once, saying so. A driver's confirmed stop takes at most ``SHUTDOWN_BUDGET_S`` (1.2 s)
+of that, so the deadline cuts nothing but a stuck exit, and no process of a robot whose
+supervisor died is alive 5 s later.
+
 No ROS imports: the plain simulators use it too.
 """
 from __future__ import annotations
@@ -39,6 +46,12 @@ SUPERVISOR_PID_VARIABLE = 'SOFTSNAP_SUPERVISOR_PID'
 #: The signal a lost parent or lifeline, and SIGHUP, become: every node handles it.
 SHUTDOWN_SIGNAL = signal.SIGTERM
 _PR_SET_PDEATHSIG = 1
+#: Seconds an orphan (its lifeline ended) has for its orderly shutdown before it ends
+#: itself: a normal stop takes 1.5-4 s on the loaded 2-core machine, the confirmed stop of
+#: a driver at most 1.2 s of it.
+ORPHAN_EXIT_DEADLINE_S = 4.5
+#: Exit status of an orphan ended by the deadline.
+ORPHAN_EXIT_STATUS = 70
 
 _state = {'supervised': False}
 
@@ -128,6 +141,7 @@ def _watch(lifeline_fd: int | None, wakeup_fd: int | None) -> None:
                 print('[lifeline] the supervisor is gone: shutting down', file=sys.stderr,
                       flush=True)
                 fds.remove(fd)
+                _arm_orphan_deadline()
                 os.kill(os.getpid(), SHUTDOWN_SIGNAL)
             elif fd == wakeup_fd and signal.SIGHUP in data:
                 print('[lifeline] SIGHUP: shutting down as on SIGTERM', file=sys.stderr,
@@ -135,6 +149,18 @@ def _watch(lifeline_fd: int | None, wakeup_fd: int | None) -> None:
                 os.kill(os.getpid(), SHUTDOWN_SIGNAL)
             elif fd == wakeup_fd and not data:
                 fds.remove(fd)
+
+
+def _arm_orphan_deadline(deadline_s: float = ORPHAN_EXIT_DEADLINE_S) -> None:
+    """End this process `deadline_s` from now unless it has ended by then."""
+    def expire():
+        print(f'[lifeline] still running {deadline_s:g} s after the supervisor died: '
+              f'exiting now (status {ORPHAN_EXIT_STATUS})', file=sys.stderr, flush=True)
+        os._exit(ORPHAN_EXIT_STATUS)
+    timer = threading.Timer(deadline_s, expire)
+    timer.daemon = True
+    timer.name = 'lifeline-deadline'
+    timer.start()
 
 
 def supervise() -> None:
