@@ -73,7 +73,7 @@ def main(argv=None) -> int:
     from rclpy.executors import SingleThreadedExecutor
 
     from softsnap_ros.dds_profile import use_node_profile
-    from softsnap_gaits.closed_loop_run import run_case, tagged_scene_file
+    from softsnap_gaits.closed_loop_run import camera_tracker_args, run_case, tagged_scene_file
     from softsnap_model.scene import load_scene
 
     use_node_profile()
@@ -91,10 +91,10 @@ def main(argv=None) -> int:
         distance = plant.camera_plane_distance_m()
         log(f'simulated_camera: {plant.camera.describe()}; marker_tracker with '
             f'plane_distance {distance:.4f} m')
-        processes['tracker'] = start_node('softsnap_vision', 'marker_tracker', [
-            '-r', '__ns:=/bench', '-p', f'scene:={tagged_scene_file("gripper", MODULE, CAMERA_TAG_ID, work)}',
-            '-p', f'plane_distance:={distance:.6f}', '-p', 'reliable_images:=true',
-            '-r', 'image_raw:=camera/image_raw', '-r', 'camera_info:=camera/camera_info'],
+        scene_file = tagged_scene_file('gripper', MODULE, CAMERA_TAG_ID, work)
+        processes['tracker'] = start_node(
+            'softsnap_vision', 'marker_tracker',
+            camera_tracker_args('/bench', scene_file, distance),
             log_path=log_path and f'{log_path}.tracker')
     rclpy.init()
     node = rclpy.create_node('closed_loop_bench', namespace='/bench')

@@ -367,7 +367,7 @@ def test_reaches_a_target_measured_by_the_simulated_camera(ros_node, start_node,
     with OpenCV, and the controller follows those measurements only (source 'camera')
     to within 1 mm of a tip the model misses by > 3 mm."""
     import rclpy
-    from softsnap_gaits.closed_loop_run import run_case, tagged_scene_file
+    from softsnap_gaits.closed_loop_run import camera_tracker_args, run_case, tagged_scene_file
     from softsnap_interfaces.msg import MeasuredShape
     from softsnap_model.scene import load_scene
     controller = start_node('softsnap_gaits', 'shape_controller',
@@ -383,11 +383,8 @@ def test_reaches_a_target_measured_by_the_simulated_camera(ros_node, start_node,
 
     def start_tracker(plant):
         procs['tracker'] = start_node(
-            'softsnap_vision', 'marker_tracker', '--ros-args', '-r', f'__ns:={NS}',
-            '-p', f'scene:={scene_file}',
-            '-p', f'plane_distance:={plant.camera_plane_distance_m():.6f}',
-            '-p', 'reliable_images:=true', '-r', 'image_raw:=camera/image_raw',
-            '-r', 'camera_info:=camera/camera_info')
+            'softsnap_vision', 'marker_tracker', '--ros-args',
+            *camera_tracker_args(NS, scene_file, plant.camera_plane_distance_m()))
         assert ros_node.spin_until(lambda: len(sources) >= 3, TIMEOUT_S), \
             procs['tracker'].output()[-2000:]
 

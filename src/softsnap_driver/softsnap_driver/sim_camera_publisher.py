@@ -100,8 +100,12 @@ def marker_layout(opts, scene) -> MarkerLayout:
     return MarkerLayout(tags=tags)
 
 
-def _stamp(time_s: float):
-    sec, nanosec = sec_nanosec(round(time_s * NS_PER_S))
+def _sim_time_ns(time_s: float) -> int:
+    return round(time_s * NS_PER_S)
+
+
+def _stamp(stamp_ns: int) -> Time:
+    sec, nanosec = sec_nanosec(stamp_ns)
     return Time(sec=sec, nanosec=nanosec)
 
 
@@ -110,10 +114,10 @@ class CameraPublisher:
     cannot render: the first frame is rendered before this returns)."""
 
     def __init__(self, node, simulation, settings: CameraSettings, markers: MarkerLayout,
-                 rate_hz: float, frame_id: str, stamp_ns_of=None):
-        # stamp_ns_of(simulation time s) -> the stamp of a frame, ns; default: the
-        # simulation time itself (sim_robot's /clock).
-        self._stamp_ns_of = stamp_ns_of
+                 rate_hz: float, frame_id: str, capture_stamp_ns=None):
+        # capture_stamp_ns() -> the stamp of a frame (ns), read when its state is copied;
+        # default: the simulation time itself (sim_robot's /clock).
+        self._capture_stamp_ns = capture_stamp_ns
         self.node = node
         self.simulation = simulation
         self.frame_id = frame_id
@@ -146,7 +150,10 @@ class CameraPublisher:
         if not self.schedule.due(time_s):
             return
         try:
-            self._queue.put_nowait(capture_frame_state(self.simulation))
+            state = capture_frame_state(self.simulation)
+            stamp_ns = (self._capture_stamp_ns() if self._capture_stamp_ns is not None
+                        else _sim_time_ns(state.time_s))   # the instant shown
+            self._queue.put_nowait((state, stamp_ns))
         except queue.Full:
             self.dropped += 1
             self.node.get_logger().warning(
@@ -168,12 +175,13 @@ class CameraPublisher:
             return
         self._ready.set()
         while True:
-            state = self._queue.get()
-            if state is None:
+            item = self._queue.get()
+            if item is None:
                 break
+            state, stamp_ns = item
             try:
                 image = self.camera.render(state)
-                self._publish(image, state.time_s)
+                self._publish(image, stamp_ns)
             except Exception as exc:  # noqa: BLE001 - reported; the next frame is tried
                 if self.node.context.ok():
                     self.node.get_logger().error(f'camera frame at t = {state.time_s:.3f} s '
@@ -196,19 +204,15 @@ class CameraPublisher:
     def _publish_pose(self) -> None:
         pose = PoseStamped()
         pose.header.frame_id = 'world'
-        pose.header.stamp = _stamp(float(self.simulation.time_s))
+        pose.header.stamp = _stamp(_sim_time_ns(float(self.simulation.time_s)))
         x, y, z = self.camera.view.position_m
         pose.pose.position.x, pose.pose.position.y, pose.pose.position.z = x, y, z
         o = pose.pose.orientation
         o.w, o.x, o.y, o.z = self.camera.view.orientation_wxyz()
         self.pose_publisher.publish(pose)
 
-    def _publish(self, image, time_s: float) -> None:
-        if self._stamp_ns_of is None:
-            stamp = _stamp(time_s)
-        else:
-            sec, nanosec = sec_nanosec(int(self._stamp_ns_of(time_s)))
-            stamp = Time(sec=sec, nanosec=nanosec)
+    def _publish(self, image, stamp_ns: int) -> None:
+        stamp = _stamp(stamp_ns)
         msg = Image()
         msg.header.stamp = stamp
         msg.header.frame_id = self.frame_id

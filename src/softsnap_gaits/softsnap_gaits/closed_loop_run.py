@@ -182,13 +182,23 @@ def tagged_scene_file(scene: str, module: str, tag_id: int, directory) -> Path:
     shipped gripper has no tags: a top-down camera sees no hanging finger's face)."""
     import yaml
     from softsnap_model.scene import find_scene
-    data = yaml.safe_load(Path(find_scene(scene)).read_text())
+    source = Path(find_scene(scene))
+    data = yaml.safe_load(source.read_text())
     names = [m['name'] for m in data['modules']]
     if module not in names:
         raise ValueError(f'no module {module!r} in scene {scene!r} (modules: {names})')
     for entry in data['modules']:
         if entry['name'] == module:
             entry['markers'] = {'tag_id': int(tag_id)}
-    path = Path(directory) / f'{Path(find_scene(scene)).stem}_tag{int(tag_id)}_{module}.yaml'
+    path = Path(directory) / f'{source.stem}_tag{int(tag_id)}_{module}.yaml'
     path.write_text(yaml.safe_dump(data, sort_keys=False))
     return path
+
+
+def camera_tracker_args(namespace: str, scene_file, plane_distance_m: float) -> list[str]:
+    """The ``--ros-args`` of the marker_tracker that measures the plant's camera images
+    (in `namespace`, the tagged scene, reliable images: a lost 1 MB frame is a lost
+    measurement)."""
+    return ['-r', f'__ns:={namespace}', '-p', f'scene:={scene_file}',
+            '-p', f'plane_distance:={plane_distance_m:.6f}', '-p', 'reliable_images:=true',
+            '-r', 'image_raw:=camera/image_raw', '-r', 'camera_info:=camera/camera_info']

@@ -105,15 +105,14 @@ class MujocoModulePlant:
         if camera_rate_hz > 0.0:
             from softsnap_driver.sim_camera import CameraSettings, MarkerLayout
             from softsnap_driver.sim_camera_publisher import CameraPublisher
-            # Frames are stamped in ROS time: the simulation runs at the wall clock's pace
-            # from its own zero, so the offset is taken when the frame is captured.
-            self._clock_offset_ns = 0
+            # Frames are stamped with the ROS time of the instant they show (the
+            # simulation's own clock starts at zero), as the ground truth is.
             self.camera = CameraPublisher(
                 node, self.sim, CameraSettings(width_px=camera_size_px[0],
                                                height_px=camera_size_px[1], view='module'),
                 MarkerLayout(tags={'module': int(camera_tag_id)}), camera_rate_hz,
                 frame_id=f'{module_name}_camera',
-                stamp_ns_of=lambda time_s: round(time_s * 1e9) + self._clock_offset_ns)
+                capture_stamp_ns=lambda: node.get_clock().now().nanoseconds)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()
@@ -140,8 +139,6 @@ class MujocoModulePlant:
             self.sim.set_cable_length('module', self.length_m)
             self.sim.step(dt)
             if self.camera is not None:
-                self._clock_offset_ns = (self.node.get_clock().now().nanoseconds
-                                         - round(self.sim.time_s * 1e9))
                 self.camera.on_tick(self.sim.time_s)
             if now >= next_sample:
                 next_sample = now + self.period_s
