@@ -128,6 +128,8 @@ class ShapeStream:
         try:
             self._predict()
         except Exception as error:  # never let one bad prediction stop the predictions
+            if not self.context.ok():
+                return False  # the shutdown came during the publish: not a failure
             self.get_logger().error(f'prediction failed: {error!r}', throttle_duration_sec=1.0)
         return True
 
