@@ -266,6 +266,8 @@ def _newton_single(S, sc, L_t, lam, b, lam_lo, lam_hi, max_iter, tol_mm, tol_rad
 def _solve_single(S, L, lam0=None, a0=None, max_iter=MAX_ITER, fallback=True):
     """One solve on the plain-float path; falls back to the batch engine (with its
     robust fallback) when the result is not certified. Returns the result dict.
+    ``fallback=False`` returns the plain path's own result, certified or not, and lets
+    its ArithmeticError through.
 
     ``a0`` (angles) and ``lam0`` (tension or None) are a warm start. It is used only
     when ``a0`` is within :data:`WARM_START_RADIUS_RAD` of the table start, and then
@@ -308,7 +310,9 @@ def _solve_single(S, L, lam0=None, a0=None, max_iter=MAX_ITER, fallback=True):
         g = abs(st['g'])
         ok = g <= CONSTRAINT_TOL_MM and st['stat'] <= STATIONARITY_TOL_RAD and curv_min > 0
     except ArithmeticError:     # l = 0 or l' = 0 (a degenerate skeleton): batch engine
-        ok, fallback = False, True
+        if not fallback:
+            raise               # the plain path's own failure, for its tests
+        ok = False
     if not ok and fallback:
         with np.errstate(all='ignore'):
             out = _solve_arrays_inner(S['P'], np.array([L]), max_iter, _INNER_TOL_MM,
