@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from softsnap_model import (InfeasibleLengthError, Skeleton, cable_path, reachable_range,
-                            rib_centers, segment_length, solve_forward)
+                            rib_centers, segment_length, solve_forward, solve_forward_batch)
 
 SK = Skeleton()
 MIXED = ['R1', 'R2', 'R2', 'L2', 'L3', 'L3', 'L3', 'L3', 'L3', 'L3', 'L2', 'R2']   # blue
@@ -152,3 +152,23 @@ def test_batch_poses_are_the_geometry_of_the_batch_angles():
         single = solve_forward(SK, n, lengths[i])
         np.testing.assert_allclose(batch.cable_path[i], single.cable_path, atol=1e-9)
     assert not batch.angles[4].any()
+
+
+def test_length_refusals_say_which_length_and_which_threading():
+    # A length <= 0 is a bad value (ValueError naming it), not an unreachable one; the
+    # first offending length of a batch is the one named; an unreachable length names
+    # the threading by its holes and gives the reachable range.
+    sk = Skeleton()
+    t = ['R1', 'R2', 'R3', 'L1', 'L2', 'L3'] * 2
+    lo, hi = reachable_range(sk, t)
+    for bad in (0.0, -2.5):
+        with pytest.raises(ValueError, match=rf'cable_length_mm must be > 0, got {bad!r}') as err:
+            solve_forward(sk, t, bad)
+        assert not isinstance(err.value, InfeasibleLengthError)
+    with pytest.raises(ValueError, match=r'must be > 0, got -2\.5') as err:
+        solve_forward_batch(sk, t, [hi - 1.0, 0.5, -2.5])
+    assert not isinstance(err.value, InfeasibleLengthError)
+    with pytest.raises(InfeasibleLengthError, match='R1 R2 R3 L1 L2 L3 R1') as err:
+        solve_forward_batch(sk, t, [hi - 1.0, 0.5])
+    assert 'cable length 0.5 mm' in str(err.value)
+    assert err.value.reachable_range_mm == pytest.approx((lo, hi))

@@ -182,11 +182,11 @@ def test_path_table_cells_bracket_the_root_and_start_near_it():
 
 
 @pytest.mark.parametrize('kwargs, match', [
-    (dict(tension=-1e-9), 'tension must be >= 0'),
+    (dict(tension=-1e-9), r'tension must be >= 0, got -1e-09$'),
     (dict(tension=math.nan), 'tension must not be NaN'),
-    (dict(d1_mm=math.inf), 'd1_mm must be finite'),
+    (dict(d1_mm=math.inf), r'd1_mm must be finite, got inf$'),
     (dict(d2_mm=math.nan), 'd2_mm must be finite'),
-    (dict(stiffness=0.0), 'stiffness must be > 0'),
+    (dict(stiffness=0.0), r'stiffness must be > 0, got 0\.0$'),
     (dict(stiffness=math.inf), 'stiffness must be finite'),
     (dict(spacing_mm=0.0), 'spacing_mm must be finite and > 0'),
     (dict(spacing_mm=math.inf), 'spacing_mm must be finite and > 0'),

@@ -192,3 +192,27 @@ def test_lengths_exactly_at_the_path_tables_nodes():
                 assert np.max(np.abs(out['angles'] - ref.angles[j])) <= 1e-12
     # Most nodes the plain path certifies alone; a few need the batch engine.
     assert n_nodes > 100 and n_nodes - 20 <= n_alone < n_nodes, (n_nodes, n_alone)
+
+
+def test_uneven_stiffness_on_the_plain_path():
+    # Uniform stiffness (k = 1) hides a k in the wrong place: with a stiffness of its own
+    # per segment the plain path alone must give the batch engine's answer.
+    rng = np.random.default_rng(31)
+    sk = Skeleton(stiffness=tuple(rng.uniform(0.5, 2.0, 11).tolist()))
+    n_solves = 0
+    for t in _threadings(rng, 6):
+        lo, hi = fwd.reachable_range(sk, t)
+        lengths = _lengths(rng, lo, hi, 6)
+        lengths = lengths[lengths < hi]
+        batch = fwd.solve_forward_batch(sk, t, lengths)
+        _, S = fwd._single(sk, tuple(sk.threading_mm(t).tolist()))
+        for i, length in enumerate(lengths):
+            out = single._solve_single(S, float(length), fallback=False)
+            n_solves += 1
+            assert out['converged'], (t, length)
+            curv = min(float(batch.min_curvature[i]), 1.0)
+            assert np.max(np.abs(out['angles'] - batch.angles[i])) <= 2e-14 / curv + 2e-15
+            assert out['tension'] == pytest.approx(batch.tension[i], rel=1e-12 / curv)
+            assert out['energy'] == pytest.approx(
+                float(np.sum(np.asarray(sk.stiffness_array) * batch.angles[i] ** 2)), rel=1e-12)
+    assert n_solves > 100, n_solves

@@ -155,9 +155,9 @@ def sweep(skeleton: Skeleton, threading, contractions_mm, *,
     if c.ndim != 1:
         raise ValueError(f'contractions_mm must be 1-D, got shape {c.shape}')
     if not np.all(np.isfinite(c)):
-        raise ValueError(f'contractions_mm must be finite, got {c[~np.isfinite(c)][0]!r}')
+        raise ValueError(f'contractions_mm must be finite, got {float(c[~np.isfinite(c)][0])!r}')
     if np.any(c < 0):
-        raise ValueError(f'contractions_mm must be >= 0, got {c[c < 0][0]!r}')
+        raise ValueError(f'contractions_mm must be >= 0, got {float(c[c < 0][0])!r}')
     d = skeleton.threading_mm(threading)
     prob = _problem(skeleton, tuple(d.tolist()))
     lengths = prob.straight_mm - c

@@ -433,11 +433,11 @@ def segment_angle_at_tension(tension, d1_mm, d2_mm, spacing_mm, stiffness=1.0,
         bad = np.isnan(v) if name == 'tension' else ~np.isfinite(v)
         if np.any(bad):
             what = 'must not be NaN' if name == 'tension' else 'must be finite'
-            raise ValueError(f'{name} {what}, got {v[bad].ravel()[0]!r}')
+            raise ValueError(f'{name} {what}, got {float(v[bad].ravel()[0])!r}')
     if np.any(lam < 0):
-        raise ValueError(f'tension must be >= 0, got {lam[lam < 0].ravel()[0]!r}')
+        raise ValueError(f'tension must be >= 0, got {float(lam[lam < 0].ravel()[0])!r}')
     if np.any(k <= 0):
-        raise ValueError(f'stiffness must be > 0, got {k[k <= 0].ravel()[0]!r}')
+        raise ValueError(f'stiffness must be > 0, got {float(k[k <= 0].ravel()[0])!r}')
     s = float(spacing_mm)
     if not (math.isfinite(s) and s > 0):
         raise ValueError(f'spacing_mm must be finite and > 0, got {spacing_mm!r}')

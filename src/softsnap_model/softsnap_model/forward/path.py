@@ -182,11 +182,12 @@ def _check_length(prob: _Problem, length: np.ndarray, skeleton, d):
     The threading `d` is named in the message only when one is raised: naming it costs
     ~50 µs, which every batch used to pay for lengths that were fine.
     """
+    # (float(): numpy 2 would print a numpy scalar as np.float64(...).)
     if not np.all(np.isfinite(length)):
-        bad = length[~np.isfinite(length)].ravel()[0]
+        bad = float(length[~np.isfinite(length)].ravel()[0])
         raise ValueError(f'cable_length_mm must be finite, got {bad!r}')
     if np.any(length <= 0):
-        bad = length[length <= 0].ravel()[0]
+        bad = float(length[length <= 0].ravel()[0])
         raise ValueError(f'cable_length_mm must be > 0, got {bad!r}')
     low = length <= prob.min_mm
     if np.any(low):
