@@ -315,3 +315,40 @@ def test_a_failed_calibration_leaves_a_rebooted_module_uncalibrated(sim_server, 
     assert not link.reports[-1].calibrated
     with pytest.raises(NeedsCalibration):
         link.command(0.15)
+
+
+def test_after_a_confirmed_stop_the_next_target_goes_at_once(sim_server, links):
+    # A confirmed stop is no failure: it leaves no backoff behind, so the next command's
+    # target goes out at once, not a poll period later. Its closing report repeats the
+    # stop check's status and does not claim to be fresh.
+    server = sim_server()
+    link = started(links, server.port, pwm_power=SLOW_PWM, poll_period_s=1.0)
+    link.command(ABANDONED_M)
+    assert wait_for(lambda: targets(server))
+    ok, message = link.request('stop')
+    assert ok, message
+    begin = time.monotonic()
+    link.command(0.15)
+    assert wait_for(lambda: targets(server)[-1] == CAL.command(0.15).count, 3.0)
+    assert time.monotonic() - begin < 0.5
+    for before, report in zip(link.reports, link.reports[1:]):
+        if report.status is before.status:
+            assert not report.fresh                   # nothing new came with it
+
+
+def test_a_jammed_motor_stopped_before_its_stall_timeout_is_no_stall(sim_server, links):
+    # The stop's own requests do not run the stall check: a jammed motor whose stop is
+    # asked for at once and confirmed only after nine lost reach requests (1.3 s, past
+    # the 1 s stall timeout) was stopped, not found stalled.
+    server = sim_server(Faults(stall_after_s=0.0, stall_duration_s=math.inf,
+                               drop_first_reach=9))
+    link = started(links, server.port, stall_timeout_s=1.0, stop_deadline_s=3.0,
+                   offline_after_failures=1000)
+    link.command(0.15)
+    assert wait_for(lambda: link.reports[-1].counters.targets_sent == 1)
+    ok, message = link.request('stop')
+    assert ok, message
+    assert server.fault_counts.get('drop_head') == 9
+    time.sleep(0.3)
+    report = link.reports[-1]
+    assert report.counters.stalls_detected == 0 and 'stall' not in report.last_error
