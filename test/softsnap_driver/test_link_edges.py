@@ -352,3 +352,18 @@ def test_a_jammed_motor_stopped_before_its_stall_timeout_is_no_stall(sim_server,
     time.sleep(0.3)
     report = link.reports[-1]
     assert report.counters.stalls_detected == 0 and 'stall' not in report.last_error
+
+
+def test_a_module_resting_at_its_deadband_is_no_stall(sim_server, links):
+    # The firmware ends every move exactly its 30-count deadband short of the target:
+    # resting there for longer than the stall timeout is arrival, not a stall.
+    server = sim_server()
+    link = started(links, server.port, stall_timeout_s=0.3)
+    link.command(0.17)
+    count = CAL.command(0.17).count
+    assert wait_for(lambda: link.reports[-1].fresh
+                    and abs(link.reports[-1].status.encoder_count - count) <= 30, 3.0)
+    time.sleep(1.0)
+    report = link.reports[-1]
+    assert abs(report.status.encoder_count - count) == 30     # the firmware's own rest
+    assert report.counters.stalls_detected == 0 and 'stall' not in report.last_error
