@@ -322,7 +322,7 @@ def test_after_a_confirmed_stop_the_next_target_goes_at_once(sim_server, links):
     # target goes out at once, not a poll period later. Its closing report repeats the
     # stop check's status and does not claim to be fresh.
     server = sim_server()
-    link = started(links, server.port, pwm_power=SLOW_PWM, poll_period_s=1.0)
+    link = started(links, server.port, pwm_power=SLOW_PWM, poll_period_s=1.0, max_backoff_s=2.0)
     link.command(ABANDONED_M)
     assert wait_for(lambda: targets(server))
     ok, message = link.request('stop')
