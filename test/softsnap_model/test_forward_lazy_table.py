@@ -250,3 +250,27 @@ def test_a_float_built_cell_is_the_full_tables_cell():
         ref = fwd.solve_forward(sk, t, length)
         assert np.array_equal(res.angles, ref.angles) and res.tension == ref.tension
     assert n_float >= 30        # most first solves built only a few samples, in floats
+
+
+def test_a_first_solve_builds_its_own_cell_and_hardly_more():
+    sk = SKELETONS[0]
+    # The guess of the cell from approximate lengths is verified, so a bad guess would
+    # still answer right, only by building blocks of 16 samples or the whole table. The
+    # guess is good: a new threading's first solve builds its cell's two samples (three
+    # at most here), each time, at random lengths of every paper threading, and the
+    # answer is the full table's.
+    rng = np.random.default_rng(1)
+    sizes = []
+    for t in PAPER_THREADINGS.values():
+        for _ in range(12):
+            fwd.clear_caches()
+            lo, hi = fwd.reachable_range(sk, list(t))
+            length = hi - rng.uniform(0.001, 0.999) * (hi - lo)
+            res = fwd.solve_forward(sk, list(t), length)
+            _, S = fwd._single(sk, tuple(sk.threading_mm(list(t)).tolist()))
+            sizes.append(int(S['path']._sample_built.sum()))
+            assert res.converged and res.iterations <= 1
+            full = fwd.solve_forward_batch(sk, list(t), [length])
+            assert np.max(np.abs(res.angles - full.angles[0])) <= 2e-14 / min(
+                float(full.min_curvature[0]), 1.0) + 2e-15
+    assert max(sizes) <= ptable._GUESS_CELLS and min(sizes) == 2, sorted(set(sizes))
