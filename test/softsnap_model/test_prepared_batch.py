@@ -275,3 +275,44 @@ def test_the_early_exit_takes_slack_rows_and_declines_mirror_buckling_rows(monke
             monkeypatch, lambda: prepared.solve([tuple(ALTERNATING)], [length])))
         assert result.converged[0] and (result.iterations[0] == 0) == early
     assert not all(outcomes) and any(outcomes)
+
+
+def test_empty_and_malformed_batches_of_both_entry_points():
+    # An empty call answers with empty arrays of the right shapes (n segments, n + 1
+    # ribs, x and y); lengths that are not 1-D and a 2-D sweep are refused; max_iter 0
+    # is a valid cap.
+    n = SK.n_segments
+    for result in (solve_forward_batch(SK, PAPER['red'], []), PreparedBatch(SK).solve([], [])):
+        assert result.angles.shape == (0, n) and result.rib_centers.shape == (0, n + 1, 2)
+        assert result.cable_path.shape == (0, n + 1, 2) and result.at_contact.shape == (0, n)
+        assert result.iterations.dtype.kind == 'i' and result.converged.dtype == bool
+    with pytest.raises(ValueError, match=r'cable_lengths_mm must be 1-D, got shape \(1, 1\)'):
+        solve_forward_batch(SK, PAPER['red'], [[170.0]])
+    with pytest.raises(ValueError, match=r'contractions_mm must be 1-D, got shape \(1, 2\)'):
+        batch_module.sweep(SK, PAPER['red'], [[1.0, 2.0]])
+    low, straight = reachable_range(SK, PAPER['red'])
+    capped = PreparedBatch(SK).solve([PAPER['red']], [straight - 10.0], max_iter=0)
+    assert capped.iterations[0] == 0 and capped.refused == ('',)
+
+
+def test_prepared_rows_at_the_edges_of_the_range_equal_the_batch_solver():
+    # Next to straight (the path's first cell), next to full contraction (its last) and
+    # in between, for every paper threading and mirror-heavy ones: the prepared start
+    # (one search over the joined path tables) finds the same cells.
+    threadings = [list(t) for t in PAPER_THREADINGS.values()] + [['R3', 'L3'] * 6, ALTERNATING]
+    prepared = PreparedBatch(SK, threadings)
+    fracs = np.array([1e-12, 1e-9, 1e-6, 1e-3, 0.3, 0.7, 0.999, 1.0 - 1e-6, 1.0 - 1e-9])
+    rows, lengths = [], []
+    for t in threadings:
+        low, straight = reachable_range(SK, t)
+        rows += [t] * len(fracs)
+        lengths += list(straight - fracs * (straight - low))
+    result = prepared.solve(rows, lengths)
+    assert not any(result.refused) and result.converged.all()
+    for t in threadings:
+        sel = [i for i, r in enumerate(rows) if r is t]
+        ref = solve_forward_batch(SK, t, [lengths[i] for i in sel])
+        curv = np.minimum(ref.min_curvature, 1.0)
+        gap = np.max(np.abs(result.angles[sel] - ref.angles), axis=1)
+        assert np.all(gap <= 2e-14 / curv + 2e-15), (t, gap.max())
+        assert np.array_equal(result.iterations[sel], ref.iterations), t
