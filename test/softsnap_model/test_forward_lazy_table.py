@@ -274,3 +274,39 @@ def test_a_first_solve_builds_its_own_cell_and_hardly_more():
             assert np.max(np.abs(res.angles - full.angles[0])) <= 2e-14 / min(
                 float(full.min_curvature[0]), 1.0) + 2e-15
     assert max(sizes) <= ptable._GUESS_CELLS and min(sizes) == 2, sorted(set(sizes))
+
+
+def test_a_cell_whose_quintic_leaves_its_hull_falls_back_alike_in_both_builders():
+    # Real cells with an end slope corrupted (l' of the wrong sign at one end): the quintic
+    # through them overshoots the cell, and both builders, the float one of a single
+    # solve and numpy's of whole tables, must fall back to the same linear interpolant,
+    # bit for bit.
+    sk = SKELETONS[0]
+    n_linear = n_cells = 0
+    for t in THREADINGS[:6]:
+        forget_tables()
+        table = fwd._problem(sk, key(sk, t)).path.complete()
+        seg = table.seg
+        for j in range(0, table.n_cells, 7):
+            at = slice(j, j + 2)
+            derivs = table._derivs[:, at].copy()
+            derivs[0, 1] *= -1.0                  # l' at the cell's end with the wrong sign
+            lam, exact, b = table.lam[at], table._exact[at], table.b[at]
+            with np.errstate(all='ignore'):
+                reference = start_polynomials._path_polynomials(
+                    lam, exact, b, derivs[0], derivs[1], derivs[2], seg['k'], seg['lam_c'],
+                    seg['lam_end'], seg['count'])[0]
+            try:
+                rows = np.array(start_polynomials._cell_polynomial(
+                    lam.tolist(), exact.tolist(), b.tolist(), derivs.tolist(),
+                    *table._seg_lists))
+            except ArithmeticError:
+                continue
+            n_cells += 1
+            assert np.array_equal(rows, reference, equal_nan=True), (t, j)
+            p0 = np.concatenate([b[0], lam[:1]])
+            p1 = np.concatenate([b[1], lam[1:]])
+            if not rows[2:].any():
+                n_linear += 1
+                assert np.array_equal(rows[0], p0) and np.array_equal(rows[1], p1 - p0)
+    assert n_cells > 50 and n_linear > 20, (n_cells, n_linear)
