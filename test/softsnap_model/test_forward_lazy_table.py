@@ -310,3 +310,30 @@ def test_a_cell_whose_quintic_leaves_its_hull_falls_back_alike_in_both_builders(
                 n_linear += 1
                 assert np.array_equal(rows[0], p0) and np.array_equal(rows[1], p1 - p0)
     assert n_cells > 50 and n_linear > 20, (n_cells, n_linear)
+
+
+def test_single_solves_at_the_edges_build_blocks_lazily_and_agree_with_the_full_table():
+    # Next to straight and next to full contraction many cells lie within the guess's
+    # margin, so a first solve there builds whole blocks (or, at a length the guess
+    # cannot place, more); solves in any order on a fresh table, each against the
+    # answer of the table completed afterwards.
+    rng = np.random.default_rng(4)
+    fracs = [1e-12, 1e-9, 1e-6, 1e-4, 0.5, 0.999, 1.0 - 1e-6, 1.0 - 1e-9]
+    n_partial = 0
+    for sk in SKELETONS:
+        for t in THREADINGS:
+            fwd.clear_caches()
+            lo, hi = fwd.reachable_range(sk, t)
+            order = rng.permutation(len(fracs))
+            lengths = [hi - fracs[i] * (hi - lo) for i in order]
+            lazy = [fwd.solve_forward(sk, t, length) for length in lengths]
+            _, S = fwd._single(sk, tuple(sk.threading_mm(t).tolist()))
+            n_partial += not S['path'].complete_
+            full = fwd.solve_forward_batch(sk, t, lengths)     # completes the same table
+            assert S['path'].complete_
+            for i, res in enumerate(lazy):
+                assert res.converged, (t, lengths[i])
+                curv = min(float(full.min_curvature[i]), 1.0)
+                assert np.max(np.abs(res.angles - full.angles[i])) <= 2e-14 / curv + 2e-15, \
+                    (t, lengths[i])
+    assert n_partial >= len(THREADINGS), n_partial      # most tables stayed partial
