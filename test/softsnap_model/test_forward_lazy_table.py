@@ -337,3 +337,32 @@ def test_single_solves_at_the_edges_build_blocks_lazily_and_agree_with_the_full_
                 assert np.max(np.abs(res.angles - full.angles[i])) <= 2e-14 / curv + 2e-15, \
                     (t, lengths[i])
     assert n_partial >= len(THREADINGS), n_partial      # most tables stayed partial
+
+
+@pytest.mark.parametrize('guess', ['no cell guess', 'no guess at all'])
+def test_the_block_builds_behind_a_failed_guess_give_the_full_tables_answers(monkeypatch, guess):
+    # The cell guess almost always places a length (then a first solve builds two
+    # samples). Where it cannot, whole blocks are built, chosen by a coarser guess, or
+    # every block between the built samples: forced here by a guess margin below zero
+    # (and, for the second case, approximate lengths that bracket nothing).
+    monkeypatch.setattr(ptable, '_GUESS_MARGIN_MM', -1.0)
+    if guess == 'no guess at all':
+        monkeypatch.setattr(ptable._PathTable, '_approx_lengths',
+                            lambda self, lam: np.full(np.shape(lam), np.nan))
+    rng = np.random.default_rng(9)
+    n_blocks = 0
+    for t in THREADINGS:
+        sk = SKELETONS[0]
+        fwd.clear_caches()
+        lo, hi = fwd.reachable_range(sk, t)
+        lengths = list(hi - rng.uniform(0.0, 1.0, 6) * (hi - lo))
+        lazy = [fwd.solve_forward(sk, t, length) for length in lengths]
+        _, S = fwd._single(sk, tuple(sk.threading_mm(t).tolist()))
+        built = int(S['path']._sample_built.sum())
+        n_blocks += built > 6 * 3
+        full = fwd.solve_forward_batch(sk, t, lengths)
+        for i, res in enumerate(lazy):
+            assert res.converged, (t, lengths[i])
+            curv = min(float(full.min_curvature[i]), 1.0)
+            assert np.max(np.abs(res.angles - full.angles[i])) <= 2e-14 / curv + 2e-15
+    assert n_blocks == len(THREADINGS), n_blocks      # blocks were built, not cells
