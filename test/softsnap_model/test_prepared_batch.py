@@ -316,3 +316,19 @@ def test_prepared_rows_at_the_edges_of_the_range_equal_the_batch_solver():
         gap = np.max(np.abs(result.angles[sel] - ref.angles), axis=1)
         assert np.all(gap <= 2e-14 / curv + 2e-15), (t, gap.max())
         assert np.array_equal(result.iterations[sel], ref.iterations), t
+
+
+def test_threadings_given_one_per_row_in_every_accepted_form():
+    # A list of one threading, an empty list, and a list mixing an array of offsets with
+    # names: each row as if solved alone.
+    low, straight = reachable_range(SK, PAPER['red'])
+    one = solve_forward_batch(SK, [PAPER['red']], [straight - 20.0])
+    single = solve_forward(SK, PAPER['red'], straight - 20.0)
+    np.testing.assert_allclose(one.angles[0], single.angles, rtol=0, atol=1e-12)
+    assert len(solve_forward_batch(SK, [], [])) == 0
+    offsets = SK.threading_mm(PAPER['blue'])
+    mixed = solve_forward_batch(SK, [offsets, PAPER['red'], offsets], [175.0, 180.0, 176.0])
+    for i, (t, length) in enumerate(((PAPER['blue'], 175.0), (PAPER['red'], 180.0),
+                                     (PAPER['blue'], 176.0))):
+        np.testing.assert_allclose(mixed.angles[i], solve_forward(SK, t, length).angles,
+                                   rtol=0, atol=1e-12)
