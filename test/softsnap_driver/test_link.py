@@ -366,7 +366,10 @@ def test_stop_on_shutdown_is_confirmed_when_reach_is_lost(sim_server, lost):
 
 
 class FailingClient(ModuleClient):
-    """A real client whose third status poll raises an unexpected (non-module) error."""
+    """A real client whose status polls numbered in ``failing_polls`` (the third by
+    default) raise an unexpected (non-module) error."""
+
+    failing_polls = (3,)
 
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
@@ -374,7 +377,7 @@ class FailingClient(ModuleClient):
 
     def status(self, timeout_s=None):
         self.polls += 1
-        if self.polls == 3:
+        if self.polls in self.failing_polls:
             raise RuntimeError('injected bug in the I/O loop')
         return super().status(timeout_s)
 

@@ -14,7 +14,7 @@ from softsnap_driver.link_config import LinkConfig
 from softsnap_driver.link_report import NeedsCalibration
 from softsnap_driver.protocol import ModuleClient
 
-from test_link import ABANDONED_M, CAL, SLOW_PWM, targets, wait_for
+from test_link import ABANDONED_M, CAL, SLOW_PWM, FailingClient, targets, wait_for
 
 
 class TimedLog:
@@ -170,18 +170,10 @@ def test_a_shutdown_that_raises_still_ends_the_worker(sim_server):
     assert link.log.count('shutdown failed', 'error') == 1
 
 
-class FlakyStatus(ModuleClient):
+class FlakyStatus(FailingClient):
     """Polls 3 to 6 raise an unexpected (non-module) error."""
 
-    def __init__(self, *args, **kwargs):
-        super().__init__(*args, **kwargs)
-        self.polls = 0
-
-    def status(self, timeout_s=None):
-        self.polls += 1
-        if 3 <= self.polls <= 6:
-            raise RuntimeError('injected bug')
-        return super().status(timeout_s)
+    failing_polls = range(3, 7)
 
 
 def test_internal_errors_are_logged_once_per_period_and_reported_as_not_fresh(sim_server, links):

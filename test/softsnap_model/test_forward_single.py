@@ -32,12 +32,18 @@ def _lengths(rng, lo, hi, n_random):
 
 def _independent_residuals(sk, t, res):
     """Constraint (mm) and stationarity (rad) of a result, from the geometry module."""
+    return _residuals_of(sk, t, res.angles, res.tension, res.at_contact, res.cable_length_mm)
+
+
+def _residuals_of(sk, t, angles, tension, at_contact, length_mm):
+    """Constraint (mm) and stationarity (rad) of angles and a tension, from the geometry
+    module (free segments: neither at contact nor straight)."""
     d = sk.threading_mm(t)
     k = np.asarray(sk.stiffness_array)
-    length, l_a, _ = segment_length_derivatives(res.angles, d[:-1], d[1:], sk.spacing_mm)
-    free = ~res.at_contact & (res.angles != 0.0)
-    stat = np.abs(res.angles + res.tension * l_a / (2.0 * k))[free]
-    return abs(length.sum() - res.cable_length_mm), float(stat.max(initial=0.0))
+    seg, l_a, _ = segment_length_derivatives(angles, d[:-1], d[1:], sk.spacing_mm)
+    free = ~at_contact & (angles != 0.0)
+    stat = np.abs(angles + tension * l_a / (2.0 * k))[free]
+    return abs(seg.sum() - length_mm), float(stat.max(initial=0.0))
 
 
 @pytest.mark.parametrize('thickness', [3.0, 0.0])

@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 
 import softsnap_model.forward as fwd
-from softsnap_model import Skeleton, segment_length_derivatives
+from softsnap_model import Skeleton
 from softsnap_model.forward import single
 from softsnap_model.forward.newton import _CONSTRAINT_ULPS, _INNER_TOL_MM, _INNER_TOL_RAD, _guess_b
 
-from test_forward_single import _lengths, _threadings
+from test_forward_single import _lengths, _residuals_of, _threadings
 
 
 def _cases(thickness=3.0, seed=23, n_random=12, n_lengths=8):
@@ -38,14 +38,6 @@ def _bracket(S, length):
     j = min(max(bisect.bisect_left(S['neg_path_len_list'], -length), 1), S['n_path'] - 1)
     return float(S['path_lam'][j - 1]), float(S['path_lam'][j])
 
-
-def _independent_residuals(sk, t, angles, tension, at_contact, length):
-    d = sk.threading_mm(t)
-    k = np.asarray(sk.stiffness_array)
-    seg, l_a, _ = segment_length_derivatives(angles, d[:-1], d[1:], sk.spacing_mm)
-    free = ~at_contact & (angles != 0.0)
-    stat = np.abs(angles + tension * l_a / (2.0 * k))[free]
-    return abs(seg.sum() - length), float(stat.max(initial=0.0))
 
 
 def test_newton_from_poor_starts_converges_to_the_batch_answer():
@@ -146,7 +138,7 @@ def test_an_unpolished_table_start_is_certified_only_when_it_is_an_answer():
         for length in lengths:
             out = single._solve_single(S, float(length), max_iter=0, fallback=False)
             assert out['iterations'] == 0
-            constraint, stat = _independent_residuals(sk, t, out['angles'], out['tension'],
+            constraint, stat = _residuals_of(sk, t, out['angles'], out['tension'],
                                                       out['at_contact'], float(length))
             certified = (constraint <= fwd.CONSTRAINT_TOL_MM
                          and stat <= fwd.STATIONARITY_TOL_RAD and out['is_minimum'])
@@ -186,7 +178,7 @@ def test_lengths_exactly_at_the_path_tables_nodes():
                 n_nodes += 1
                 n_alone += bool(alone['converged'])
                 assert out['converged'] and ref.converged[j], (t, length)
-                constraint, stat = _independent_residuals(
+                constraint, stat = _residuals_of(
                     sk, t, out['angles'], out['tension'], out['at_contact'], float(length))
                 assert constraint <= fwd.CONSTRAINT_TOL_MM and stat <= fwd.STATIONARITY_TOL_RAD
                 assert np.max(np.abs(out['angles'] - ref.angles[j])) <= 1e-12
